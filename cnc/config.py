@@ -1,0 +1,415 @@
+"""Machine file: typed, validated configuration loaded from `machines/*.toml`.
+
+The schema is declared once, as frozen dataclasses whose fields carry unit, allowed range
+and documentation. The same declarations drive validation (every error names the file,
+the table and the key, with the allowed range), defaults, and the generated reference
+`machines/reference.toml`, so the documentation cannot drift from the code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+AXIS_NAMES = ("x", "y", "z")
+_REQUIRED: Any = object()
+
+
+class ConfigError(ValueError):
+    """A machine file is malformed; the message names file, table and key."""
+
+    def __init__(self, path: str, table: str, key: str | None, message: str) -> None:
+        self.path, self.table, self.key = path, table, key
+        where = f"[{table}]" if table else "(top level)"
+        if key is not None:
+            where += f" {key}"
+        super().__init__(f"{path}: {where}: {message}")
+
+
+def opt(
+    default: Any = _REQUIRED,
+    unit: str = "",
+    doc: str = "",
+    lo: float | None = None,
+    hi: float | None = None,
+    choices: tuple[str, ...] | None = None,
+) -> Any:
+    """A documented configuration option with an optional allowed range or set of choices."""
+    meta = {"unit": unit, "doc": doc, "lo": lo, "hi": hi, "choices": choices}
+    if default is _REQUIRED:
+        return field(metadata=meta)
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class MachineInfo:
+    """Identity of the machine; `name` is the `<machine>` part of every Zenoh key."""
+
+    name: str = opt("waterjet", doc="machine id used in Zenoh keys (letters, digits, - and _)")
+    description: str = opt("", doc="free text shown to operators")
+
+
+@dataclass(frozen=True)
+class TimingConfig:
+    """Base tick of the hardware server and the divisors of its timer clients."""
+
+    base_rate_hz: float = opt(1000.0, "Hz", "base tick rate of the hardware server (250 us to 4 ms)", 250.0, 4000.0)
+    logic_divisor: int = opt(4, "ticks", "control logic runs every Nth base tick", 1, 100)
+    watchdog_missed_ticks: int = opt(
+        5, "ticks", "consecutive ticks the servo may miss before the board disables the drives", 1, 1000
+    )
+    realtime_priority: int = opt(80, "", "SCHED_FIFO priority of the hardware server (servo runs just below)", 1, 98)
+    virtual_client_timeout_s: float = opt(
+        0.2, "s", "virtual clock: how long a tick waits for a timer client before counting it as missed", 0.001, 10.0
+    )
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.base_rate_hz
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """One linear servo axis: travel, kinematic limits, drive scaling and position-loop gains."""
+
+    travel_min_mm: float = opt(_REQUIRED, "mm", "lower end of travel (soft limit)", -100000.0, 100000.0)
+    travel_max_mm: float = opt(_REQUIRED, "mm", "upper end of travel (soft limit)", -100000.0, 100000.0)
+    max_velocity_mm_s: float = opt(500.0, "mm/s", "maximum axis velocity", 0.1, 10000.0)
+    max_accel_mm_s2: float = opt(5000.0, "mm/s^2", "maximum axis acceleration", 1.0, 1.0e6)
+    max_jerk_mm_s3: float = opt(200000.0, "mm/s^3", "maximum axis jerk", 10.0, 1.0e9)
+    encoder_resolution_mm: float = opt(0.001, "mm/count", "linear distance of one encoder count", 1.0e-6, 1.0)
+    drive_full_scale_v: float = opt(10.0, "V", "speed-command voltage at full scale (symmetric +-)", 0.1, 100.0)
+    drive_full_scale_mm_s: float = opt(
+        1000.0, "mm/s", "axis velocity the drive runs at full-scale command", 1.0, 100000.0
+    )
+    following_error_limit_mm: float = opt(0.5, "mm", "following error that trips the servo", 0.001, 100.0)
+    kp_1_s: float = opt(100.0, "1/s", "position-loop proportional gain (mm/s of command per mm of error)", 0.0, 10000.0)
+    ki_1_s2: float = opt(1000.0, "1/s^2", "position-loop integral gain", 0.0, 1.0e7)
+    velocity_ff: float = opt(1.0, "", "velocity feed-forward gain (1 = full setpoint velocity)", 0.0, 2.0)
+    accel_ff_s: float = opt(
+        0.0045, "s", "acceleration feed-forward: drive lag plus output delay compensated", 0.0, 1.0
+    )
+    integral_limit_mm_s: float = opt(
+        50.0, "mm/s", "clamp of the integral term's contribution to the speed command", 0.0, 10000.0
+    )
+
+    @property
+    def counts_per_mm(self) -> float:
+        return 1.0 / self.encoder_resolution_mm
+
+    @property
+    def volts_per_mm_s(self) -> float:
+        return self.drive_full_scale_v / self.drive_full_scale_mm_s
+
+
+@dataclass(frozen=True)
+class BoardConfig:
+    """Which I/O board the hardware server drives."""
+
+    kind: str = opt("sim", doc="I/O board implementation", choices=("sim",))
+
+
+@dataclass(frozen=True)
+class SimAxisConfig:
+    """Plant model of one simulated axis (drive, mechanics, switches, encoder index)."""
+
+    drive_time_constant_s: float = opt(0.003, "s", "first-order lag of the drive's P velocity loop", 1.0e-5, 1.0)
+    viscous_friction_1_s: float = opt(2.0, "1/s", "viscous friction as deceleration per unit velocity", 0.0, 1000.0)
+    coulomb_friction_mm_s2: float = opt(50.0, "mm/s^2", "Coulomb (dry) friction as deceleration", 0.0, 1.0e5)
+    max_accel_mm_s2: float = opt(20000.0, "mm/s^2", "peak acceleration the drive's current limit allows", 1.0, 1.0e7)
+    limit_switch_overtravel_mm: float = opt(
+        5.0, "mm", "hard limit switches sit this far beyond the travel ends", 0.0, 1000.0
+    )
+    hard_stop_overtravel_mm: float = opt(
+        15.0, "mm", "mechanical end stops sit this far beyond the travel ends", 0.0, 1000.0
+    )
+    home_switch_mm: float = opt(-2.0, "mm", "position where the home switch becomes active (active below)", -1.0e5, 1.0e5)
+    index_pitch_mm: float = opt(10.0, "mm", "distance between encoder index pulses (screw pitch)", 0.01, 1000.0)
+    encoder_zero_mm: float = opt(
+        0.0, "mm", "table position where the incremental encoder counter reads 0 at power-up", -1.0e5, 1.0e5
+    )
+    start_position_mm: float = opt(
+        math.nan, "mm", "position of the table at power-up (default: middle of travel)", -1.0e5, 1.0e5
+    )
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The simulated board: per-axis plant models keyed by axis name, sharing defaults."""
+
+    substeps: int = opt(4, "", "integration sub-steps per base tick", 1, 64)
+    axes: dict[str, SimAxisConfig] = field(default_factory=dict, metadata={"table_of": SimAxisConfig})
+
+    def axis(self, name: str) -> SimAxisConfig:
+        return self.axes.get(name, SimAxisConfig())
+
+
+@dataclass(frozen=True)
+class GatewayConfig:
+    """The HMI's door on Zenoh."""
+
+    status_rate_hz: float = opt(20.0, "Hz", "rate of the cyclic status publication", 0.1, 200.0)
+
+
+@dataclass(frozen=True)
+class ZenohConfig:
+    """Where the controller's Zenoh router listens and how keys are prefixed."""
+
+    listen: list[str] = opt(["tcp/127.0.0.1:7447"], doc="endpoints the controller's router listens on")
+    key_prefix: str = opt("wj", doc="first element of every key: <prefix>/<machine>/...")
+
+
+@dataclass(frozen=True)
+class SupervisorConfig:
+    """How the supervisor watches its processes."""
+
+    heartbeat_timeout_s: float = opt(
+        2.0, "s", "a process whose heartbeat has not advanced for this long is considered hung", 0.05, 600.0
+    )
+    start_timeout_s: float = opt(30.0, "s", "how long a process may take to report ready", 1.0, 600.0)
+
+
+@dataclass(frozen=True)
+class MachineConfig:
+    """Everything one machine file says, validated."""
+
+    machine: MachineInfo = field(default_factory=MachineInfo)
+    timing: TimingConfig = field(default_factory=TimingConfig)
+    axis: dict[str, AxisConfig] = field(default_factory=dict, metadata={"table_of": AxisConfig, "required": True})
+    board: BoardConfig = field(default_factory=BoardConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    gateway: GatewayConfig = field(default_factory=GatewayConfig)
+    zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
+    source: str = field(default="<defaults>", metadata={"internal": True})
+
+    @property
+    def axis_names(self) -> tuple[str, ...]:
+        return tuple(self.axis)
+
+    @property
+    def axes(self) -> tuple[AxisConfig, ...]:
+        return tuple(self.axis.values())
+
+
+# ---------------------------------------------------------------------------------------
+# loading
+
+
+def load_machine(path: str | Path, overrides: dict[str, Any] | None = None) -> MachineConfig:
+    """Read and validate a machine file; `overrides` ({"zenoh.listen": [...]}) apply on top."""
+    path = Path(path)
+    shown = str(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise ConfigError(shown, "", None, "file not found") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(shown, "", None, f"not UTF-8 text (byte {exc.start})") from None
+    return loads_machine(text, shown, overrides)
+
+
+def loads_machine(text: str, source: str = "<string>", overrides: dict[str, Any] | None = None) -> MachineConfig:
+    """Validate machine-file text; `source` is the name used in error messages."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(source, "", None, f"TOML syntax error: {exc}") from None
+    for dotted, value in (overrides or {}).items():
+        *tables, key = dotted.split(".")
+        node = raw
+        for t in tables:
+            node = node.setdefault(t, {})
+        node[key] = value
+    cfg = _build(MachineConfig, raw, source, "")
+    cfg = dataclasses.replace(cfg, source=source)
+    _cross_check(cfg)
+    return cfg
+
+
+def _build(cls: type, table: dict[str, Any], source: str, where: str) -> Any:
+    if not isinstance(table, dict):
+        raise ConfigError(source, where, None, f"expected a table, got {_tname(table)}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
+    unknown = [k for k in table if k not in fields]
+    if unknown:
+        raise ConfigError(
+            source, where, unknown[0], f"unknown key (known keys: {', '.join(sorted(fields))})"
+        )
+    values: dict[str, Any] = {}
+    for name, f in fields.items():
+        sub = f"{where}.{name}" if where else name
+        if "table_of" in f.metadata:
+            values[name] = _build_table_of(f, table.get(name), source, sub, name, where)
+        elif dataclasses.is_dataclass(hints[name]):
+            values[name] = _build(hints[name], table.get(name, {}), source, sub)
+        elif name in table:
+            values[name] = _check_value(table[name], hints[name], f.metadata, source, where, name)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ConfigError(source, where, name, f"missing required key{_range_text(f.metadata)}")
+    return cls(**values)
+
+
+def _build_table_of(f: dataclasses.Field, raw: Any, source: str, sub: str, name: str, where: str) -> dict:
+    """Build `[name.<axis>]` tables keyed by axis name; scalar keys beside them belong to the parent."""
+    if raw is None:
+        if f.metadata.get("required"):
+            raise ConfigError(source, where, name, "missing required table (declare at least one axis, e.g. [axis.x])")
+        return {}
+    if not isinstance(raw, dict):
+        raise ConfigError(source, where, name, f"expected a table of axes, got {_tname(raw)}")
+    out = {}
+    for axis, body in raw.items():
+        if axis not in AXIS_NAMES:
+            raise ConfigError(source, sub, axis, f"unknown axis (allowed: {', '.join(AXIS_NAMES)})")
+        out[axis] = _build(f.metadata["table_of"], body, source, f"{sub}.{axis}")
+    return out
+
+
+def _check_value(value: Any, hint: Any, meta: dict, source: str, table: str, key: str) -> Any:
+    err = lambda msg: ConfigError(source, table, key, msg)  # noqa: E731
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise err(f"expected true or false, got {value!r}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise err(f"expected an integer, got {value!r}{_range_text(meta)}")
+    elif hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise err(f"expected a number, got {value!r}{_range_text(meta)}")
+        value = float(value)
+        if math.isnan(value):
+            raise err(f"expected a number, got nan{_range_text(meta)}")
+    elif hint is str:
+        if not isinstance(value, str):
+            raise err(f"expected a string, got {value!r}")
+    elif typing.get_origin(hint) is list:
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise err(f"expected a list of strings, got {value!r}")
+        return list(value)
+    lo, hi, choices = meta.get("lo"), meta.get("hi"), meta.get("choices")
+    if choices is not None and value not in choices:
+        raise err(f"{value!r} is not one of: {', '.join(choices)}")
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        unit = f" {meta['unit']}" if meta.get("unit") else ""
+        raise err(f"{value!r} is out of range: allowed {lo:g} to {hi:g}{unit}")
+    return value
+
+
+def _cross_check(cfg: MachineConfig) -> None:
+    src = cfg.source
+    name = cfg.machine.name
+    if not name or not all(c.isalnum() or c in "-_" for c in name):
+        raise ConfigError(src, "machine", "name", f"{name!r} must be letters, digits, '-' or '_'")
+    for axis, a in cfg.axis.items():
+        if a.travel_min_mm >= a.travel_max_mm:
+            raise ConfigError(
+                src, f"axis.{axis}", "travel_max_mm",
+                f"{a.travel_max_mm:g} must be greater than travel_min_mm {a.travel_min_mm:g}",
+            )
+    for axis in cfg.sim.axes:
+        if axis not in cfg.axis:
+            raise ConfigError(src, "sim.axes", axis, f"no such axis declared (declared: {', '.join(cfg.axis)})")
+    for axis, s in cfg.sim.axes.items():
+        if s.hard_stop_overtravel_mm <= s.limit_switch_overtravel_mm:
+            raise ConfigError(
+                src, f"sim.axes.{axis}", "hard_stop_overtravel_mm",
+                f"{s.hard_stop_overtravel_mm:g} must exceed limit_switch_overtravel_mm "
+                f"{s.limit_switch_overtravel_mm:g} so that the limit switch trips before the end stop",
+            )
+    if not cfg.zenoh.listen:
+        raise ConfigError(src, "zenoh", "listen", "needs at least one endpoint, e.g. tcp/127.0.0.1:7447")
+    for prefix_part in cfg.zenoh.key_prefix.split("/"):
+        if not prefix_part or any(c in prefix_part for c in "*$?#"):
+            raise ConfigError(src, "zenoh", "key_prefix", f"{cfg.zenoh.key_prefix!r} is not a valid key prefix")
+
+
+def _range_text(meta: dict) -> str:
+    lo, hi, choices = meta.get("lo"), meta.get("hi"), meta.get("choices")
+    unit = f" {meta['unit']}" if meta.get("unit") else ""
+    if choices:
+        return f" (one of: {', '.join(choices)})"
+    if lo is not None and hi is not None:
+        return f" (allowed {lo:g} to {hi:g}{unit})"
+    return ""
+
+
+def _tname(value: Any) -> str:
+    return type(value).__name__
+
+
+# ---------------------------------------------------------------------------------------
+# reference documentation
+
+
+def reference_toml() -> str:
+    """Render every option with unit, range and default, as `machines/reference.toml`."""
+    lines = [
+        "# Reference of every machine-file option: unit, allowed range and default.",
+        "# Generated from cnc/config.py (python -m cnc.config > machines/reference.toml);",
+        "# a test keeps it in sync. Keys shown commented out are optional.",
+        "",
+    ]
+    _render(MachineConfig, "", lines)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _render(cls: type, table: str, lines: list[str]) -> None:
+    hints = typing.get_type_hints(cls)
+    scalars, subtables = [], []
+    for f in dataclasses.fields(cls):
+        if f.metadata.get("internal"):
+            continue
+        if "table_of" in f.metadata or dataclasses.is_dataclass(hints[f.name]):
+            subtables.append(f)
+        else:
+            scalars.append(f)
+    if scalars:
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        lines.append(f"[{table}]" if table else "")
+        lines.append(f"# {doc}")
+        for f in scalars:
+            lines.extend(_render_option(f))
+        lines.append("")
+    for f in subtables:
+        sub = f"{table}.{f.name}" if table else f.name
+        if "table_of" in f.metadata:
+            _render(f.metadata["table_of"], f"{sub}.x", lines)
+        else:
+            _render(hints[f.name], sub, lines)
+
+
+def _render_option(f: dataclasses.Field) -> list[str]:
+    meta = f.metadata
+    required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+    unit = f" [{meta['unit']}]" if meta.get("unit") else ""
+    comment = f"# {meta.get('doc', '')}{unit}{_range_text(meta)}"
+    if required:
+        return [comment + " REQUIRED", f"{f.name} = 0.0"]
+    if isinstance(default, float) and math.isnan(default):
+        return [comment, f"# {f.name} = (unset)"]
+    return [comment, f"# {f.name} = {_toml_value(default)}"]
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(v)
+
+
+if __name__ == "__main__":
+    print(reference_toml(), end="")
