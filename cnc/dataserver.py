@@ -1,0 +1,213 @@
+"""Data server: the controller's shared-memory area of single-writer blocks.
+
+Each block has exactly one writing process and any number of readers. Consistency is a
+seqlock: the writer makes the block's sequence number odd, writes the body, makes it even;
+a reader copies the body between two reads of the sequence number and retries when they
+differ or are odd. Readers never block the writer, and a reader never waits for long: when
+a writer died mid-write the reader gets the last body with `consistent=False`.
+
+The body of a block is packed and unpacked whole with one precompiled `struct.Struct`
+(one C call: the servo's tick path stays cheap), and is also visible as a numpy structured
+array for tools and tests. Memory ordering relies on x86-64's total store order; 8-byte
+aligned stores are atomic there.
+"""
+
+from __future__ import annotations
+
+import secrets
+import struct
+from dataclasses import dataclass
+from multiprocessing import shared_memory
+from typing import Any, Iterable
+
+import numpy as np
+
+_SEQ = struct.Struct("<Q")
+_ALIGN = 64  # a cache line per block start: writers of different blocks do not share lines
+_READ_RETRIES = 10000
+
+SHM_PREFIX = "wjcnc"
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    name: str
+    code: str  # struct code: d (float64), q (int64), Q (uint64), I (uint32), i (int32)
+    count: int = 1
+
+
+class BlockLayout:
+    """Field layout of one block: struct format, numpy dtype and flat indices of every field."""
+
+    def __init__(self, name: str, fields: Iterable[FieldSpec]) -> None:
+        self.name = name
+        self.fields = tuple(fields)
+        fmt, offsets, index, pos, flat = "<", [], {}, 8, 0
+        np_fields = [("seq", "<u8")]
+        for f in self.fields:
+            size = struct.calcsize("<" + f.code)
+            if pos % size:
+                pad = size - pos % size
+                fmt += f"{pad}x"
+                pos += pad
+            offsets.append(pos)
+            fmt += f"{f.count}{f.code}" if f.count > 1 else f.code
+            np_fields.append((f.name, np.dtype("<" + f.code), (f.count,)) if f.count > 1 else (f.name, "<" + f.code))
+            index[f.name] = slice(flat, flat + f.count) if f.count > 1 else flat
+            pos += size * f.count
+            flat += f.count
+        self.body = struct.Struct(fmt)
+        self.size = 8 + self.body.size
+        self.index: dict[str, int | slice] = index
+        self.n_values = flat
+        self.dtype = np.dtype(
+            {
+                "names": [n[0] for n in np_fields],
+                "formats": [np.dtype((n[1], n[2])) if len(n) == 3 else np.dtype(n[1]) for n in np_fields],
+                "offsets": [0] + offsets,
+                "itemsize": self.size,
+            }
+        )
+
+    def defaults(self) -> list[Any]:
+        out: list[Any] = []
+        for f in self.fields:
+            zero = 0.0 if f.code == "d" else 0
+            out.extend([zero] * f.count)
+        return out
+
+
+class Block:
+    """One block placed in a shared buffer at a fixed offset."""
+
+    def __init__(self, layout: BlockLayout, buf: memoryview, offset: int) -> None:
+        self.layout, self.buf, self.offset = layout, buf, offset
+        self.body_offset = offset + 8
+        self.array = np.ndarray((1,), dtype=layout.dtype, buffer=buf, offset=offset)
+
+    def seq(self) -> int:
+        return _SEQ.unpack_from(self.buf, self.offset)[0]
+
+
+class BlockWriter:
+    """The single writer's side: edit `values` (flat list) then `publish()` it whole."""
+
+    def __init__(self, block: Block) -> None:
+        self.block = block
+        self.layout = block.layout
+        self.values: list[Any] = self.layout.defaults()
+        self._seq = block.seq() & ~1  # resume after a restarted writer without going backwards
+        self._pack = self.layout.body.pack_into
+        self._buf, self._off, self._body_off = block.buf, block.offset, block.body_offset
+
+    def idx(self, name: str) -> int | slice:
+        return self.layout.index[name]
+
+    def set(self, name: str, value: Any) -> None:
+        i = self.layout.index[name]
+        if isinstance(i, slice):
+            self.values[i] = list(value)
+        else:
+            self.values[i] = value
+
+    def get(self, name: str) -> Any:
+        return self.values[self.layout.index[name]]
+
+    def load_current(self) -> None:
+        """Start from what is in shared memory (a restarted writer continues its counters)."""
+        values, _ = BlockReader(self.block).read()
+        self.values = list(values)
+
+    def publish(self) -> None:
+        seq = self._seq + 1
+        _SEQ.pack_into(self._buf, self._off, seq)
+        self._pack(self._buf, self._body_off, *self.values)
+        self._seq = seq + 1
+        _SEQ.pack_into(self._buf, self._off, self._seq)
+
+
+class BlockReader:
+    """A reader's side: consistent copies of the block body, never blocking the writer."""
+
+    def __init__(self, block: Block) -> None:
+        self.block = block
+        self.layout = block.layout
+        self._unpack = self.layout.body.unpack_from
+        self._seq_unpack = _SEQ.unpack_from
+        self._buf, self._off, self._body_off = block.buf, block.offset, block.body_offset
+
+    def read(self) -> tuple[tuple, bool]:
+        """Return (flat values, consistent)."""
+        buf, off = self._buf, self._off
+        values: tuple = ()
+        for _ in range(_READ_RETRIES):
+            s1 = self._seq_unpack(buf, off)[0]
+            if s1 & 1:
+                continue
+            values = self._unpack(buf, self._body_off)
+            if self._seq_unpack(buf, off)[0] == s1:
+                return values, True
+        return (values or self._unpack(buf, self._body_off)), False
+
+    def read_dict(self) -> dict[str, Any]:
+        """Consistent snapshot as {field: value or list}; for readers off the tick path."""
+        values, _ = self.read()
+        out = {}
+        for name, i in self.layout.index.items():
+            out[name] = list(values[i]) if isinstance(i, slice) else values[i]
+        return out
+
+
+class SharedArea:
+    """A named shared-memory segment holding a set of blocks laid out one after another."""
+
+    def __init__(self, shm: shared_memory.SharedMemory, layouts: list[BlockLayout], owner: bool) -> None:
+        self.shm, self.owner = shm, owner
+        self.blocks: dict[str, Block] = {}
+        offset = 0
+        for layout in layouts:
+            self.blocks[layout.name] = Block(layout, shm.buf, offset)
+            offset += -(-layout.size // _ALIGN) * _ALIGN
+
+    @staticmethod
+    def size_of(layouts: list[BlockLayout]) -> int:
+        return sum(-(-lay.size // _ALIGN) * _ALIGN for lay in layouts)
+
+    @classmethod
+    def create(cls, name: str, layouts: list[BlockLayout]) -> "SharedArea":
+        shm = shared_memory.SharedMemory(name=name, create=True, size=cls.size_of(layouts))
+        shm.buf[:] = bytes(shm.size)
+        return cls(shm, layouts, owner=True)
+
+    @classmethod
+    def attach(cls, name: str, layouts: list[BlockLayout]) -> "SharedArea":
+        shm = shared_memory.SharedMemory(name=name, create=False)
+        if shm.size < cls.size_of(layouts):
+            raise RuntimeError(f"shared memory {name!r} is {shm.size} bytes, layout needs {cls.size_of(layouts)}")
+        return cls(shm, layouts, owner=False)
+
+    def writer(self, block: str) -> BlockWriter:
+        return BlockWriter(self.blocks[block])
+
+    def reader(self, block: str) -> BlockReader:
+        return BlockReader(self.blocks[block])
+
+    def close(self) -> None:
+        """Detach; the owner also unlinks the segment."""
+        for b in self.blocks.values():
+            b.array = None  # drop numpy views so the mmap can close
+        self.blocks.clear()
+        try:
+            self.shm.close()
+        except BufferError:
+            pass  # a caller still holds a view; the mapping goes with the process
+        if self.owner:
+            try:
+                self.shm.unlink()
+            except FileNotFoundError:
+                pass
+
+
+def unique_name(machine: str, what: str) -> str:
+    """A segment name no other controller instance uses: wjcnc_<machine>_<random>_<what>."""
+    return f"{SHM_PREFIX}_{machine}_{secrets.token_hex(4)}_{what}"

@@ -1,0 +1,163 @@
+"""The controller's shared-memory blocks: what each holds and which process writes it.
+
+| block       | writer             | holds |
+|-------------|--------------------|-------|
+| hw          | hardware server    | hardware image: tick counter, encoders, digital in, read-backs, watchdog |
+| servo       | servo              | speed commands, drive enables, outputs, commanded/actual position, following error, faults, counters |
+| command     | commander          | what the servo and the board are asked to do: enable, reset, safe state, shutdown |
+| sim         | commander          | simulated-board environment: e-stop, doors, mains, drive faults, friction |
+| hw_timing   | hardware server    | histogram of tick wake latency (1 us bins) |
+| servo_timing| servo              | histogram of tick-to-speed-command latency (1 us bins) |
+| heartbeat   | one slot each      | per-process heartbeat counter and pid |
+
+The commander is the process that holds the `Controller` handle (the supervisor's process
+until the control-logic process takes the role over).
+"""
+
+from __future__ import annotations
+
+import enum
+
+from .dataserver import BlockLayout, FieldSpec as F
+
+HIST_BINS = 5000  # 1 us bins: 0..4999 us, the last bin collects everything later
+MAX_PROCESSES = 8
+
+
+class Proc(enum.IntEnum):
+    """Heartbeat slot of each controller process."""
+
+    SUPERVISOR = 0
+    HARDWARE = 1
+    SERVO = 2
+    GATEWAY = 3
+    PLANNER = 4
+    LOGIC = 5
+    PLC_LINK = 6
+
+
+class ClockKind(enum.IntEnum):
+    VIRTUAL = 0
+    REALTIME = 1  # SCHED_FIFO and mlockall in force
+    REALTIME_FALLBACK = 2  # absolute deadlines, but the scheduler class could not be raised
+
+
+class ServoState(enum.IntEnum):
+    DISABLED = 0  # drives off, loop open, commanded position follows actual
+    HOLDING = 1  # drives on, holding the last commanded position
+    TRACKING = 2  # drives on, following setpoints from the FIFO
+    FAULT = 3  # tripped: speed 0, drives off, jet off until reset
+
+
+class ServoFault(enum.IntEnum):
+    """Why the servo tripped. Numbers are stable: never reuse one."""
+
+    NONE = 0
+    FOLLOWING_ERROR = 1
+    SOFT_LIMIT = 2
+    HARD_LIMIT = 3
+    DRIVE_FAULT = 4
+    WATCHDOG = 5
+    ESTOP = 6
+    RESTARTED = 7  # the servo process was restarted: position continuity must be confirmed by reset
+    SAFE_STATE = 8  # the supervisor forced the safe state
+
+
+def hw_layout(n: int) -> BlockLayout:
+    return BlockLayout(
+        "hw",
+        [
+            F("tick", "Q"),
+            F("tick_time_ns", "q"),  # deadline of this tick (virtual: tick * period)
+            F("wake_time_ns", "q"),  # when the hardware server actually woke (realtime clock)
+            F("encoder_counts", "q", n),
+            F("index_latch_counts", "q", n),
+            F("index_latch_seq", "Q", n),
+            F("axis_inputs", "I", n),
+            F("digital_in", "I"),
+            F("digital_out", "I"),  # read-back from the board
+            F("watchdog_tripped", "I"),
+            F("watchdog_missed", "I"),  # consecutive ticks the servo has missed
+            F("watchdog_trip_tick", "Q"),
+            F("servo_missed_total", "Q"),
+            F("late_ticks", "Q"),  # ticks the hardware server itself woke a whole period late
+            F("clock_kind", "I"),
+            F("safe_state", "I"),  # the board is being held in the safe state
+        ],
+    )
+
+
+def servo_layout(n: int) -> BlockLayout:
+    return BlockLayout(
+        "servo",
+        [
+            F("tick", "Q"),  # hardware tick these outputs belong to
+            F("state", "I"),
+            F("fault", "I"),
+            F("fault_axis", "i"),
+            F("fault_value", "d"),
+            F("fault_tick", "Q"),
+            F("speed_cmd_v", "d", n),
+            F("drive_enable_mask", "I"),
+            F("digital_out", "I"),
+            F("commanded_mm", "d", n),
+            F("commanded_velocity_mm_s", "d", n),
+            F("actual_mm", "d", n),
+            F("following_error_mm", "d", n),
+            F("max_following_error_mm", "d", n),
+            F("setpoint_flags", "I"),
+            F("setpoint_segment", "I"),
+            F("setpoint_line", "i"),
+            F("ticks_processed", "Q"),
+            F("overruns", "Q"),  # ticks the servo skipped (its count fell behind the tick counter)
+            F("underruns", "Q"),  # ticks the FIFO ran dry during a motion
+            F("loop_ns", "q"),  # compute time of the last tick
+            F("reset_seq", "Q"),  # last command.reset_seq the servo acted on
+        ],
+    )
+
+
+def command_layout(n: int) -> BlockLayout:
+    return BlockLayout(
+        "command",
+        [
+            F("servo_enable", "I"),
+            F("reset_seq", "Q"),  # +1 = reset faults (servo and watchdog)
+            F("safe_state", "I"),  # hold the board in the safe state
+            F("shutdown", "I"),
+        ],
+    )
+
+
+def sim_layout(n: int) -> BlockLayout:
+    return BlockLayout(
+        "sim",
+        [
+            F("estop_pressed", "I"),
+            F("doors_open", "I"),
+            F("mains_off", "I"),
+            F("drive_fault_mask", "I"),
+            F("friction_scale", "d", n),
+        ],
+    )
+
+
+def timing_layout(name: str) -> BlockLayout:
+    return BlockLayout(name, [F("count", "Q"), F("max_ns", "q"), F("hist", "Q", HIST_BINS)])
+
+
+def heartbeat_layout() -> BlockLayout:
+    return BlockLayout("heartbeat", [F("beat", "Q", MAX_PROCESSES), F("pid", "q", MAX_PROCESSES)])
+
+
+def controller_layouts(n_axes: int) -> list[BlockLayout]:
+    """Every block of the data area, in placement order."""
+    return [
+        hw_layout(n_axes),
+        servo_layout(n_axes),
+        command_layout(n_axes),
+        sim_layout(n_axes),
+        timing_layout("hw_timing"),
+        timing_layout("servo_timing"),
+        heartbeat_layout(),
+    ]

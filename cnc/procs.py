@@ -1,0 +1,101 @@
+"""Entry points of the controller processes started by the supervisor.
+
+Each process attaches to the shared memory, opens its Zenoh session and declares its
+liveliness token before it enters its loop; the time-driven ones then ask for real-time
+scheduling (with the real-time clock) and keep the garbage collector out of the loop, so
+nothing on the tick path waits for the network, the disk or a collection.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from .bus.keys import Keys
+from .bus.session import open_client
+from .dataserver import SharedArea
+from .fifo import SetpointFifo
+from .layout import ClockKind, Proc, controller_layouts
+from .rt import enter_realtime, keep_gc_out
+from .runtime import Runtime, child_setup, set_ready
+
+log = logging.getLogger(__name__)
+
+
+def _attach(rt: Runtime) -> SharedArea:
+    return SharedArea.attach(rt.data_name, controller_layouts(len(rt.config.axis_names)))
+
+
+def _token(rt: Runtime, name: str):
+    session = open_client(rt.zenoh_connect)
+    keys = Keys(rt.config.zenoh.key_prefix, rt.config.machine.name)
+    return session, session.liveliness().declare_token(keys.alive(name))
+
+
+def run_hardware(rt: Runtime, ready) -> None:
+    from .hw.clock import make_clock
+    from .hw.server import HardwareServer, make_board
+
+    child_setup(rt, "hardware")
+    area = _attach(rt)
+    board = make_board(rt.config)
+    session, token = _token(rt, "hardware")
+    clock = make_clock(rt.clock, rt.config.timing.period_s)
+    kind = ClockKind.VIRTUAL
+    if rt.clock == "realtime":
+        status = enter_realtime(rt.config.timing.realtime_priority, "hardware server")
+        kind = ClockKind.REALTIME if status.granted else ClockKind.REALTIME_FALLBACK
+    server = HardwareServer(rt.config, area, board, clock, list(rt.timer_clients.values()), kind)
+    keep_gc_out()
+    set_ready(ready)
+    try:
+        server.run()
+    finally:
+        board.close()
+        token.undeclare()
+        session.close()
+
+
+def run_servo(rt: Runtime, ready) -> None:
+    from .servo import Servo
+
+    child_setup(rt, "servo")
+    area = _attach(rt)
+    fifo = SetpointFifo.attach(rt.fifo_name)
+    session, token = _token(rt, "servo")
+    servo = Servo(rt.config, area, fifo, record_latency=rt.clock == "realtime")
+    timer = rt.timer_clients["servo"]
+    shutdown = area.blocks["command"].array["shutdown"]
+    my_bit = 1 << Proc.SERVO
+    if rt.clock == "realtime":
+        enter_realtime(max(1, rt.config.timing.realtime_priority - 1), "servo")
+    keep_gc_out()
+    set_ready(ready)
+    try:
+        while not shutdown[0] & my_bit:
+            if timer.wait_tick(0.25):
+                while timer.wake.acquire(False):
+                    pass  # ticks missed while late: run once on the newest, the tick counter counts the overrun
+                servo.tick()
+                timer.tick_done()
+    finally:
+        token.undeclare()
+        session.close()
+
+
+def run_gateway(rt: Runtime, ready) -> None:
+    from .gateway import Gateway
+
+    child_setup(rt, "gateway")
+    area = _attach(rt)
+    fifo = SetpointFifo.attach(rt.fifo_name)
+    session = open_client(rt.zenoh_connect)
+    gateway = Gateway(rt.config, area, fifo, session, rt.clock)
+    set_ready(ready)
+    try:
+        gateway.run()
+    finally:
+        gateway.close()
+        session.close()
+
+
+PROCESS_MAINS = {"hardware": run_hardware, "servo": run_servo, "gateway": run_gateway}

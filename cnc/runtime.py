@@ -1,0 +1,38 @@
+"""What every controller process is handed at start, and the common start-up of a child process."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+from dataclasses import dataclass, field
+from typing import Any
+
+from .config import MachineConfig
+from .hw.timers import TimerClient
+
+
+@dataclass
+class Runtime:
+    """Picklable description of one controller instance, passed to each spawned process."""
+
+    config: MachineConfig
+    clock: str  # "realtime" | "virtual"
+    data_name: str
+    fifo_name: str
+    zenoh_connect: list[str]
+    timer_clients: dict[str, TimerClient] = field(default_factory=dict)
+    log_level: int = logging.INFO
+
+
+def child_setup(rt: Runtime, name: str) -> None:
+    """Logging, and leave Ctrl-C to the supervisor: it stops the processes in order."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    logging.basicConfig(
+        level=rt.log_level, format=f"%(asctime)s {name}[{os.getpid()}] %(levelname)s %(message)s"
+    )
+
+
+def set_ready(ready: Any) -> None:
+    if ready is not None:
+        ready.set()

@@ -1,0 +1,234 @@
+"""Servo: the XY position loop, a timer client of the hardware server at every base tick.
+
+PI-P control as in the waterjet paper: the PI position loop runs here and outputs a speed
+command; the P velocity loop is in the drive. Per axis
+
+    u = velocity_ff * v_ref + accel_ff_s * a_ref + kp * e + ki * integral(e)    [mm/s]
+    speed command = clamp(u * volts_per_mm_s, +-drive_full_scale_v)             [V]
+
+with e = commanded - actual. The acceleration feed-forward makes up for the drive's lag
+and the one-tick output delay (the command computed at tick k reaches the drive at k+1),
+which is what keeps the following error small on curves rather than only on straights.
+
+Each tick: read the hardware image, take the next setpoint (hold position when none is
+commanded; count an underrun when the FIFO runs dry in the middle of a motion), check
+interlocks, soft limits and the following error, compute and publish. Any trip sets the
+speed commands to 0, disables the drives, closes the jet and records why; it is latched
+until a reset. The servo counts its own ticks against the hardware tick counter
+(QMotor 2.0's sequence counter) to detect overruns.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+
+from .config import MachineConfig
+from .dataserver import SharedArea
+from .fifo import OUTPUT_MASK, SetpointFifo, SetpointFlag
+from .hw.board import AxisIn, DigitalIn
+from .layout import HIST_BINS, Proc, ServoFault, ServoState
+
+log = logging.getLogger(__name__)
+
+_IN_MOTION = int(SetpointFlag.IN_MOTION)
+
+
+class Servo:
+    """One instance per controller; `tick()` is the whole control step."""
+
+    def __init__(self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, record_latency: bool) -> None:
+        self.config, self.fifo = config, fifo
+        self.axes = config.axes
+        self.n = n = len(self.axes)
+        self.dt = config.timing.period_s
+        self.record_latency = record_latency
+        self.out = area.writer("servo")
+        self.out.load_current()
+        self.hw = area.reader("hw")
+        self.command = area.reader("command")
+        t = area.blocks["servo_timing"].array
+        self.timing, self.hist = t, t[0]["hist"]
+        hb = area.blocks["heartbeat"].array[0]
+        self.beat = hb["beat"]
+        hb["pid"][Proc.SERVO] = os.getpid()
+        # per-axis constants, as plain floats for the tick path
+        self.res = [a.encoder_resolution_mm for a in self.axes]
+        self.kp = [a.kp_1_s for a in self.axes]
+        self.ki = [a.ki_1_s2 for a in self.axes]
+        self.kv = [a.velocity_ff for a in self.axes]
+        self.ka = [a.accel_ff_s for a in self.axes]
+        self.i_lim = [a.integral_limit_mm_s for a in self.axes]
+        self.vpm = [a.volts_per_mm_s for a in self.axes]
+        self.vmax = [a.drive_full_scale_v for a in self.axes]
+        self.fe_lim = [a.following_error_limit_mm for a in self.axes]
+        self.lo = [a.travel_min_mm for a in self.axes]
+        self.hi = [a.travel_max_mm for a in self.axes]
+        # loop state
+        self.integral = [0.0] * n
+        self.v_prev = [0.0] * n
+        self.last_flags = 0
+        self.last_tick = 0
+        self.first = True
+        ix = self.out.layout.index
+        self._i = {k: ix[k] for k in ix}
+        hx = self.hw.layout.index
+        self._h_tick, self._h_ttime = hx["tick"], hx["tick_time_ns"]
+        self._h_enc, self._h_ain, self._h_din = hx["encoder_counts"], hx["axis_inputs"], hx["digital_in"]
+        self._h_trip, self._h_safe = hx["watchdog_tripped"], hx["safe_state"]
+        cx = self.command.layout.index
+        self._c_enable, self._c_reset, self._c_safe = cx["servo_enable"], cx["reset_seq"], cx["safe_state"]
+        v = self.out.values
+        if v[self._i["ticks_processed"]]:
+            # a restarted servo: the position it held is not known to be the one the planner expects
+            self._trip(ServoFault.RESTARTED, -1, 0.0, v[self._i["tick"]])
+        else:
+            v[self._i["reset_seq"]] = self.command.read()[0][self._c_reset]
+
+    # -- the control step ----------------------------------------------------------------
+    def tick(self) -> None:
+        t0 = time.monotonic_ns()
+        hw, _ = self.hw.read()
+        cmd, _ = self.command.read()
+        v, I, n = self.out.values, self._i, self.n
+        tick = hw[self._h_tick]
+        if not self.first and tick > self.last_tick + 1:
+            v[I["overruns"]] += tick - self.last_tick - 1
+        self.first = False
+        self.last_tick = tick
+        enc = hw[self._h_enc]
+        actual = [enc[i] * self.res[i] for i in range(n)]
+        state = v[I["state"]]
+
+        if cmd[self._c_reset] != v[I["reset_seq"]]:
+            v[I["reset_seq"]] = cmd[self._c_reset]
+            if state == ServoState.FAULT:
+                state = self._clear_fault(actual)
+
+        if state != ServoState.FAULT:
+            fault = self._interlock(hw, cmd)
+            if fault is not None:
+                self._trip(fault[0], fault[1], 0.0, tick)
+                state = ServoState.FAULT
+
+        if state == ServoState.FAULT:
+            self._open_loop(actual)
+            self.fifo.flush()
+        elif not cmd[self._c_enable]:
+            state = ServoState.DISABLED
+            self._open_loop(actual)
+        else:
+            state = self._close_loop(actual, tick)
+
+        v[I["state"]] = state
+        v[I["tick"]] = tick
+        v[I["actual_mm"]] = actual
+        v[I["ticks_processed"]] += 1
+        v[I["loop_ns"]] = time.monotonic_ns() - t0
+        self.out.publish()
+        if self.record_latency:
+            self._record_latency(time.monotonic_ns() - hw[self._h_ttime])
+        self.beat[Proc.SERVO] = tick
+
+    def _close_loop(self, actual: list[float], tick: int) -> int:
+        v, I, n, dt = self.out.values, self._i, self.n, self.dt
+        rec = self.fifo.pop()
+        commanded = v[I["commanded_mm"]]
+        if rec is not None:
+            pos, vel, flags = rec[:n], rec[n : 2 * n], rec[2 * n]
+            for i in range(n):
+                if not self.lo[i] <= pos[i] <= self.hi[i]:
+                    self._trip(ServoFault.SOFT_LIMIT, i, pos[i], tick)
+                    self._open_loop(actual)
+                    self.fifo.flush()
+                    return ServoState.FAULT
+            commanded, velocity = list(pos), list(vel)
+            v[I["setpoint_flags"]], v[I["setpoint_segment"]], v[I["setpoint_line"]] = flags, rec[2 * n + 1], rec[2 * n + 2]
+            self.last_flags = flags
+        else:
+            if self.last_flags & _IN_MOTION:
+                v[I["underruns"]] += 1
+            velocity = [0.0] * n
+            flags = self.last_flags & ~_IN_MOTION
+        errors, speed = [0.0] * n, [0.0] * n
+        fe_max = v[I["max_following_error_mm"]]
+        for i in range(n):
+            e = commanded[i] - actual[i]
+            errors[i] = e
+            if abs(e) > fe_max[i]:
+                fe_max[i] = abs(e)
+            if abs(e) > self.fe_lim[i]:
+                v[I["following_error_mm"]] = errors
+                self._trip(ServoFault.FOLLOWING_ERROR, i, e, tick)
+                self._open_loop(actual)
+                self.fifo.flush()
+                return ServoState.FAULT
+            integ = self.integral[i] + e * dt
+            lim = self.i_lim[i] / self.ki[i] if self.ki[i] > 0.0 else 0.0
+            integ = lim if integ > lim else -lim if integ < -lim else integ
+            self.integral[i] = integ
+            accel = (velocity[i] - self.v_prev[i]) / dt
+            self.v_prev[i] = velocity[i]
+            u = self.kv[i] * velocity[i] + self.ka[i] * accel + self.kp[i] * e + self.ki[i] * integ
+            volts = u * self.vpm[i]
+            vmax = self.vmax[i]
+            speed[i] = vmax if volts > vmax else -vmax if volts < -vmax else volts
+        v[I["commanded_mm"]] = commanded
+        v[I["commanded_velocity_mm_s"]] = velocity
+        v[I["following_error_mm"]] = errors
+        v[I["max_following_error_mm"]] = fe_max
+        v[I["speed_cmd_v"]] = speed
+        v[I["drive_enable_mask"]] = (1 << n) - 1
+        v[I["digital_out"]] = flags & OUTPUT_MASK
+        return ServoState.TRACKING if flags & _IN_MOTION else ServoState.HOLDING
+
+    def _interlock(self, hw: tuple, cmd: tuple) -> tuple[ServoFault, int] | None:
+        """Conditions that trip the servo whatever it is doing."""
+        if not hw[self._h_din] & DigitalIn.ESTOP_OK:
+            return ServoFault.ESTOP, -1
+        if hw[self._h_trip]:
+            return ServoFault.WATCHDOG, -1
+        if cmd[self._c_safe] or hw[self._h_safe]:
+            return ServoFault.SAFE_STATE, -1
+        ain = hw[self._h_ain]
+        for i in range(self.n):
+            if ain[i] & (AxisIn.LIMIT_MIN | AxisIn.LIMIT_MAX):
+                return ServoFault.HARD_LIMIT, i
+            if cmd[self._c_enable] and not ain[i] & AxisIn.DRIVE_READY:
+                return ServoFault.DRIVE_FAULT, i
+        return None
+
+    def _trip(self, fault: ServoFault, axis: int, value: float, tick: int) -> None:
+        v, I = self.out.values, self._i
+        v[I["state"]] = ServoState.FAULT
+        v[I["fault"]], v[I["fault_axis"]], v[I["fault_value"]], v[I["fault_tick"]] = int(fault), axis, value, tick
+        self.last_flags = 0
+
+    def _clear_fault(self, actual: list[float]) -> int:
+        v, I = self.out.values, self._i
+        v[I["fault"]], v[I["fault_axis"]], v[I["fault_value"]] = int(ServoFault.NONE), -1, 0.0
+        v[I["max_following_error_mm"]] = [0.0] * self.n
+        self._open_loop(actual)
+        return ServoState.DISABLED
+
+    def _open_loop(self, actual: list[float]) -> None:
+        """Speed 0, drives off, outputs off; the commanded position follows the actual one."""
+        v, I, n = self.out.values, self._i, self.n
+        v[I["speed_cmd_v"]] = [0.0] * n
+        v[I["drive_enable_mask"]] = 0
+        v[I["digital_out"]] = 0
+        v[I["commanded_mm"]] = list(actual)
+        v[I["commanded_velocity_mm_s"]] = [0.0] * n
+        v[I["following_error_mm"]] = [0.0] * n
+        self.integral = [0.0] * n
+        self.v_prev = [0.0] * n
+        self.last_flags = 0
+
+    def _record_latency(self, ns: int) -> None:
+        b = ns // 1000
+        self.hist[b if b < HIST_BINS - 1 else HIST_BINS - 1] += 1
+        t = self.timing
+        t["count"][0] += 1
+        if ns > t["max_ns"][0]:
+            t["max_ns"][0] = ns

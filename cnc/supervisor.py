@@ -1,0 +1,310 @@
+"""Supervisor: creates the data server, starts the controller processes and watches them.
+
+It owns the shared-memory segments (created at start, unlinked at stop, nothing left in
+/dev/shm) and the controller's Zenoh router, which every process and HMI connects to.
+Processes start in dependency order (servo waits for ticks, then the hardware server
+ticks, then the gateway publishes) and are watched by exit and by heartbeat. When a
+critical process dies the board is forced into the safe state; what may be restarted is
+restarted: the gateway freely, the servo into a latched fault that a reset clears; the
+hardware server owns the board, so its loss stops the controller. Until the control-logic
+process exists the supervisor's process is also the commander: the only writer of the
+`command` and `sim` blocks, through the methods below.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from .bus.keys import Keys
+from .bus.session import connect_endpoints, open_router
+from .config import MachineConfig
+from .dataserver import BlockWriter, SharedArea, unique_name
+from .fifo import SetpointFifo
+from .hw.timers import TimerClient
+from .layout import Proc, ServoFault, ServoState, controller_layouts
+from .procs import PROCESS_MAINS
+from .runtime import Runtime
+
+log = logging.getLogger(__name__)
+
+FIFO_CAPACITY = 8192  # 8 s of setpoints at 1 kHz
+
+
+class SupervisorError(RuntimeError):
+    """The controller could not start, or lost a process it cannot run without."""
+
+
+@dataclass(frozen=True)
+class ProcessPolicy:
+    slot: Proc
+    restart: str  # "always" | "faulted" (restart into a latched fault) | "never" (fatal)
+
+
+POLICIES = {
+    "servo": ProcessPolicy(Proc.SERVO, "faulted"),
+    "hardware": ProcessPolicy(Proc.HARDWARE, "never"),
+    "gateway": ProcessPolicy(Proc.GATEWAY, "always"),
+}
+START_ORDER = ("servo", "hardware", "gateway")
+MAX_RESTARTS_PER_MINUTE = 5
+
+
+@dataclass
+class _Child:
+    name: str
+    process: Any
+    started: float
+    last_beat: int = -1
+    last_beat_change: float = 0.0
+    restarts: list[float] = field(default_factory=list)
+
+
+class Supervisor:
+    """One controller instance. Use as a context manager, or `start()` ... `stop()`."""
+
+    def __init__(
+        self,
+        config: MachineConfig,
+        clock: str = "realtime",
+        processes: tuple[str, ...] = START_ORDER,
+        log_level: int = logging.INFO,
+    ) -> None:
+        if clock not in ("realtime", "virtual"):
+            raise ValueError(f"clock {clock!r} is not one of: realtime, virtual")
+        unknown = [p for p in processes if p not in POLICIES]
+        if unknown:
+            raise ValueError(f"unknown controller process {unknown[0]!r} (known: {', '.join(POLICIES)})")
+        self.config, self.clock, self.log_level = config, clock, log_level
+        self.process_names = tuple(p for p in START_ORDER if p in processes)
+        self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
+        self.ctx = multiprocessing.get_context("spawn")
+        self.children: dict[str, _Child] = {}
+        self.events: list[str] = []  # what the supervisor noticed, for the log and for tests
+        self.failed: str | None = None
+        self.area: SharedArea | None = None
+        self.fifo: SetpointFifo | None = None
+        self.router = None
+        self._token = None
+        self._watchdog_seen = False
+
+    # -- lifecycle -----------------------------------------------------------------------
+    def __enter__(self) -> "Supervisor":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def start(self) -> "Supervisor":
+        cfg = self.config
+        n = len(cfg.axis_names)
+        self.area = SharedArea.create(unique_name(cfg.machine.name, "data"), controller_layouts(n))
+        self.fifo = SetpointFifo.create(unique_name(cfg.machine.name, "fifo"), FIFO_CAPACITY, n)
+        self.command: BlockWriter = self.area.writer("command")
+        self.command.publish()
+        self.sim: BlockWriter = self.area.writer("sim")
+        self.sim.set("friction_scale", [1.0] * n)
+        self.sim.publish()
+        hb = self.area.blocks["heartbeat"].array[0]
+        self._beats = hb["beat"]
+        hb["pid"][Proc.SUPERVISOR] = os.getpid()
+        try:
+            self.router = open_router(cfg.zenoh.listen)
+            self._token = self.router.liveliness().declare_token(self.keys.alive("supervisor"))
+            clients = {"servo": TimerClient.new(self.ctx, "servo", 1)} if "servo" in self.process_names else {}
+            self.runtime = Runtime(
+                config=cfg,
+                clock=self.clock,
+                data_name=self.area.shm.name,
+                fifo_name=self.fifo.shm.name,
+                zenoh_connect=connect_endpoints(cfg.zenoh.listen),
+                timer_clients=clients,
+                log_level=self.log_level,
+            )
+            for name in self.process_names:
+                self._spawn(name)
+        except BaseException:
+            self.stop()
+            raise
+        log.info("controller %s up (%s clock): %s", cfg.machine.name, self.clock, ", ".join(self.process_names))
+        return self
+
+    def _spawn(self, name: str) -> None:
+        ready = self.ctx.Event()
+        proc = self.ctx.Process(target=PROCESS_MAINS[name], args=(self.runtime, ready), name=f"wj-{name}")
+        proc.start()
+        deadline = time.monotonic() + self.config.supervisor.start_timeout_s
+        while not ready.wait(0.05):
+            if not proc.is_alive():
+                raise SupervisorError(f"{name} process exited during start-up (exit code {proc.exitcode})")
+            if time.monotonic() > deadline:
+                proc.kill()
+                raise SupervisorError(f"{name} process did not report ready within {self.config.supervisor.start_timeout_s:g} s")
+        old = self.children.get(name)
+        child = _Child(name, proc, time.monotonic(), restarts=old.restarts if old else [])
+        child.last_beat_change = time.monotonic()
+        self.children[name] = child
+
+    def stop(self) -> None:
+        """Safe state, then stop the processes in reverse start order and free the shared memory."""
+        if self.area is not None and self.children:
+            self.command.set("safe_state", 1)
+            self.command.publish()
+            self._wait_ticks(3, timeout_s=0.5)
+            for name in reversed(self.process_names):
+                child = self.children.pop(name, None)
+                if child is None:
+                    continue
+                self.command.set("shutdown", self.command.get("shutdown") | 1 << POLICIES[name].slot)
+                self.command.publish()
+                child.process.join(5.0)
+                if child.process.is_alive():
+                    log.warning("%s did not stop in time: terminating", name)
+                    child.process.terminate()
+                    child.process.join(2.0)
+                if child.process.is_alive():
+                    child.process.kill()
+                    child.process.join(2.0)
+        for name, child in list(self.children.items()):
+            child.process.kill()
+            child.process.join(2.0)
+        self.children.clear()
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
+        if self.router is not None:
+            self.router.close()
+            self.router = None
+        if self.fifo is not None:
+            self.fifo.close()
+            self.fifo = None
+        if self.area is not None:
+            self.area.close()
+            self.area = None
+
+    # -- watching ------------------------------------------------------------------------
+    def poll(self) -> None:
+        """Check exits, heartbeats and the watchdog once; act on what is found."""
+        now = time.monotonic()
+        self._beats[Proc.SUPERVISOR] += 1
+        for name, child in list(self.children.items()):
+            if not child.process.is_alive():
+                self._on_death(name, f"exited with code {child.process.exitcode}")
+                continue
+            beat = int(self._beats[POLICIES[name].slot])
+            if beat != child.last_beat:
+                child.last_beat, child.last_beat_change = beat, now
+            elif now - child.last_beat_change > self.config.supervisor.heartbeat_timeout_s:
+                child.process.kill()
+                child.process.join(2.0)
+                self._on_death(name, f"heartbeat stopped for {now - child.last_beat_change:.1f} s (killed)")
+        tripped = bool(self.hw()["watchdog_tripped"])
+        if tripped and not self._watchdog_seen:
+            self._note(f"drive watchdog tripped at tick {self.hw()['watchdog_trip_tick']}: drives disabled, jet closed")
+        self._watchdog_seen = tripped
+
+    def _on_death(self, name: str, why: str) -> None:
+        policy = POLICIES[name]
+        self._note(f"{name} process {why}")
+        if policy.slot in (Proc.SERVO, Proc.HARDWARE):
+            self.command.set("safe_state", 1)
+            self.command.publish()
+        child = self.children.pop(name)
+        now = time.monotonic()
+        recent = [t for t in child.restarts if now - t < 60.0]
+        if policy.restart == "never" or len(recent) >= MAX_RESTARTS_PER_MINUTE:
+            self.failed = f"{name} process {why}; the controller cannot run without it"
+            self._note(self.failed)
+            return
+        self.children[name] = child
+        child.restarts = recent + [now]
+        try:
+            self._spawn(name)
+            self._note(f"{name} process restarted" + (" into a latched fault: reset to continue" if policy.restart == "faulted" else ""))
+        except SupervisorError as exc:
+            self.children.pop(name, None)
+            self.failed = f"{name} could not be restarted: {exc}"
+            self._note(self.failed)
+
+    def _note(self, text: str) -> None:
+        log.error("supervisor: %s", text) if "restarted" not in text else log.warning("supervisor: %s", text)
+        self.events.append(text)
+
+    def run(self, should_stop: Callable[[], bool], period_s: float = 0.05) -> int:
+        """Watch until `should_stop()` or a fatal loss; returns the process exit status."""
+        while not should_stop():
+            self.poll()
+            if self.failed:
+                return 1
+            time.sleep(period_s)
+        return 0
+
+    # -- commander -----------------------------------------------------------------------
+    def enable(self, on: bool = True) -> None:
+        """Ask the servo to close the loop (drives on) or open it (drives off)."""
+        self.command.set("servo_enable", int(on))
+        self.command.publish()
+
+    def reset(self) -> None:
+        """Clear latched faults: servo faults, the drive watchdog, a supervisor-forced safe state."""
+        self.command.set("safe_state", 0)
+        self.command.set("reset_seq", self.command.get("reset_seq") + 1)
+        self.command.publish()
+
+    def set_safe_state(self, on: bool = True) -> None:
+        self.command.set("safe_state", int(on))
+        self.command.publish()
+
+    def set_sim(self, **values: Any) -> None:
+        """Change the simulated environment: estop_pressed, doors_open, mains_off, drive_fault_mask, friction_scale."""
+        for key, value in values.items():
+            if key not in self.sim.layout.index:
+                raise ValueError(f"unknown simulated input {key!r} (known: {', '.join(self.sim.layout.index)})")
+            self.sim.set(key, value)
+        self.sim.publish()
+
+    # -- reading -------------------------------------------------------------------------
+    def hw(self) -> dict[str, Any]:
+        return self.area.reader("hw").read_dict()
+
+    def servo(self) -> dict[str, Any]:
+        return self.area.reader("servo").read_dict()
+
+    def timing(self, which: str) -> dict[str, Any]:
+        """Copy of a timing histogram block (`hw_timing` or `servo_timing`)."""
+        arr = self.area.blocks[which].array[0]
+        return {"count": int(arr["count"]), "max_ns": int(arr["max_ns"]), "hist": arr["hist"].copy()}
+
+    def wait_until(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
+        """Poll (and keep supervising) until `predicate()`; raise TimeoutError naming `what`."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            self.poll()
+            if self.failed:
+                raise SupervisorError(self.failed)
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"timed out after {timeout_s:g} s waiting for {what}")
+            time.sleep(0.002)
+
+    def _wait_ticks(self, n: int, timeout_s: float) -> None:
+        reader = self.area.reader("hw")
+        start = reader.read_dict()["tick"]
+        deadline = time.monotonic() + timeout_s
+        while reader.read_dict()["tick"] < start + n and time.monotonic() < deadline:
+            time.sleep(0.001)
+
+    def wait_motion_done(self, timeout_s: float = 60.0) -> None:
+        """Until the FIFO is empty and the servo holds (or has faulted)."""
+        self.wait_until(
+            lambda: self.fifo.fill() == 0 and self.servo()["state"] in (ServoState.HOLDING, ServoState.FAULT),
+            timeout_s,
+            "the motion to finish",
+        )
+
+    def servo_fault(self) -> ServoFault:
+        return ServoFault(self.servo()["fault"])
