@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -25,6 +26,9 @@ class ConfigError(ValueError):
 
     def __init__(self, path: str, table: str, key: str | None, message: str) -> None:
         self.path, self.table, self.key = path, table, key
+        if not table and key is None:
+            super().__init__(f"{path}: {message}")
+            return
         where = f"[{table}]" if table else "(top level)"
         if key is not None:
             where += f" {key}"
@@ -221,7 +225,10 @@ def loads_machine(text: str, source: str = "<string>", overrides: dict[str, Any]
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(source, "", None, f"TOML syntax error: {exc}") from None
+        where = re.search(r"\(at line (\d+), column (\d+)\)", str(exc))
+        text_ = re.sub(r" \(at line \d+, column \d+\)", "", str(exc))
+        loc = f":{where.group(1)}:{where.group(2)}" if where else ""
+        raise ConfigError(f"{source}{loc}", "", None, f"TOML syntax error: {text_}") from None
     for dotted, value in (overrides or {}).items():
         *tables, key = dotted.split(".")
         node = raw

@@ -4,27 +4,33 @@ Each block has exactly one writing process and any number of readers. Consistenc
 seqlock: the writer makes the block's sequence number odd, writes the body, makes it even;
 a reader copies the body between two reads of the sequence number and retries when they
 differ or are odd. Readers never block the writer, and a reader never waits for long: when
-a writer died mid-write the reader gets the last body with `consistent=False`.
+a writer died mid-write (its sequence number stays odd) the reader gets the body as it is,
+with `consistent=False`, after 50 ms. A reader that finds the writer mid-write spins a
+little, then yields the CPU, so a writer preempted on a loaded machine can finish.
 
 The body of a block is packed and unpacked whole with one precompiled `struct.Struct`
 (one C call: the servo's tick path stays cheap), and is also visible as a numpy structured
 array for tools and tests. Memory ordering relies on x86-64's total store order; 8-byte
-aligned stores are atomic there.
+aligned stores are atomic there. The sequence number is read and written through a
+`memoryview.cast("Q")` (one 8-byte load or store): `struct.pack_into` zeroes its target
+before writing, which would let a reader see a transient 0 and take a torn body for whole.
 """
 
 from __future__ import annotations
 
+import os
 import secrets
 import struct
+import time
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from typing import Any, Iterable
 
 import numpy as np
 
-_SEQ = struct.Struct("<Q")
 _ALIGN = 64  # a cache line per block start: writers of different blocks do not share lines
-_READ_RETRIES = 10000
+_SPINS = 200  # retries before a reader starts yielding the CPU to a preempted writer
+_GIVE_UP_NS = 50_000_000  # a writer that has not finished in 50 ms has died mid-write
 
 SHM_PREFIX = "wjcnc"
 
@@ -84,9 +90,10 @@ class Block:
         self.layout, self.buf, self.offset = layout, buf, offset
         self.body_offset = offset + 8
         self.array = np.ndarray((1,), dtype=layout.dtype, buffer=buf, offset=offset)
+        self.seq_cell = buf[offset : offset + 8].cast("Q")
 
     def seq(self) -> int:
-        return _SEQ.unpack_from(self.buf, self.offset)[0]
+        return self.seq_cell[0]
 
 
 class BlockWriter:
@@ -98,7 +105,7 @@ class BlockWriter:
         self.values: list[Any] = self.layout.defaults()
         self._seq = block.seq() & ~1  # resume after a restarted writer without going backwards
         self._pack = self.layout.body.pack_into
-        self._buf, self._off, self._body_off = block.buf, block.offset, block.body_offset
+        self._buf, self._body_off, self._cell = block.buf, block.body_offset, block.seq_cell
 
     def idx(self, name: str) -> int | slice:
         return self.layout.index[name]
@@ -119,11 +126,11 @@ class BlockWriter:
         self.values = list(values)
 
     def publish(self) -> None:
-        seq = self._seq + 1
-        _SEQ.pack_into(self._buf, self._off, seq)
+        cell = self._cell
+        cell[0] = self._seq + 1
         self._pack(self._buf, self._body_off, *self.values)
-        self._seq = seq + 1
-        _SEQ.pack_into(self._buf, self._off, self._seq)
+        self._seq += 2
+        cell[0] = self._seq
 
 
 class BlockReader:
@@ -133,21 +140,26 @@ class BlockReader:
         self.block = block
         self.layout = block.layout
         self._unpack = self.layout.body.unpack_from
-        self._seq_unpack = _SEQ.unpack_from
-        self._buf, self._off, self._body_off = block.buf, block.offset, block.body_offset
+        self._buf, self._body_off, self._cell = block.buf, block.body_offset, block.seq_cell
 
     def read(self) -> tuple[tuple, bool]:
         """Return (flat values, consistent)."""
-        buf, off = self._buf, self._off
-        values: tuple = ()
-        for _ in range(_READ_RETRIES):
-            s1 = self._seq_unpack(buf, off)[0]
-            if s1 & 1:
-                continue
-            values = self._unpack(buf, self._body_off)
-            if self._seq_unpack(buf, off)[0] == s1:
-                return values, True
-        return (values or self._unpack(buf, self._body_off)), False
+        buf, cell = self._buf, self._cell
+        tries, give_up = 0, 0
+        while True:
+            s1 = cell[0]
+            if not s1 & 1:
+                values = self._unpack(buf, self._body_off)
+                if cell[0] == s1:
+                    return values, True
+            tries += 1
+            if tries > _SPINS:
+                now = time.monotonic_ns()
+                if not give_up:
+                    give_up = now + _GIVE_UP_NS
+                elif now > give_up:
+                    return self._unpack(buf, self._body_off), False
+                os.sched_yield()
 
     def read_dict(self) -> dict[str, Any]:
         """Consistent snapshot as {field: value or list}; for readers off the tick path."""
@@ -195,7 +207,8 @@ class SharedArea:
     def close(self) -> None:
         """Detach; the owner also unlinks the segment."""
         for b in self.blocks.values():
-            b.array = None  # drop numpy views so the mmap can close
+            b.array = None  # drop numpy and memoryview exports so the mmap can close
+            b.seq_cell.release()
         self.blocks.clear()
         try:
             self.shm.close()

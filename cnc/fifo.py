@@ -4,7 +4,9 @@ The planner (producer) pushes setpoints in bursts; the servo (consumer) pops one
 `head` counts records ever pushed and is written only by the producer; `tail` counts
 records ever popped and is written only by the consumer; each sits on its own cache line.
 Both are monotonic 64-bit counters, so full and empty are told apart without a spare slot
-and a record's slot is `counter % capacity`. The producer writes records before it
+and a record's slot is `counter % capacity`. The counters are read and written through
+`memoryview.cast("Q")` cells, one 8-byte access each (`struct.pack_into` would zero the
+cell first and let the other end see a transient 0). The producer writes records before it
 advances `head`, the consumer copies a record before it advances `tail`; on x86-64 stores
 are not reordered with stores nor loads with loads, which is all the ring needs.
 """
@@ -18,7 +20,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-_U64 = struct.Struct("<Q")
 _HEADER = 256  # magic/capacity/axes on line 0, head on line 1, tail on line 2
 _OFF_META, _OFF_HEAD, _OFF_TAIL = 0, 64, 128
 _META = struct.Struct("<QQQ")
@@ -77,6 +78,8 @@ class SetpointFifo:
         self._rec_size = self._rec.size
         self.ring = np.ndarray((self.capacity,), dtype=self.dtype, buffer=shm.buf, offset=_HEADER)
         self._buf = shm.buf
+        self._head_cell = shm.buf[_OFF_HEAD : _OFF_HEAD + 8].cast("Q")
+        self._tail_cell = shm.buf[_OFF_TAIL : _OFF_TAIL + 8].cast("Q")
         # Each end caches its own counter: it is the only writer of it.
         self._head = self.head()
         self._tail = self.tail()
@@ -97,10 +100,10 @@ class SetpointFifo:
 
     # -- counters ------------------------------------------------------------------------
     def head(self) -> int:
-        return _U64.unpack_from(self._buf, _OFF_HEAD)[0]
+        return self._head_cell[0]
 
     def tail(self) -> int:
-        return _U64.unpack_from(self._buf, _OFF_TAIL)[0]
+        return self._tail_cell[0]
 
     def fill(self) -> int:
         """Records waiting; exact for either end, a near-instant view for anyone else."""
@@ -122,7 +125,7 @@ class SetpointFifo:
         if first < n:
             self.ring[: n - first] = records[first:n]
         self._head = head + n
-        _U64.pack_into(self._buf, _OFF_HEAD, self._head)
+        self._head_cell[0] = self._head
         return n
 
     def push_one(self, position, velocity, flags: int = 0, segment: int = 0, line: int = 0) -> bool:
@@ -134,18 +137,18 @@ class SetpointFifo:
             self._buf, _HEADER + (head % self.capacity) * self._rec_size, *position, *velocity, flags, segment, line
         )
         self._head = head + 1
-        _U64.pack_into(self._buf, _OFF_HEAD, self._head)
+        self._head_cell[0] = self._head
         return True
 
     # -- consumer ------------------------------------------------------------------------
     def pop(self) -> tuple | None:
         """Take the oldest record as a flat tuple (positions..., velocities..., flags, segment, line)."""
         tail = self._tail
-        if tail == _U64.unpack_from(self._buf, _OFF_HEAD)[0]:
+        if tail == self._head_cell[0]:
             return None
         rec = self._rec.unpack_from(self._buf, _HEADER + (tail % self.capacity) * self._rec_size)
         self._tail = tail + 1
-        _U64.pack_into(self._buf, _OFF_TAIL, self._tail)
+        self._tail_cell[0] = self._tail
         return rec
 
     def pop_setpoint(self) -> Setpoint | None:
@@ -169,7 +172,7 @@ class SetpointFifo:
         if first < n:
             out[first:] = self.ring[: n - first]
         self._tail = tail + n
-        _U64.pack_into(self._buf, _OFF_TAIL, self._tail)
+        self._tail_cell[0] = self._tail
         return out
 
     def flush(self) -> int:
@@ -177,12 +180,14 @@ class SetpointFifo:
         head = self.head()
         dropped = head - self._tail
         self._tail = head
-        _U64.pack_into(self._buf, _OFF_TAIL, self._tail)
+        self._tail_cell[0] = self._tail
         return dropped
 
     def close(self) -> None:
         self.ring = None
         self._buf = None
+        self._head_cell.release()
+        self._tail_cell.release()
         try:
             self.shm.close()
         except BufferError:

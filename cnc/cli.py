@@ -1,0 +1,94 @@
+"""The `waterjet` command: one console script, one subcommand per tool."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+from pathlib import Path
+
+from .config import ConfigError, load_machine
+
+DEFAULT_MACHINE = "machines/waterjet.toml"
+
+
+def _machine_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--machine", "-m", default=DEFAULT_MACHINE, help=f"machine file (default {DEFAULT_MACHINE})")
+
+
+def _cmd_up(args: argparse.Namespace) -> int:
+    from .supervisor import Supervisor, SupervisorError
+
+    config = load_machine(args.machine, {"zenoh.listen": args.listen} if args.listen else None)
+    stop = {"requested": False}
+
+    def on_signal(signum: int, _frame: object) -> None:
+        logging.getLogger("waterjet").info("%s: stopping", signal.Signals(signum).name)
+        stop["requested"] = True
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    sup = Supervisor(config, clock=args.clock)
+    try:
+        sup.start()
+    except SupervisorError as exc:
+        print(f"waterjet up: {exc}", file=sys.stderr)
+        return 1
+    print(
+        f"waterjet up: machine {config.machine.name!r} running on the {args.clock} clock; "
+        f"Zenoh at {', '.join(config.zenoh.listen)}, status on {sup.keys.status}",
+        flush=True,
+    )
+    try:
+        status = sup.run(lambda: stop["requested"])
+    finally:
+        sup.stop()
+    if sup.failed:
+        print(f"waterjet up: {sup.failed}", file=sys.stderr)
+    return status
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    return run_demo(args.machine, clock=args.clock)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="waterjet", description="Waterjet CNC controller")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    up = sub.add_parser("up", help="start the controller processes and supervise them until SIGINT/SIGTERM")
+    _machine_arg(up)
+    up.add_argument("--clock", choices=("realtime", "virtual"), default="realtime", help="base-tick clock (default realtime)")
+    up.add_argument("--listen", action="append", metavar="ENDPOINT", help="Zenoh endpoint to listen on (overrides the machine file; repeatable)")
+    up.set_defaults(func=_cmd_up)
+
+    demo = sub.add_parser("demo", help="run the simulated machine end to end and exit 0 when it behaved")
+    _machine_arg(demo)
+    demo.add_argument("--clock", choices=("realtime", "virtual"), default="realtime")
+    demo.set_defaults(func=_cmd_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+    )
+    if hasattr(args, "machine") and not Path(args.machine).exists() and args.machine == DEFAULT_MACHINE:
+        here = Path(__file__).resolve().parent.parent / DEFAULT_MACHINE
+        if here.exists():
+            args.machine = str(here)
+    try:
+        return args.func(args)
+    except ConfigError as exc:
+        print(f"waterjet {args.command}: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
