@@ -83,6 +83,7 @@ def hw_layout(n: int) -> BlockLayout:
             F("late_ticks", "Q"),  # ticks the hardware server itself woke a whole period late
             F("clock_kind", "I"),
             F("safe_state", "I"),  # the board is being held in the safe state
+            F("reset_seq", "Q"),  # last command.reset_seq the hardware server acted on
         ],
     )
 

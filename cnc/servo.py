@@ -76,7 +76,7 @@ class Servo:
         hx = self.hw.layout.index
         self._h_tick, self._h_ttime = hx["tick"], hx["tick_time_ns"]
         self._h_enc, self._h_ain, self._h_din = hx["encoder_counts"], hx["axis_inputs"], hx["digital_in"]
-        self._h_trip, self._h_safe = hx["watchdog_tripped"], hx["safe_state"]
+        self._h_trip, self._h_safe, self._h_reset = hx["watchdog_tripped"], hx["safe_state"], hx["reset_seq"]
         cx = self.command.layout.index
         self._c_enable, self._c_reset, self._c_safe = cx["servo_enable"], cx["reset_seq"], cx["safe_state"]
         v = self.out.values
@@ -101,7 +101,9 @@ class Servo:
         actual = [enc[i] * self.res[i] for i in range(n)]
         state = v[I["state"]]
 
-        if cmd[self._c_reset] != v[I["reset_seq"]]:
+        # A reset is acted on once the hardware server, upstream in the tick, has acted on it:
+        # the image then shows the watchdog and safe state as they are after the reset.
+        if cmd[self._c_reset] != v[I["reset_seq"]] and hw[self._h_reset] == cmd[self._c_reset]:
             v[I["reset_seq"]] = cmd[self._c_reset]
             if state == ServoState.FAULT:
                 state = self._clear_fault(actual)

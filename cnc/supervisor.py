@@ -184,6 +184,7 @@ class Supervisor:
             self.fifo.close()
             self.fifo = None
         if self.area is not None:
+            self._beats = None  # drop the numpy view so the segment can be unmapped
             self.area.close()
             self.area = None
 

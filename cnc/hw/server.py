@@ -69,8 +69,9 @@ class HardwareServer:
         i_din, i_dout_rb = idx["digital_in"], idx["digital_out"]
         i_trip, i_missed, i_trip_tick = idx["watchdog_tripped"], idx["watchdog_missed"], idx["watchdog_trip_tick"]
         i_missed_total, i_late, i_safe_rb = idx["servo_missed_total"], idx["late_ticks"], idx["safe_state"]
+        i_reset_ack = idx["reset_seq"]
         tick = v[i_tick]
-        last_reset = self.command.read()[0][i_reset]
+        last_reset = v[i_reset_ack] = self.command.read()[0][i_reset]
         sim_seq = -1
         inputs, board = self.inputs, self.board
         clients = [(c, c.divisor) for c in self.clients]
@@ -95,7 +96,7 @@ class HardwareServer:
             else:
                 v[i_missed] = 0
             if cmd[i_reset] != last_reset:
-                last_reset = cmd[i_reset]
+                last_reset = v[i_reset_ack] = cmd[i_reset]
                 if v[i_trip] and v[i_missed] == 0:
                     v[i_trip] = 0
             safe = bool(v[i_trip] or cmd[i_safe])

@@ -1,0 +1,141 @@
+"""The servo loop on the simulated board, real processes, virtual clock."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cnc.dataserver import SharedArea, unique_name
+from cnc.fifo import SetpointFifo, SetpointFlag, setpoint_dtype
+from cnc.hw.board import AxisIn, DigitalIn, DigitalOut
+from cnc.layout import ServoFault, ServoState, controller_layouts
+from cnc.ptp import move_setpoints
+from cnc.servo import Servo
+
+from .conftest import enable_and_hold, feed, machine_config
+
+RAMP_FE_BOUND_MM = 0.060  # 12 % of the 0.5 mm trip limit, at 500 mm/s and 5000 mm/s^2
+
+
+def _settled(sup, target, tol=0.005):
+    return all(abs(a - t) <= tol for a, t in zip(sup.servo()["actual_mm"], target))
+
+
+def test_servo_follows_a_ramp_in_virtual_time_with_following_error_below_bound(virtual_controller):
+    sup = virtual_controller
+    start = enable_and_hold(sup)
+    target = [start[0] + 600.0, start[1] - 300.0]
+    setpoints = move_setpoints(sup.config, start, target)
+    assert np.max(np.abs(setpoints["velocity"][:, 0])) == pytest.approx(500.0, rel=1e-3), "the ramp reaches full speed"
+    feed(sup, setpoints)
+    sup.wait_motion_done()
+    s = sup.servo()
+    assert s["fault"] == ServoFault.NONE and s["underruns"] == 0
+    assert max(s["max_following_error_mm"]) < RAMP_FE_BOUND_MM, s["max_following_error_mm"]
+    assert max(s["max_following_error_mm"]) > 0.001, "a moving axis has some following error"
+    sup.wait_until(lambda: _settled(sup, target), 5.0, "the table to settle on the target")
+
+
+def test_following_error_beyond_limit_trips_servo_drives_off_and_jet_closed(virtual_controller):
+    sup = virtual_controller
+    start = enable_and_hold(sup)
+    sup.set_sim(friction_scale=[300.0, 1.0])  # a seized X axis
+    feed(sup, move_setpoints(sup.config, start, [start[0] + 200.0, start[1]], flags=SetpointFlag.JET_ON))
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT, 10.0, "the following-error trip")
+    s, hw = sup.servo(), sup.hw()
+    assert s["fault"] == ServoFault.FOLLOWING_ERROR and s["fault_axis"] == 0
+    assert abs(s["fault_value"]) > sup.config.axis["x"].following_error_limit_mm
+    assert s["speed_cmd_v"] == [0.0, 0.0] and s["drive_enable_mask"] == 0
+    sup.wait_until(lambda: not sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 2.0, "the jet to close")
+    assert all(not a & AxisIn.DRIVE_ENABLED for a in sup.hw()["axis_inputs"])
+    assert sup.fifo.fill() == 0, "a trip flushes the setpoints"
+    assert hw["tick"] > 0
+
+
+def test_setpoint_outside_travel_trips_soft_limit_and_nothing_moves(virtual_controller):
+    sup = virtual_controller
+    start = enable_and_hold(sup)
+    sup.fifo.push_one((1600.5, start[1]), (0.0, 0.0), SetpointFlag.IN_MOTION)
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT, 5.0, "the soft-limit trip")
+    s = sup.servo()
+    assert s["fault"] == ServoFault.SOFT_LIMIT and s["fault_axis"] == 0 and s["fault_value"] == 1600.5
+    assert all(abs(a - b) < 0.002 for a, b in zip(s["actual_mm"], start))
+
+
+def test_estop_trips_the_servo_and_reset_recovers_only_once_released(virtual_controller):
+    sup = virtual_controller
+    enable_and_hold(sup)
+    sup.fifo.push_one(sup.servo()["commanded_mm"], (0.0, 0.0), SetpointFlag.JET_ON)
+    sup.wait_until(lambda: sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 2.0, "the jet to open")
+    sup.set_sim(estop_pressed=1)
+    sup.wait_until(lambda: sup.servo()["fault"] == ServoFault.ESTOP, 2.0, "the e-stop trip")
+    sup.wait_until(lambda: not sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 2.0, "the jet to close")
+    assert not sup.hw()["digital_in"] & DigitalIn.ESTOP_OK
+    sup.reset()
+    sup.wait_until(lambda: sup.servo()["reset_seq"] == sup.command.get("reset_seq"), 2.0, "the reset")
+    sup.wait_until(lambda: sup.servo()["fault"] == ServoFault.ESTOP, 2.0, "the e-stop still latched")
+    sup.set_sim(estop_pressed=0)
+    sup.wait_until(lambda: sup.hw()["digital_in"] & DigitalIn.ESTOP_OK, 2.0, "the e-stop circuit to close")
+    sup.reset()
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 5.0, "the servo to hold again")
+    assert sup.servo()["fault"] == ServoFault.NONE
+
+
+def test_fifo_running_dry_mid_motion_counts_underruns_and_holds_position(virtual_controller):
+    sup = virtual_controller
+    start = enable_and_hold(sup)
+    slow = move_setpoints(sup.config, start, [start[0] + 20.0, start[1]], velocity_scale=0.05)
+    half = slow[: len(slow) // 2]
+    assert half["flags"][-1] & SetpointFlag.IN_MOTION
+    feed(sup, half)
+    sup.wait_until(lambda: sup.servo()["underruns"] >= 10, 10.0, "underruns to be counted")
+    s = sup.servo()
+    assert s["fault"] == ServoFault.NONE
+    assert s["commanded_mm"][0] == pytest.approx(float(half["position"][-1][0]))
+
+
+def test_setpoint_output_flags_drive_the_jet_valve(virtual_controller):
+    sup = virtual_controller
+    start = enable_and_hold(sup)
+    feed(sup, move_setpoints(sup.config, start, [start[0] + 5.0, start[1]], flags=SetpointFlag.JET_ON | SetpointFlag.AUX1))
+    sup.wait_until(lambda: sup.hw()["digital_out"] == DigitalOut.JET_VALVE | DigitalOut.AUX1, 5.0, "jet and aux on")
+    sup.wait_motion_done()
+    feed(sup, move_setpoints(sup.config, [start[0] + 5.0, start[1]], start))
+    sup.wait_motion_done()
+    sup.wait_until(lambda: sup.hw()["digital_out"] == 0, 5.0, "jet and aux off with the next move")
+
+
+def test_disabling_opens_the_loop_and_the_drives(virtual_controller):
+    sup = virtual_controller
+    enable_and_hold(sup)
+    sup.enable(False)
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.DISABLED, 2.0, "the servo to disable")
+    sup.wait_until(lambda: all(not a & AxisIn.DRIVE_ENABLED for a in sup.hw()["axis_inputs"]), 2.0, "drives off")
+
+
+def test_servo_counts_overruns_from_the_tick_sequence_counter():
+    """QMotor 2.0's check: when the hardware tick counter jumps past the servo's own count."""
+    cfg = machine_config()
+    area = SharedArea.create(unique_name("test", "overrun"), controller_layouts(2))
+    fifo = SetpointFifo.create(unique_name("test", "ofifo"), 16, 2)
+    try:
+        hw = area.writer("hw")
+        hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
+        hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
+        servo = Servo(cfg, area, fifo, record_latency=False)
+        for tick in (1, 2, 3, 7, 8, 10):
+            hw.set("tick", tick)
+            hw.publish()
+            servo.tick()
+        del servo  # drop its views of the shared memory before closing it
+        s = area.reader("servo").read_dict()
+        assert s["overruns"] == 3 + 1 and s["ticks_processed"] == 6 and s["tick"] == 10
+    finally:
+        fifo.close()
+        area.close()
+
+
+def test_setpoint_records_carry_position_velocity_flags_segment_and_line():
+    dt = setpoint_dtype(2)
+    assert dt.names == ("position", "velocity", "flags", "segment", "line")
+    assert dt.itemsize == 48

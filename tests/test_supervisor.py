@@ -1,0 +1,98 @@
+"""Supervisor: watches its processes, restarts what may be restarted, and leaves no shared memory behind."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from cnc.supervisor import Supervisor
+
+from .conftest import MACHINE_FILE, REPO, enable_and_hold, free_port, machine_config
+
+SHM = Path("/dev/shm")
+
+
+def _ours() -> set[str]:
+    return {p.name for p in SHM.glob("wjcnc_waterjet_*")}
+
+
+def test_stop_frees_every_shared_memory_segment(machine):
+    before = _ours()
+    sup = Supervisor(machine, clock="virtual").start()
+    names = {sup.area.shm.name, sup.fifo.shm.name}
+    assert names <= _ours()
+    sup.stop()
+    assert not names & _ours() and _ours() <= before
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig):
+    before = _ours()
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cnc.cli", "up", "--machine", str(MACHINE_FILE), "--clock", "virtual",
+         "--listen", f"tcp/127.0.0.1:{port}"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        line = proc.stdout.readline()
+        assert "running on the virtual clock" in line, line + proc.stderr.read()
+        created = _ours() - before
+        assert len(created) == 2, created  # the data area and the setpoint FIFO
+        proc.send_signal(sig)
+        assert proc.wait(30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert not created & _ours(), f"left in /dev/shm: {created & _ours()}"
+    assert "stopping" in proc.stderr.read()
+
+
+def test_waterjet_up_refuses_a_bad_machine_file_naming_the_key(tmp_path):
+    before = _ours()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(MACHINE_FILE.read_text().replace("following_error_limit_mm = 0.5", "following_error_limit_mm = -1", 1))
+    res = subprocess.run(
+        [sys.executable, "-m", "cnc.cli", "up", "--machine", str(bad)], cwd=REPO, capture_output=True, text=True, timeout=60
+    )
+    assert res.returncode == 2
+    assert f"{bad}: [axis.x] following_error_limit_mm: -1.0 is out of range: allowed 0.001 to 100 mm" in res.stderr
+    assert _ours() <= before, "nothing was started"
+
+
+def test_a_dead_gateway_is_restarted_and_status_resumes(virtual_controller):
+    sup = virtual_controller
+    old = sup.children["gateway"].process.pid
+    os.kill(old, signal.SIGKILL)
+    sup.wait_until(lambda: "gateway" in sup.children and sup.children["gateway"].process.pid != old, 30.0, "a new gateway")
+    assert any("gateway process exited with code -9" in e for e in sup.events)
+    beat = sup._beats[3]
+    sup.wait_until(lambda: sup._beats[3] > beat + 2, 10.0, "the new gateway's heartbeat")
+    assert sup.failed is None
+
+
+def test_a_hung_process_is_found_by_its_heartbeat_and_replaced():
+    config = machine_config(**{"supervisor.heartbeat_timeout_s": 0.5})
+    with Supervisor(config, clock="virtual") as sup:
+        old = sup.children["gateway"].process.pid
+        os.kill(old, signal.SIGSTOP)
+        sup.wait_until(lambda: "gateway" in sup.children and sup.children["gateway"].process.pid != old, 30.0, "a new gateway")
+        assert any("gateway process heartbeat stopped" in e for e in sup.events)
+
+
+def test_losing_the_hardware_server_is_fatal_and_leaves_the_servo_safe(virtual_controller):
+    sup = virtual_controller
+    enable_and_hold(sup)
+    os.kill(sup.children["hardware"].process.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 10
+    while sup.failed is None and time.monotonic() < deadline:
+        sup.poll()
+        time.sleep(0.01)
+    assert sup.failed and "hardware process exited with code -9" in sup.failed
+    assert sup.command.get("safe_state") == 1

@@ -1,0 +1,46 @@
+"""Drive watchdog: killing the servo disables the drives and closes the jet within the configured ticks."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from cnc.fifo import SetpointFlag
+from cnc.hw.board import AxisIn, DigitalOut
+from cnc.layout import ServoFault, ServoState
+from cnc.supervisor import Supervisor
+
+from .conftest import enable_and_hold, machine_config
+
+
+@pytest.mark.parametrize("clock", ["virtual", "realtime"])
+def test_killing_the_servo_trips_the_watchdog_within_the_configured_ticks(clock):
+    # a short virtual-clock wait per missed tick, so the trip comes before the supervisor restarts the servo
+    config = machine_config(**{"timing.watchdog_missed_ticks": 4, "timing.virtual_client_timeout_s": 0.02})
+    with Supervisor(config, clock=clock) as sup:
+        held = enable_and_hold(sup)
+        sup.fifo.push_one(held, (0.0, 0.0), SetpointFlag.JET_ON)
+        sup.wait_until(lambda: sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 5.0, "the jet to open")
+        assert all(a & AxisIn.DRIVE_ENABLED for a in sup.hw()["axis_inputs"])
+
+        os.kill(sup.children["servo"].process.pid, signal.SIGKILL)
+        sup.children["servo"].process.join(5.0)
+        last_servo_tick = sup.servo()["tick"]
+        sup.wait_until(lambda: sup.hw()["watchdog_tripped"], 10.0, "the watchdog")
+        hw = sup.hw()
+        ticks_to_trip = hw["watchdog_trip_tick"] - last_servo_tick
+        assert 1 <= ticks_to_trip <= config.timing.watchdog_missed_ticks + 1, ticks_to_trip
+        assert all(not a & AxisIn.DRIVE_ENABLED for a in hw["axis_inputs"]), "drives disabled"
+        assert not hw["digital_out"] & DigitalOut.JET_VALVE, "jet valve closed"
+
+        # the supervisor is told, forces the safe state and restarts the servo into a latched fault
+        sup.wait_until(lambda: any("restarted" in e for e in sup.events), 30.0, "the servo restart")
+        assert any("watchdog tripped" in e for e in sup.events)
+        assert any("servo process exited with code -9" in e for e in sup.events)
+        sup.wait_until(lambda: sup.servo()["fault"] == ServoFault.RESTARTED, 10.0, "the restarted servo's fault")
+        sup.reset()
+        sup.wait_until(lambda: not sup.hw()["watchdog_tripped"], 10.0, "the watchdog to clear")
+        sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the servo to hold again")
+        assert all(abs(a - b) < 0.05 for a, b in zip(sup.servo()["actual_mm"], held))
