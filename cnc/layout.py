@@ -84,6 +84,7 @@ def hw_layout(n: int) -> BlockLayout:
             F("clock_kind", "I"),
             F("safe_state", "I"),  # the board is being held in the safe state
             F("reset_seq", "Q"),  # last command.reset_seq the hardware server acted on
+            F("paused", "I"),  # virtual clock: held at command.virtual_run_until
         ],
     )
 
@@ -125,7 +126,8 @@ def command_layout(n: int) -> BlockLayout:
             F("servo_enable", "I"),
             F("reset_seq", "Q"),  # +1 = reset faults (servo and watchdog)
             F("safe_state", "I"),  # hold the board in the safe state
-            F("shutdown", "I"),
+            F("shutdown", "I"),  # bit per process (Proc): stop it
+            F("virtual_run_until", "Q"),  # virtual clock: do not tick past this tick (0: run freely)
         ],
     )
 

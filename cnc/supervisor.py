@@ -261,6 +261,31 @@ class Supervisor:
         self.command.set("safe_state", int(on))
         self.command.publish()
 
+    def pause_virtual_clock(self) -> int:
+        """Virtual clock: stop time after the current tick; returns the tick it stops at."""
+        self._require_virtual()
+        self.command.set("virtual_run_until", max(self.hw()["tick"], 1))
+        self.command.publish()
+        self.wait_until(lambda: self.hw()["paused"], 5.0, "the virtual clock to pause")
+        return self.hw()["tick"]
+
+    def run_ticks(self, n: int, timeout_s: float = 60.0) -> int:
+        """Virtual clock: advance exactly `n` ticks from a pause and stop again; returns the tick reached."""
+        self._require_virtual()
+        target = self.hw()["tick"] + n
+        self.command.set("virtual_run_until", target)
+        self.command.publish()
+        self.wait_until(lambda: self.hw()["paused"] and self.hw()["tick"] == target, timeout_s, f"tick {target}")
+        return target
+
+    def resume_virtual_clock(self) -> None:
+        self.command.set("virtual_run_until", 0)
+        self.command.publish()
+
+    def _require_virtual(self) -> None:
+        if self.clock != "virtual":
+            raise RuntimeError(f"only the virtual clock can be paused and stepped (this controller runs {self.clock})")
+
     def set_sim(self, **values: Any) -> None:
         """Change the simulated environment: estop_pressed, doors_open, mains_off, drive_fault_mask, friction_scale."""
         for key, value in values.items():

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 
 from ..config import MachineConfig
 from ..dataserver import SharedArea
@@ -63,6 +64,7 @@ class HardwareServer:
         i_stick, i_sticks = s_idx["tick"], s_idx["ticks_processed"]
         c_idx = self.command.layout.index
         i_shutdown, i_safe, i_reset = c_idx["shutdown"], c_idx["safe_state"], c_idx["reset_seq"]
+        i_until = c_idx["virtual_run_until"]
         v = self.hw.values
         i_tick, i_ttime, i_wtime = idx["tick"], idx["tick_time_ns"], idx["wake_time_ns"]
         i_enc, i_ilc, i_ils, i_ain = idx["encoder_counts"], idx["index_latch_counts"], idx["index_latch_seq"], idx["axis_inputs"]
@@ -77,6 +79,8 @@ class HardwareServer:
         clients = [(c, c.divisor) for c in self.clients]
         hist, last_bin = self.hist, HIST_BINS - 1
         while True:
+            if self.clock.synchronous:
+                self._gate(tick, i_until, i_shutdown)
             deadline, woke = self.clock.wait()
             cmd, _ = self.command.read()
             if cmd[i_shutdown] & 1 << Proc.HARDWARE:
@@ -130,6 +134,22 @@ class HardwareServer:
                 if woke - deadline > self.timing["max_ns"][0]:
                     self.timing["max_ns"][0] = woke - deadline
             self.beat[Proc.HARDWARE] = tick
+
+    def _gate(self, tick: int, i_until: int, i_shutdown: int) -> None:
+        """Virtual clock: hold time still while the commander has set a tick not to pass."""
+        i_paused = self.hw.layout.index["paused"]
+        while True:
+            cmd, _ = self.command.read()
+            until = cmd[i_until]
+            if not until or tick < until or cmd[i_shutdown] & 1 << Proc.HARDWARE:
+                if self.hw.values[i_paused]:
+                    self.hw.values[i_paused] = 0
+                    self.hw.publish()
+                return
+            if not self.hw.values[i_paused]:
+                self.hw.values[i_paused] = 1
+                self.hw.publish()
+            time.sleep(0.0005)
 
     def _apply_sim(self, env: dict) -> None:
         """Pass the commander's simulated environment (e-stop, doors, faults, friction) to a sim board."""

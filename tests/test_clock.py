@@ -1,0 +1,74 @@
+"""Clocks and real-time setup: late ticks are counted, refusal of real-time falls back cleanly, virtual time is deterministic."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from cnc.hw.clock import RealtimeClock, VirtualClock, make_clock
+from cnc.ptp import move_setpoints
+from cnc.supervisor import Supervisor
+
+from .conftest import REPO, enable_and_hold, feed, machine_config
+
+
+def test_realtime_clock_counts_a_late_wake_and_skips_ahead_instead_of_bursting():
+    clock = RealtimeClock(0.001)
+    clock.start()
+    time.sleep(0.012)  # the loop was held up for 12 periods
+    deadline, woke = clock.wait()
+    assert woke - deadline >= 11_000_000 and clock.late_ticks >= 11
+    deadline2, _ = clock.wait()
+    assert deadline2 > woke, "the next deadline lies in the future: no burst of catch-up ticks"
+    assert (deadline2 - deadline) % clock.period_ns == 0, "deadlines stay on the period grid"
+
+
+def test_virtual_clock_time_is_tick_count_times_period():
+    clock = make_clock("virtual", 0.00025)
+    clock.start()
+    stamps = [clock.wait()[0] for _ in range(4)]
+    assert stamps == [250_000, 500_000, 750_000, 1_000_000] and isinstance(clock, VirtualClock)
+    with pytest.raises(ValueError, match="'atomic' is not one of: realtime, virtual"):
+        make_clock("atomic", 0.001)
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="dropping privileges to provoke a refusal needs root")
+def test_refused_realtime_scheduling_warns_and_falls_back_cleanly():
+    code = (
+        "import logging, os, resource\n"
+        "from cnc.rt import enter_realtime\n"
+        "resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))\n"
+        "resource.setrlimit(resource.RLIMIT_MEMLOCK, (0, 0))\n"
+        "os.setgid(65534); os.setuid(65534)\n"
+        "logging.basicConfig(level=logging.WARNING)\n"
+        "s = enter_realtime(80, 'servo')\n"
+        "print(s.fifo, s.mlocked, s.granted)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["False", "False", "False"]
+    assert "servo: running without full real-time guarantees: SCHED_FIFO refused" in res.stderr
+    assert "mlockall refused" in res.stderr
+
+
+def _run_move(ticks: int) -> tuple:
+    config = machine_config()
+    with Supervisor(config, clock="virtual") as sup:
+        start = enable_and_hold(sup)
+        sup.pause_virtual_clock()
+        paused_at = sup.hw()["tick"]
+        feed(sup, move_setpoints(config, start, [start[0] + 300.0, start[1] + 200.0]))
+        assert sup.hw()["tick"] == paused_at, "time stands still while paused"
+        sup.run_ticks(ticks)
+        s = sup.servo()
+        return s["max_following_error_mm"], s["actual_mm"], s["following_error_mm"], s["speed_cmd_v"], sup.fifo.fill()
+
+
+def test_virtual_clock_simulation_is_deterministic_tick_for_tick():
+    first = _run_move(400)  # mid-move: the table is still moving
+    assert first[4] > 0 and first == _run_move(400)

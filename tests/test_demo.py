@@ -1,0 +1,22 @@
+"""`waterjet demo` runs the simulated machine end to end, headless, and exits 0."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+from .conftest import REPO
+
+
+def test_demo_moves_the_table_shows_status_over_zenoh_and_exits_0():
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    res = subprocess.run(
+        [sys.executable, "-m", "cnc.cli", "demo", "--clock", "virtual"],
+        cwd=REPO, capture_output=True, text=True, timeout=240, env=env,
+    )
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    out = res.stdout
+    assert out.count("demo: reached") == 5
+    assert "[subscriber] status #" in out
+    assert "demo: OK: all points reached, status seen over Zenoh, shared memory freed" in out
