@@ -93,8 +93,10 @@ class Servo:
         cmd, _ = self.command.read()
         v, I, n = self.out.values, self._i, self.n
         tick = hw[self._h_tick]
+        steps = 1
         if not self.first and tick > self.last_tick + 1:
-            v[I["overruns"]] += tick - self.last_tick - 1
+            steps = tick - self.last_tick
+            v[I["overruns"]] += steps - 1
         self.first = False
         self.last_tick = tick
         enc = hw[self._h_enc]
@@ -121,7 +123,7 @@ class Servo:
             state = ServoState.DISABLED
             self._open_loop(actual)
         else:
-            state = self._close_loop(actual, tick)
+            state = self._close_loop(actual, tick, steps)
 
         v[I["state"]] = state
         v[I["tick"]] = tick
@@ -133,9 +135,16 @@ class Servo:
             self._record_latency(time.monotonic_ns() - hw[self._h_ttime])
         self.beat[Proc.SERVO] = tick
 
-    def _close_loop(self, actual: list[float], tick: int) -> int:
-        v, I, n, dt = self.out.values, self._i, self.n, self.dt
+    def _close_loop(self, actual: list[float], tick: int, steps: int) -> int:
+        """One closed-loop step; after an overrun of `steps - 1` ticks the setpoints of the
+        skipped ticks are consumed too, so the commanded path stays locked to time."""
+        v, I, n, dt = self.out.values, self._i, self.n, self.dt * steps
         rec = self.fifo.pop()
+        for _ in range(steps - 1):
+            newer = self.fifo.pop()
+            if newer is None:
+                break
+            rec = newer
         commanded = v[I["commanded_mm"]]
         if rec is not None:
             pos, vel, flags = rec[:n], rec[n : 2 * n], rec[2 * n]

@@ -113,23 +113,32 @@ def test_disabling_opens_the_loop_and_the_drives(virtual_controller):
     sup.wait_until(lambda: all(not a & AxisIn.DRIVE_ENABLED for a in sup.hw()["axis_inputs"]), 2.0, "drives off")
 
 
-def test_servo_counts_overruns_from_the_tick_sequence_counter():
-    """QMotor 2.0's check: when the hardware tick counter jumps past the servo's own count."""
+def test_servo_counts_overruns_and_consumes_the_skipped_ticks_setpoints():
+    """QMotor 2.0's check: the hardware tick counter jumped past the servo's own count. The
+    setpoints of the skipped ticks are consumed too, so the commanded path stays on time."""
     cfg = machine_config()
     area = SharedArea.create(unique_name("test", "overrun"), controller_layouts(2))
-    fifo = SetpointFifo.create(unique_name("test", "ofifo"), 16, 2)
+    fifo = SetpointFifo.create(unique_name("test", "ofifo"), 64, 2)
     try:
         hw = area.writer("hw")
         hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
         hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
+        command = area.writer("command")
+        command.set("servo_enable", 1)
+        command.publish()
+        for k in range(20):
+            fifo.push_one((0.001 * k, 0.0), (1.0, 0.0), SetpointFlag.IN_MOTION, segment=k)
         servo = Servo(cfg, area, fifo, record_latency=False)
+        seen = []
         for tick in (1, 2, 3, 7, 8, 10):
             hw.set("tick", tick)
             hw.publish()
             servo.tick()
+            seen.append(area.reader("servo").read_dict()["setpoint_segment"])
         del servo  # drop its views of the shared memory before closing it
         s = area.reader("servo").read_dict()
         assert s["overruns"] == 3 + 1 and s["ticks_processed"] == 6 and s["tick"] == 10
+        assert seen == [0, 1, 2, 6, 7, 9], "one setpoint per elapsed tick"
     finally:
         fifo.close()
         area.close()
