@@ -29,7 +29,7 @@ class ConfigError(ValueError):
         if not table and key is None:
             super().__init__(f"{path}: {message}")
             return
-        where = f"[{table}]" if table else "(top level)"
+        where = (table if table.startswith("[[") else f"[{table}]") if table else "(top level)"
         if key is not None:
             where += f" {key}"
         super().__init__(f"{path}: {where}: {message}")
@@ -156,6 +156,41 @@ class SimConfig:
 
 
 @dataclass(frozen=True)
+class McodeConfig:
+    """The M codes that switch the jet and the auxiliary outputs (0: not used)."""
+
+    jet_on: int = opt(3, "", "M code that opens the jet valve", 0, 199)
+    jet_off: int = opt(5, "", "M code that closes the jet valve", 0, 199)
+    abrasive_on: int = opt(7, "", "M code that starts the abrasive feed", 0, 199)
+    abrasive_off: int = opt(9, "", "M code that stops the abrasive feed", 0, 199)
+    aux1_on: int = opt(8, "", "M code that switches auxiliary output 1 on", 0, 199)
+    aux1_off: int = opt(9, "", "M code that switches auxiliary output 1 off", 0, 199)
+
+
+@dataclass(frozen=True)
+class NozzleConfig:
+    """One entry of the nozzle table: the kerf width G41/G42 D<number> compensates for."""
+
+    number: int = opt(_REQUIRED, "", "nozzle (tool) number used by T and by G41/G42 D", 0, 99999)
+    kerf_mm: float = opt(_REQUIRED, "mm", "kerf width: the compensation radius is half of it", 0.0, 100.0)
+    description: str = opt("", doc="free text, e.g. orifice and focusing tube sizes")
+
+
+@dataclass(frozen=True)
+class GcodeConfig:
+    """How programs are interpreted on this machine."""
+
+    default_tolerance_mm: float = opt(
+        0.05, "mm", "corner tolerance at program start and for G64 without P (0: no limit)", 0.0, 10.0
+    )
+    tool_table: str = opt(
+        "", doc="LinuxCNC-format tool table (path relative to the machine file) whose diameters are kerf widths; replaces [[nozzle]]"
+    )
+    block_delete: bool = opt(False, doc="block-delete switch at start: skip lines that begin with '/'")
+    max_program_bytes: int = opt(64 * 1024 * 1024, "bytes", "largest program accepted", 1024, 2**31 - 1)
+
+
+@dataclass(frozen=True)
 class GatewayConfig:
     """The HMI's door on Zenoh."""
 
@@ -189,6 +224,9 @@ class MachineConfig:
     axis: dict[str, AxisConfig] = field(default_factory=dict, metadata={"table_of": AxisConfig, "required": True})
     board: BoardConfig = field(default_factory=BoardConfig)
     sim: SimConfig = field(default_factory=SimConfig)
+    mcodes: McodeConfig = field(default_factory=McodeConfig)
+    gcode: GcodeConfig = field(default_factory=GcodeConfig)
+    nozzle: list[NozzleConfig] = field(default_factory=list, metadata={"array_of": NozzleConfig})
     gateway: GatewayConfig = field(default_factory=GatewayConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
@@ -256,6 +294,8 @@ def _build(cls: type, table: dict[str, Any], source: str, where: str) -> Any:
         sub = f"{where}.{name}" if where else name
         if "table_of" in f.metadata:
             values[name] = _build_table_of(f, table.get(name), source, sub, name, where)
+        elif "array_of" in f.metadata:
+            values[name] = _build_array_of(f.metadata["array_of"], table.get(name, []), source, sub)
         elif dataclasses.is_dataclass(hints[name]):
             values[name] = _build(hints[name], table.get(name, {}), source, sub)
         elif name in table:
@@ -279,6 +319,13 @@ def _build_table_of(f: dataclasses.Field, raw: Any, source: str, sub: str, name:
             raise ConfigError(source, sub, axis, f"unknown axis (allowed: {', '.join(AXIS_NAMES)})")
         out[axis] = _build(f.metadata["table_of"], body, source, f"{sub}.{axis}")
     return out
+
+
+def _build_array_of(cls: type, raw: Any, source: str, where: str) -> list:
+    """`[[name]]` arrays of tables; errors name the entry as `[[name]] #k`."""
+    if not isinstance(raw, list):
+        raise ConfigError(source, where, None, f"expected an array of tables [[{where}]], got {_tname(raw)}")
+    return [_build(cls, body, source, f"[[{where}]] #{k + 1}") for k, body in enumerate(raw)]
 
 
 def _check_value(value: Any, hint: Any, meta: dict, source: str, table: str, key: str) -> Any:
@@ -333,6 +380,11 @@ def _cross_check(cfg: MachineConfig) -> None:
                 f"{s.hard_stop_overtravel_mm:g} must exceed limit_switch_overtravel_mm "
                 f"{s.limit_switch_overtravel_mm:g} so that the limit switch trips before the end stop",
             )
+    seen: dict[int, int] = {}
+    for k, nz in enumerate(cfg.nozzle, start=1):
+        if nz.number in seen:
+            raise ConfigError(src, f"[[nozzle]] #{k}", "number", f"nozzle {nz.number} is already entry #{seen[nz.number]}")
+        seen[nz.number] = k
     if not cfg.zenoh.listen:
         raise ConfigError(src, "zenoh", "listen", "needs at least one endpoint, e.g. tcp/127.0.0.1:7447")
     for prefix_part in cfg.zenoh.key_prefix.split("/"):
@@ -376,7 +428,7 @@ def _render(cls: type, table: str, lines: list[str]) -> None:
     for f in dataclasses.fields(cls):
         if f.metadata.get("internal"):
             continue
-        if "table_of" in f.metadata or dataclasses.is_dataclass(hints[f.name]):
+        if "table_of" in f.metadata or "array_of" in f.metadata or dataclasses.is_dataclass(hints[f.name]):
             subtables.append(f)
         else:
             scalars.append(f)
@@ -389,7 +441,14 @@ def _render(cls: type, table: str, lines: list[str]) -> None:
         lines.append("")
     for f in subtables:
         sub = f"{table}.{f.name}" if table else f.name
-        if "table_of" in f.metadata:
+        if "array_of" in f.metadata:
+            cls_ = f.metadata["array_of"]
+            lines.append(f"[[{sub}]]")
+            lines.append(f"# {(cls_.__doc__ or '').strip().splitlines()[0]} (repeat the table for each entry)")
+            for g in dataclasses.fields(cls_):
+                lines.extend(_render_option(g))
+            lines.append("")
+        elif "table_of" in f.metadata:
             _render(f.metadata["table_of"], f"{sub}.x", lines)
         else:
             _render(hints[f.name], sub, lines)
@@ -402,7 +461,7 @@ def _render_option(f: dataclasses.Field) -> list[str]:
     unit = f" [{meta['unit']}]" if meta.get("unit") else ""
     comment = f"# {meta.get('doc', '')}{unit}{_range_text(meta)}"
     if required:
-        return [comment + " REQUIRED", f"{f.name} = 0.0"]
+        return [comment + " REQUIRED", f"{f.name} = {'0' if f.type == 'int' else '0.0'}"]
     if isinstance(default, float) and math.isnan(default):
         return [comment, f"# {f.name} = (unset)"]
     return [comment, f"# {f.name} = {_toml_value(default)}"]
