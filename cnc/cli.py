@@ -55,6 +55,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(args.machine, clock=args.clock)
 
 
+def _cmd_check(args: argparse.Namespace) -> int:
+    from .check import check_program
+
+    config = load_machine(args.machine)
+    return check_program(args.program, config, args.tool_table, args.segments, sys.stdout, sys.stderr)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="waterjet", description="Waterjet CNC controller")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -65,6 +72,13 @@ def build_parser() -> argparse.ArgumentParser:
     up.add_argument("--clock", choices=("realtime", "virtual"), default="realtime", help="base-tick clock (default realtime)")
     up.add_argument("--listen", action="append", metavar="ENDPOINT", help="Zenoh endpoint to listen on (overrides the machine file; repeatable)")
     up.set_defaults(func=_cmd_up)
+
+    check = sub.add_parser("check", help="validate a G-code program and summarise it (exit 0 valid, 1 not)")
+    check.add_argument("program", help="G-code file")
+    _machine_arg(check)
+    check.add_argument("--tool-table", metavar="FILE.tbl", help="LinuxCNC-format tool table; overrides the machine's nozzle table")
+    check.add_argument("--segments", metavar="OUT.jsonl", help="write every motion and dwell as one JSON object per line")
+    check.set_defaults(func=_cmd_check)
 
     demo = sub.add_parser("demo", help="run the simulated machine end to end and exit 0 when it behaved")
     _machine_arg(demo)

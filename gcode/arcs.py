@@ -1,0 +1,75 @@
+"""Arc geometry in the XY plane: centre from the R form, radius checks, sweep, length and bounds.
+
+Angles are measured counter-clockwise from +X. The sweep of an arc is its signed angle
+(negative clockwise) including extra full turns; a start point equal to the end point is a
+full circle.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .errors import GCodeError
+
+FULL_CIRCLE_EPS_MM = 1e-9
+
+
+def centre_from_radius(x0: float, y0: float, x1: float, y1: float, r: float, cw: bool) -> tuple[float, float]:
+    """Centre of the arc of radius |r| from (x0, y0) to (x1, y1); r < 0 asks for the arc over 180 degrees."""
+    dx, dy = x1 - x0, y1 - y0
+    chord = math.hypot(dx, dy)
+    if chord < FULL_CIRCLE_EPS_MM:
+        raise GCodeError("a full circle cannot be programmed with R: use I and J", code="arc-radius-format")
+    half = chord / 2.0
+    radius = abs(r)
+    if radius < half - 1e-7 * max(1.0, radius):
+        raise GCodeError(
+            f"arc radius {radius:.4f} mm is too small to reach the end point {chord:.4f} mm away",
+            code="arc-radius-too-small",
+        )
+    h = math.sqrt(max(radius * radius - half * half, 0.0))
+    mx, my = (x0 + x1) / 2.0, (y0 + y1) / 2.0
+    ux, uy = -dy / chord, dx / chord  # left normal of the chord
+    # CCW short arc: centre on the left of the chord; CW short arc: on the right; R < 0 swaps
+    side = 1.0 if (not cw) == (r > 0) else -1.0
+    return mx + side * h * ux, my + side * h * uy
+
+
+def sweep(x0: float, y0: float, x1: float, y1: float, cx: float, cy: float, cw: bool, turns: int) -> float:
+    """Signed swept angle (rad) from start to end around the centre, with `turns` extra full turns."""
+    a0 = math.atan2(y0 - cy, x0 - cx)
+    a1 = math.atan2(y1 - cy, x1 - cx)
+    if cw:
+        d = a0 - a1
+        if d <= 1e-12:
+            d += 2.0 * math.pi
+        return -(d + 2.0 * math.pi * turns)
+    d = a1 - a0
+    if d <= 1e-12:
+        d += 2.0 * math.pi
+    return d + 2.0 * math.pi * turns
+
+
+def arc_length(radius: float, swept: float, dz: float = 0.0) -> float:
+    planar = abs(radius * swept)
+    return math.hypot(planar, dz) if dz else planar
+
+
+def arc_bounds(
+    x0: float, y0: float, cx: float, cy: float, radius: float, start_angle: float, swept: float
+) -> tuple[float, float, float, float]:
+    """(xmin, ymin, xmax, ymax) of the arc, extremes included where the arc passes them."""
+    a_end = start_angle + swept
+    xs = [x0, cx + radius * math.cos(a_end)]
+    ys = [y0, cy + radius * math.sin(a_end)]
+    if abs(swept) >= 2.0 * math.pi - 1e-12:
+        return cx - radius, cy - radius, cx + radius, cy + radius
+    lo, hi = (start_angle, a_end) if swept >= 0 else (a_end, start_angle)
+    for k, (px, py) in enumerate(((1, 0), (0, 1), (-1, 0), (0, -1))):
+        ang = k * math.pi / 2.0
+        # does [lo, hi] contain ang + 2 pi n for some n?
+        n = math.ceil((lo - ang) / (2.0 * math.pi))
+        if ang + 2.0 * math.pi * n <= hi:
+            xs.append(cx + px * radius)
+            ys.append(cy + py * radius)
+    return min(xs), min(ys), max(xs), max(ys)

@@ -1,0 +1,233 @@
+"""Fast path: runs of plain motion lines interpreted in bulk with numpy.
+
+Most of a CAM program is lines like `G1 X12.5 Y7.25` or `X13 Y8 F1200`: one motion code
+(G0-G3) at most, then X/Y/Z/I/J/R/F words with plain numbers, no comments, parameters or
+expressions. When kerf compensation, inverse-time feed and subroutines are off, such a run
+is interpreted as arrays: the words are cut out of the text by two regular expressions,
+modal values (motion code, feed, coordinates) are carried forward with an index trick,
+offsets and units applied, arc centres and radius checks computed for all arcs at once.
+
+The result is exactly what the general path gives. Anything unusual in a line (a duplicated
+word, zero feed, an arc whose end is off its radius, an axis the machine lacks, an R arc
+that cannot reach) ends the run before that line, and the general path interprets it and
+reports the error with its exact wording and column.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .canon import ARC, LINE, RAPID
+
+if TYPE_CHECKING:
+    from .interp import Interpreter
+
+_NUM = r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)"
+_SIMPLE_LINE = (
+    rf"[ \t]*(?:[nN][0-9]+[ \t]*)?(?:[gG]0*[0-3](?![0-9.])[ \t]*)?(?:[xXyYzZfFiIjJrR][ \t]*{_NUM}[ \t]*)*"
+)
+_NOT_SIMPLE = re.compile(rf"^(?!{_SIMPLE_LINE}$)", re.M)
+_NUMBER = re.compile(_NUM)
+MIN_RUN = 24  # shorter runs are not worth the set-up: the general path takes them
+MAX_RUN = 200_000  # bounded arrays per run
+_TWO_PI = 2.0 * math.pi
+
+
+class FastPath:
+    """Bulk interpretation of plain-motion runs for one `Interpreter`."""
+
+    def __init__(self, interp: "Interpreter", text: str, lines: list[str]) -> None:
+        self.ip = interp
+        self.text = text
+        starts = np.empty(len(lines) + 1, dtype=np.int64)
+        starts[0] = 0
+        if text.isascii():  # byte offsets are character offsets: find the newlines in C
+            starts[1:] = np.flatnonzero(np.frombuffer(text.encode("ascii"), dtype=np.uint8) == 10) + 1
+        else:
+            np.cumsum(np.fromiter((len(s) + 1 for s in lines), dtype=np.int64, count=len(lines)), out=starts[1:])
+        self.starts = starts
+        self.skip_until = 0  # lines before this index were judged not worth a bulk run
+
+    def run(self, pc: int, end: int) -> int:
+        """Interpret lines pc.. in bulk if they start a long enough plain run; return how many were taken."""
+        ip = self.ip
+        if pc < self.skip_until or ip.kerf.active or ip.inverse_time or ip.frames:
+            return 0
+        stop = min(end, pc + MAX_RUN)
+        m = _NOT_SIMPLE.search(self.text, int(self.starts[pc]), int(self.starts[stop]))
+        run_end = stop if m is None else int(np.searchsorted(self.starts, m.start(), side="right")) - 1
+        if run_end - pc < MIN_RUN:
+            return 0
+        chunk = self.text[self.starts[pc] : self.starts[run_end]]
+        taken = self._bulk(pc, run_end - pc, chunk.lower()) if chunk.isascii() else 0
+        if not taken:
+            self.skip_until = pc + 1 if chunk.isascii() else run_end
+        return taken
+
+    # -----------------------------------------------------------------------------------
+    def _bulk(self, first: int, nl: int, low: str) -> int:
+        ip = self.ip
+        raw = np.frombuffer(low.encode("ascii"), dtype=np.uint8)
+        letter_pos = np.flatnonzero((raw >= 97) & (raw <= 122))
+        letters = raw[letter_pos]
+        line_of = np.searchsorted(np.flatnonzero(raw == 10), letter_pos)
+        values = np.array(_NUMBER.findall(low), dtype=np.float64)
+        keep = letters != ord("n")
+        letters, line_of, values = letters[keep], line_of[keep], values[keep]
+        if len(values) != len(letters):
+            return 0  # not the one-number-per-letter shape after all
+        limit = nl  # lines [0, limit) are taken; lowered at the first line that needs the general path
+
+        def column(ch: str) -> np.ndarray:
+            nonlocal limit
+            sel = letters == ord(ch)
+            ids = line_of[sel]
+            out = np.full(nl, np.nan)
+            if ids.size:
+                counts = np.bincount(ids, minlength=nl)
+                dup = np.flatnonzero(counts > 1)
+                if dup.size:
+                    limit = min(limit, int(dup[0]))
+                out[ids] = values[sel]
+            return out
+
+        g, f = column("g"), column("f")
+        ax = [column(a) for a in "xyz"]
+        wi, wj, wr = column("i"), column("j"), column("r")
+        has_axis = ~(np.isnan(ax[0]) & np.isnan(ax[1]) & np.isnan(ax[2]))
+        if "z" not in ip.d.axes:
+            limit = _first(~np.isnan(ax[2]), limit)
+        motion = _ffill(g, ip.motion / 10.0)
+        feed = _ffill(f * ip.units, ip.feed_mm)  # mm/min
+        is_arc = has_axis & (motion >= 2.0)
+        has_ij = ~(np.isnan(wi) & np.isnan(wj))
+        has_r = ~np.isnan(wr)
+        # words without a motion to use them, arcs without an end point or centre, mixed forms
+        limit = _first((has_ij | has_r) & ~is_arc, limit)
+        limit = _first(is_arc & np.isnan(ax[0]) & np.isnan(ax[1]), limit)
+        limit = _first(is_arc & (has_ij == has_r), limit)
+        limit = _first(has_axis & (motion >= 1.0) & (feed <= 0.0), limit)
+        if limit < MIN_RUN:
+            return 0
+        # end points in machine mm
+        units = ip.units
+        ends = np.empty((nl, 3))
+        for i in range(3):
+            col = ax[i]
+            if ip.absolute:
+                off = ip._offset(i)
+                work0 = (ip.pos[i] - off) / units
+                ends[:, i] = _ffill(col, work0) * units + off
+            else:
+                ends[:, i] = ip.pos[i] + np.cumsum(np.nan_to_num(col)) * units
+        idx = np.flatnonzero(has_axis[:limit])
+        starts = np.empty((len(idx), 3))
+        if len(idx):
+            starts[0] = ip.pos
+            starts[1:] = ends[idx[:-1]]
+        e = ends[idx]
+        kind = np.where(motion[idx] == 0.0, RAPID, np.where(motion[idx] == 1.0, LINE, ARC)).astype(np.uint8)
+        arc = kind == ARC
+        cw = motion[idx] == 2.0
+        center = np.zeros((len(idx), 2))
+        length = np.sqrt(((e - starts) ** 2).sum(axis=1))
+        lo = np.minimum(starts, e)
+        hi = np.maximum(starts, e)
+        if arc.any():
+            bad = self._arcs(idx, arc, cw, starts, e, center, length, lo, hi, wi, wj, wr, units)
+            if bad is not None:
+                limit = int(idx[bad])
+                if limit < MIN_RUN:
+                    return 0
+                keep_seg = idx < limit
+                idx, kind, cw, starts, e, center = idx[keep_seg], kind[keep_seg], cw[keep_seg], starts[keep_seg], e[keep_seg], center[keep_seg]
+                length, lo, hi = length[keep_seg], lo[keep_seg], hi[keep_seg]
+        fmm = np.where(kind == RAPID, np.nan, feed[idx])
+        lines = first + idx + 1
+        lo_all = lo.min(axis=0) if len(idx) else np.full(3, np.inf)
+        hi_all = hi.max(axis=0) if len(idx) else np.full(3, -np.inf)
+        ip.builder.extend(kind, starts, e, center, cw, fmm, lines, ip._attrs, length, lo_all, hi_all)
+        # modal state after the run
+        last = limit - 1
+        ip.motion = int(round(motion[last] * 10))
+        ip.feed_mm = float(feed[last])
+        if len(idx):
+            ip.pos = [float(v) for v in e[-1]]
+        return limit
+
+    def _arcs(self, idx, arc, cw, starts, e, center, length, lo, hi, wi, wj, wr, units) -> int | None:
+        """Centres, radius checks, lengths and bounds of every arc; index of the first bad one or None."""
+        from .interp import ARC_RADIUS_RELATIVE_TOLERANCE, ARC_RADIUS_TOLERANCE_MM
+
+        ip = self.ip
+        a = np.flatnonzero(arc)
+        li = idx[a]
+        x0, y0, x1, y1 = starts[a, 0], starts[a, 1], e[a, 0], e[a, 1]
+        r_form = ~np.isnan(wr[li])
+        i_ = np.nan_to_num(wi[li]) * units
+        j_ = np.nan_to_num(wj[li]) * units
+        if ip.arc_absolute:
+            cx, cy = i_ + ip._offset(0), j_ + ip._offset(1)
+        else:
+            cx, cy = x0 + i_, y0 + j_
+        bad = np.zeros(len(a), dtype=bool)
+        if r_form.any():
+            r = wr[li] * units
+            dx, dy = x1 - x0, y1 - y0
+            chord = np.hypot(dx, dy)
+            radius = np.abs(r)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                half = chord / 2.0
+                bad |= r_form & ((chord < 1e-9) | (radius < half - 1e-7 * np.maximum(1.0, radius)))
+                h = np.sqrt(np.maximum(radius * radius - half * half, 0.0))
+                ux, uy = -dy / chord, dx / chord
+                side = np.where((~cw[a]) == (r > 0), 1.0, -1.0)
+                rcx = (x0 + x1) / 2.0 + side * h * ux
+                rcy = (y0 + y1) / 2.0 + side * h * uy
+            cx = np.where(r_form, rcx, cx)
+            cy = np.where(r_form, rcy, cy)
+        r0 = np.hypot(x0 - cx, y0 - cy)
+        r1 = np.hypot(x1 - cx, y1 - cy)
+        ij = ~r_form
+        bad |= ij & ((r0 == 0.0) | (np.abs(r1 - r0) > np.maximum(ARC_RADIUS_TOLERANCE_MM, ARC_RADIUS_RELATIVE_TOLERANCE * r0)))
+        # sweep, as gcode.arcs.sweep
+        a0 = np.arctan2(y0 - cy, x0 - cx)
+        a1 = np.arctan2(y1 - cy, x1 - cx)
+        d = np.where(cw[a], a0 - a1, a1 - a0)
+        d = np.where(d <= 1e-12, d + _TWO_PI, d)
+        swept = np.where(cw[a], -d, d)
+        dz = e[a, 2] - starts[a, 2]
+        length[a] = np.hypot(np.abs(r0 * swept), dz)
+        center[a, 0], center[a, 1] = cx, cy
+        # bounds: start and end already in lo/hi; add the quadrant points the arc passes
+        lo_s = np.where(swept >= 0, a0, a0 + swept)
+        hi_s = np.where(swept >= 0, a0 + swept, a0)
+        for k, (px, py) in enumerate(((1, 0), (0, 1), (-1, 0), (0, -1))):
+            ang = k * math.pi / 2.0
+            n = np.ceil((lo_s - ang) / _TWO_PI)
+            inside = ang + _TWO_PI * n <= hi_s
+            qx, qy = cx + px * r0, cy + py * r0
+            lo[a, 0] = np.where(inside, np.minimum(lo[a, 0], qx), lo[a, 0])
+            lo[a, 1] = np.where(inside, np.minimum(lo[a, 1], qy), lo[a, 1])
+            hi[a, 0] = np.where(inside, np.maximum(hi[a, 0], qx), hi[a, 0])
+            hi[a, 1] = np.where(inside, np.maximum(hi[a, 1], qy), hi[a, 1])
+        if bad.any():
+            return int(a[np.flatnonzero(bad)[0]])
+        return None
+
+
+def _ffill(values: np.ndarray, initial: float) -> np.ndarray:
+    """Carry the last non-NaN value forward; `initial` before the first one."""
+    valid = ~np.isnan(values)
+    pos = np.where(valid, np.arange(len(values)), -1)
+    np.maximum.accumulate(pos, out=pos)
+    return np.where(pos >= 0, values[np.maximum(pos, 0)], initial)
+
+
+def _first(mask: np.ndarray, limit: int) -> int:
+    hits = np.flatnonzero(mask[:limit])
+    return int(hits[0]) if hits.size else limit

@@ -1,0 +1,787 @@
+"""The RS274/NGC interpreter: blocks to a canonical stream of moves and events, LinuxCNC semantics.
+
+Each block is checked completely (modal-group conflicts, missing or duplicated words, words
+the machine lacks) before anything of it executes, then executed in RS274/NGC's order:
+comments and messages, feed mode, feed, S, T, M6, jet (M3/M5 through the machine's M-code
+map), auxiliary outputs, M62-M65, dwell, plane, units, kerf compensation, coordinate system,
+path control, distance modes, G10/G92, motion, stops. Program units are converted to mm
+and mm/min here, at the edge, once. O-word control flow (subroutines, if, while, do,
+repeat) moves a program counter over the lines; the first error stops interpretation.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+from dataclasses import dataclass
+from typing import Callable
+
+from . import modal
+from .arcs import centre_from_radius
+from .canon import ARC, LINE, RAPID, Event, Move
+from .dialect import AUX_BITS, Dialect
+from .errors import GCodeError
+from .fastpath import FastPath
+from .kerf import KerfCompensator
+from .lexer import Block, OWord, lex_line
+from .params import Parameters
+from .program import Attrs, Program, ProgramBuilder
+from .source import decode, split_lines
+
+INCH_MM = 25.4
+ARC_RADIUS_TOLERANCE_MM = 0.002 * INCH_MM / 1.0  # LinuxCNC accepts this much spiral (end radius - start radius)
+ARC_RADIUS_RELATIVE_TOLERANCE = 0.001
+_OLINE = re.compile(r"^[ \t]*(?:/[ \t]*)?(?:[nN][\d. \t]*)?[oO]", re.M)
+_MOTION_CODES = (0, 10, 20, 30, 800)
+_AXIS_GROUP0 = (100, 920, 530)  # non-modal codes that take axis words (G53 modifies motion)
+
+# 5211-5219: G92 offsets; 5210: G92 enabled; 5220: current coordinate system; 5221+20k: G54.. origins
+P_G92_ENABLED, P_G92, P_CS, P_CS_BASE = 5210, 5211, 5220, 5221
+
+
+@dataclass
+class _Frame:
+    label: str
+    return_pc: int
+    repeat: dict  # repeat line index -> remaining count
+
+
+def interpret(source: str | bytes, dialect: Dialect | None = None, file: str = "<string>") -> Program:
+    """Interpret a whole program; raises GCodeError at the first error."""
+    return Interpreter(dialect or Dialect(), file).run(source)
+
+
+def interpret_file(path: str, dialect: Dialect | None = None) -> Program:
+    with open(path, "rb") as f:
+        data = f.read()
+    return interpret(data, dialect, file=str(path))
+
+
+class Interpreter:
+    """One interpretation of one program."""
+
+    def __init__(self, dialect: Dialect, file: str = "<string>", fast: bool = True) -> None:
+        self.d = dialect
+        self.file = file
+        self.use_fast_path = fast  # off: every line through the general path (for equivalence tests)
+        self.builder = ProgramBuilder()
+        self.kerf = KerfCompensator(self.builder)
+        self.params = Parameters(self._predefined)
+        # modal state
+        self.units = 1.0  # mm per program unit
+        self.absolute = True
+        self.arc_absolute = False
+        self.inverse_time = False
+        self.motion = 0  # G-code x10 of the modal motion (G0 at start, as LinuxCNC)
+        self.cs = 1  # coordinate system 1..9 (G54..G59.3)
+        self.cs_origin = [[0.0, 0.0, 0.0] for _ in range(10)]  # mm, index 1..9
+        self.g92 = [0.0, 0.0, 0.0]
+        self.g92_on = False
+        self.pos = list(dialect.start_position_mm)  # machine mm
+        self.feed_mm = 0.0  # mm/min: feed is a physical speed, kept across unit changes as LinuxCNC does
+        self.speed = 0.0
+        self.tool = 0  # loaded tool
+        self.next_tool = 0
+        self.tolerance = dialect.default_tolerance_mm
+        self.jet = False
+        self.aux = 0
+        self.outputs = 0
+        self._attrs = Attrs(self.tolerance, False, 0, 0)
+        self.line_no = 0
+        self.ended = False
+        self.blocks_run = 0
+
+    # -- driver --------------------------------------------------------------------------
+    def run(self, source: str | bytes, progress: Callable[[int, int], None] | None = None) -> Program:
+        """Interpret the program; `progress(line, total)` is called now and then on long files."""
+        self.progress = progress
+        text = decode(source, self.file) if isinstance(source, (bytes, bytearray)) else source
+        try:
+            self.lines, self.end = split_lines(text, self.file)
+            self.fast = FastPath(self, "\n".join(self.lines) + "\n", self.lines)
+            self._scan_owords()
+            self._execute_lines()
+            self.kerf.flush()
+        except GCodeError as err:
+            n = err.line or self.line_no
+            raise err.located(self.file, n, err.column or 1, self.lines[n - 1] if 0 < n <= len(self.lines) else None) from None
+        except RecursionError:
+            raise GCodeError("expression or call nesting too deep", code="nesting", file=self.file, line=self.line_no) from None
+        return self.builder.build(self.file, min(self.end, len(self.lines)))
+
+    def _execute_lines(self) -> None:
+        pc, end, lines = 0, self.end, self.lines
+        self.frames: list[_Frame] = []
+        self._cache: dict[int, Block] = {}
+        while pc < end and not self.ended:
+            self.line_no = pc + 1
+            self.blocks_run += 1
+            if not self.blocks_run & 0x3FFF and self.progress is not None:
+                self.progress(pc + 1, end)
+            if self.blocks_run > self.d.max_blocks:
+                raise GCodeError(
+                    f"program executed more than {self.d.max_blocks} blocks: an endless loop?", code="runaway", line=pc + 1, column=1
+                )
+            if self.use_fast_path and pc not in self._olines:
+                taken = self.fast.run(pc, end)
+                if taken:
+                    pc += taken
+                    self.blocks_run += taken - 1
+                    continue
+            block = self._cache.get(pc)
+            if block is None:
+                raw = lines[pc]
+                if raw.strip() == "%":
+                    pc += 1
+                    continue
+                block = lex_line(raw, pc + 1)
+                if pc in self._olines or self.frames:
+                    self._cache[pc] = block
+            if block.block_delete and self.d.block_delete:
+                pc += 1
+                continue
+            if block.oword is not None:
+                pc = self._oword(block.oword, pc)
+                continue
+            self._execute(block)
+            pc += 1
+        if self.frames and not self.ended:
+            f = self.frames[-1]
+            raise GCodeError(f"subroutine o<{f.label}> has no endsub", code="o-word", line=self.line_no, column=1)
+
+    # -- O-words -------------------------------------------------------------------------
+    def _scan_owords(self) -> None:
+        """Find every O-word line once: subroutine bodies and the partners of if/while/do/repeat."""
+        self._olines: dict[int, OWord] = {}
+        self._by_label: dict[str, list[tuple[int, str]]] = {}
+        self._subs: dict[str, tuple[int, int]] = {}
+        starts = self.fast.starts
+        for m in _OLINE.finditer(self.fast.text, 0, int(starts[min(self.end, len(self.lines))])):
+            i = int(np.searchsorted(starts, m.start(), side="right")) - 1
+            raw = self.lines[i]
+            self.line_no = i + 1
+            ow = lex_line(raw, i + 1).oword
+            if ow is None:
+                continue
+            self._olines[i] = ow
+            self._by_label.setdefault(ow.label, []).append((i, ow.keyword))
+        self._do_end: dict[int, int] = {}  # `while` closing a `do` -> that `do`
+        for label, entries in self._by_label.items():
+            loops: list[tuple[str, int]] = []
+            for i, kw in entries:
+                if kw in ("do", "repeat"):
+                    loops.append((kw, i))
+                elif kw == "while":
+                    if loops and loops[-1][0] == "do":
+                        self._do_end[i] = loops.pop()[1]
+                    else:
+                        loops.append(("while", i))
+                elif kw in ("endwhile", "endrepeat") and loops:
+                    loops.pop()
+            open_sub = None
+            for i, kw in entries:
+                if kw == "sub":
+                    if open_sub is not None:
+                        raise GCodeError(f"o<{label}> sub inside o<{label}> sub", code="o-word", line=i + 1, column=1)
+                    if label in self._subs:
+                        raise GCodeError(f"subroutine o<{label}> is defined twice (first at line {self._subs[label][0] + 1})", code="o-word", line=i + 1, column=1)
+                    open_sub = i
+                elif kw == "endsub":
+                    if open_sub is None:
+                        raise GCodeError(f"o<{label}> endsub without a sub", code="o-word", line=i + 1, column=1)
+                    self._subs[label] = (open_sub, i)
+                    open_sub = None
+            if open_sub is not None:
+                raise GCodeError(f"subroutine o<{label}> has no endsub", code="o-word", line=open_sub + 1, column=1)
+
+    def _find(self, label: str, after: int, keywords: tuple[str, ...], what: str) -> tuple[int, str]:
+        """The first O-word of `label` after line index `after` whose keyword is in `keywords`."""
+        for i, kw in self._by_label.get(label, ()):
+            if i > after and kw in keywords:
+                return i, kw
+        raise GCodeError(f"o<{label}>: no matching {what}", code="o-word", line=after + 1, column=1)
+
+    def _cond(self, ow: OWord) -> float:
+        return ow.args[0].evaluate(self.params)
+
+    def _oword(self, ow: OWord, pc: int) -> int:
+        kw, label = ow.keyword, ow.label
+        if kw == "sub":
+            return self._subs[label][1] + 1  # a definition met in the flow is skipped
+        if kw == "call":
+            if label not in self._subs:
+                raise GCodeError(f"o<{label}> call: no subroutine o<{label}> in this program", code="o-word", line=pc + 1, column=1)
+            if len(self.frames) >= self.d.max_call_depth:
+                raise GCodeError(f"subroutine calls nested deeper than {self.d.max_call_depth}", code="o-word", line=pc + 1, column=1)
+            args = [a.evaluate(self.params) for a in ow.args]
+            self.params.push_scope(args)
+            self.frames.append(_Frame(label, pc + 1, {}))
+            return self._subs[label][0] + 1
+        if kw in ("endsub", "return"):
+            if not self.frames or self.frames[-1].label != label:
+                raise GCodeError(f"o<{label}> {kw} outside subroutine o<{label}>", code="o-word", line=pc + 1, column=1)
+            value = ow.args[0].evaluate(self.params) if ow.args else None
+            frame = self.frames.pop()
+            self.params.pop_scope()
+            if value is not None:
+                self.params.set_named("_value", value)
+                self.params.set_named("_value_returned", 1.0)
+            return frame.return_pc
+        if kw == "if":
+            return self._if_chain(label, pc, ow)
+        if kw in ("elseif", "else"):
+            return self._find(label, pc, ("endif",), "endif")[0] + 1  # a branch before was taken
+        if kw == "endif":
+            return pc + 1
+        if kw == "do":
+            return pc + 1
+        if kw == "while":
+            if pc in self._do_end:
+                return self._do_end[pc] + 1 if self._cond(ow) else pc + 1
+            if self._cond(ow):
+                return pc + 1
+            return self._find(label, pc, ("endwhile",), "endwhile")[0] + 1
+        if kw == "endwhile":
+            return self._find_back(label, pc, "while")
+        if kw == "repeat":
+            frame_rep = self._repeats()
+            count = int(self._cond(ow))
+            if count <= 0:
+                return self._find(label, pc, ("endrepeat",), "endrepeat")[0] + 1
+            frame_rep[pc] = count
+            return pc + 1
+        if kw == "endrepeat":
+            start = self._find_back(label, pc, "repeat")
+            reps = self._repeats()
+            remaining = reps.get(start, 1) - 1
+            if remaining > 0:
+                reps[start] = remaining
+                return start + 1
+            reps.pop(start, None)
+            return pc + 1
+        if kw in ("break", "continue"):
+            return self._break_continue(label, pc, kw)
+        raise GCodeError(f"O-word keyword {kw} is not handled", code="o-word", line=pc + 1, column=1)
+
+    def _if_chain(self, label: str, pc: int, ow: OWord) -> int:
+        cur, cond_ow = pc, ow
+        while True:
+            if cond_ow.args[0].evaluate(self.params):
+                return cur + 1
+            nxt, kw = self._find(label, cur, ("elseif", "else", "endif"), "elseif, else or endif")
+            if kw == "endif":
+                return nxt + 1
+            if kw == "else":
+                return nxt + 1
+            cur, cond_ow = nxt, self._olines[nxt]
+
+    def _find_back(self, label: str, pc: int, keyword: str) -> int:
+        cands = [i for i, kw in self._by_label.get(label, ()) if i < pc and kw == keyword]
+        if not cands:
+            raise GCodeError(f"o<{label}> end{keyword} without {keyword}", code="o-word", line=pc + 1, column=1)
+        return cands[-1]
+
+    def _repeats(self) -> dict:
+        if self.frames:
+            return self.frames[-1].repeat
+        if not hasattr(self, "_main_repeats"):
+            self._main_repeats: dict = {}
+        return self._main_repeats
+
+    def _break_continue(self, label: str, pc: int, kw: str) -> int:
+        starts = [(i, k) for i, k in self._by_label.get(label, ()) if i < pc and k in ("while", "do", "repeat") and i not in self._do_end]
+        if not starts:
+            raise GCodeError(f"o<{label}> {kw} outside a loop o<{label}>", code="o-word", line=pc + 1, column=1)
+        start, skw = starts[-1]
+        if skw == "repeat":
+            end = self._find(label, pc, ("endrepeat",), "endrepeat")[0]
+            if kw == "break":
+                self._repeats().pop(start, None)
+                return end + 1
+            return end  # endrepeat decides about the next round
+        if skw == "do":
+            end = next((w for w, d in self._do_end.items() if d == start), None)
+            if end is None:
+                raise GCodeError(f"o<{label}> do without its closing while", code="o-word", line=start + 1, column=1)
+            return end + 1 if kw == "break" else end
+        end = self._find(label, pc, ("endwhile",), "endwhile")[0]
+        return end + 1 if kw == "break" else start
+
+    # -- one block -----------------------------------------------------------------------
+    def _execute(self, b: Block) -> None:
+        params = self.params
+        g_codes: list[tuple[int, int]] = []
+        m_codes: list[tuple[int, int]] = []
+        w: dict[str, float] = {}
+        wpos: dict[str, int] = {}
+        for word in b.words:
+            letter = word.letter
+            value = word.value if word.value is not None else word.node.evaluate(params)
+            if letter == "g":
+                code = modal.code_number(value)
+                if code is None or code not in modal.G_GROUP:
+                    raise GCodeError(f"unknown G code G{value:g}", code="unknown-code", column=self._col(b, word.pos))
+                g_codes.append((code, word.pos))
+            elif letter == "m":
+                if value != int(value) or (int(value) not in modal.M_GROUP and int(value) not in self.d.mcodes):
+                    raise GCodeError(f"unknown M code M{value:g}", code="unknown-code", column=self._col(b, word.pos))
+                m_codes.append((int(value), word.pos))
+            else:
+                if letter in w:
+                    raise GCodeError(f"multiple {letter.upper()} words on one line", code="duplicate-word", column=self._col(b, word.pos))
+                w[letter] = value
+                wpos[letter] = word.pos
+        if b.assignments:
+            values = [(ref.target(params), node.evaluate(params)) for ref, node, _ in b.assignments]
+            params.apply(values)
+        self._block, self._wpos = b, wpos
+        groups = self._check_groups(b, g_codes, m_codes)
+        self._check_words(b, w, wpos, groups)
+        self._run_block(b, w, groups)
+
+    def _col(self, b: Block, norm_pos: int) -> int:
+        from .lexer import column_of
+
+        return column_of(b.text, norm_pos)
+
+    def _err(self, message: str, code: str, letter: str | None = None) -> GCodeError:
+        b = self._block
+        pos = self._wpos.get(letter) if letter else None
+        col = self._col(b, pos) if pos is not None else 1
+        return GCodeError(message, code=code, line=b.line, column=col)
+
+    def _check_groups(self, b: Block, g_codes, m_codes) -> dict:
+        groups: dict = {}
+        for code, pos in g_codes:
+            if code not in modal.G_SUPPORTED:
+                why = modal.G_WHY_NOT.get(code, f"{modal.code_text('g', code)} is not available on this machine")
+                if why is not None:
+                    raise GCodeError(why, code="unsupported", column=self._col(b, pos))
+                continue
+            grp = modal.G_GROUP[code]
+            key = ("g", grp)
+            if key in groups and not (grp == 0 and groups[key][0] != code):
+                raise GCodeError(
+                    f"two G codes from the same modal group: {modal.code_text('g', groups[key][0])} and {modal.code_text('g', code)}",
+                    code="modal-group", column=self._col(b, pos),
+                )
+            if grp == 0:
+                groups.setdefault(("g0", code), (code, pos))
+                if key in groups:
+                    raise GCodeError(
+                        f"two non-modal G codes on one line: {modal.code_text('g', groups[key][0])} and {modal.code_text('g', code)}",
+                        code="modal-group", column=self._col(b, pos),
+                    )
+            groups[key] = (code, pos)
+        if len(m_codes) > 5:
+            raise GCodeError("too many M codes on one line (at most 5)", code="modal-group", column=self._col(b, m_codes[5][1]))
+        for code, pos in m_codes:
+            actions = self.d.mcodes.get(code)
+            grp = (7 if any(a.startswith("jet") for a in actions) else 8) if actions else modal.M_GROUP[code]
+            key = ("m", grp)
+            if key in groups:
+                raise GCodeError(f"two M codes from the same modal group: M{groups[key][0]} and M{code}", code="modal-group", column=self._col(b, pos))
+            if code not in modal.M_ALWAYS and code not in self.d.mcodes and code not in (4,):
+                raise GCodeError(f"M{code} is not used on this machine", code="unsupported", column=self._col(b, pos))
+            if code == 4 and 4 not in self.d.mcodes:
+                raise GCodeError("M4 (spindle counter-clockwise) has no meaning on this machine: the jet is M3/M5", code="unsupported", column=self._col(b, pos))
+            groups[key] = (code, pos)
+        return groups
+
+    def _check_words(self, b: Block, w: dict, wpos: dict, groups: dict) -> None:
+        for letter in w:
+            if letter in modal.UNSUPPORTED_AXES or (letter in modal.AXIS_LETTERS and letter not in self.d.axes):
+                have = ", ".join(a.upper() for a in self.d.axes)
+                raise self._err(f"{letter.upper()} word: the machine has no {letter.upper()} axis (axes: {have})", "axis", letter)
+        g0 = groups.get(("g", 0), (None,))[0]
+        g1 = groups.get(("g", 1), (None,))[0]
+        has_axes = any(a in w for a in modal.AXIS_LETTERS)
+        if g0 in (100, 920) and g1 is not None and g1 != 800:
+            raise self._err(
+                f"{modal.code_text('g', g0)} and {modal.code_text('g', g1)} both use axis words: put them on separate lines",
+                "modal-group",
+            )
+        if g1 == 800 and has_axes and g0 not in (100, 920):
+            raise self._err("G80 cancels motion: axis words cannot be used with it", "words", next(a for a in modal.AXIS_LETTERS if a in w))
+        self._check_unused(w, groups, has_axes, g0, g1)
+
+    def _check_unused(self, w: dict, groups: dict, has_axes: bool, g0, g1) -> None:
+        """A word nothing on the line uses is an error, as in LinuxCNC (`G1 X3 R2` is a typo, not a line)."""
+        motion = g1 if g1 is not None else self.motion
+        arc = motion in (20, 30) and (has_axes or g1 in (20, 30))
+        g7 = groups.get(("g", 7), (None,))[0]
+        g13 = groups.get(("g", 13), (None,))[0]
+        m5 = groups.get(("m", 5), (None,))[0]
+        users = {
+            "i": arc, "j": arc, "k": arc, "r": arc,
+            "p": arc or g0 in (40, 100) or g13 == 640 or m5 is not None,
+            "q": g13 == 640,
+            "l": g0 == 100,
+            "d": g7 in (410, 420, 411, 421),
+            "h": False,
+        }
+        for letter, used in users.items():
+            if letter in w and not used:
+                raise self._err(f"{letter.upper()} word with no G or M code on the line that uses it", "words", letter)
+
+    # -- execution in RS274/NGC order -----------------------------------------------------
+    def _run_block(self, b: Block, w: dict, groups: dict) -> None:
+        g = lambda grp: groups.get(("g", grp), (None,))[0]  # noqa: E731
+        m = lambda grp: groups.get(("m", grp), (None,))[0]  # noqa: E731
+        for text in b.comments:
+            self._comment(text, b.line)
+        fm = g(5)
+        if fm is not None:
+            self.inverse_time = fm == 930
+        if g(6) is not None:  # F on a G20/G21 line is in the new units (as LinuxCNC reads it)
+            self.units = INCH_MM if g(6) == 200 else 1.0
+        if "f" in w:
+            if w["f"] < 0:
+                raise self._err(f"negative feed rate F{w['f']:g}", "feed", "f")
+            self.feed_mm = w["f"] * self.units
+        if "s" in w:
+            if w["s"] < 0:
+                raise self._err(f"negative spindle speed S{w['s']:g}", "words", "s")
+            self.speed = w["s"]
+        if "t" in w:
+            t = w["t"]
+            if t != int(t) or t < 0:
+                raise self._err(f"tool number T{t:g} must be a whole number >= 0", "tool", "t")
+            self.next_tool = int(t)
+        if m(6) == 6:
+            self.tool = self.next_tool
+            self._event("tool", b.line, text=f"nozzle change to T{self.tool}", tool=self.tool)
+        elif m(6) == 61:
+            raise self._err("M61 is not available: use T and M6", "unsupported")
+        if m(7) is not None:
+            self._mcode(m(7), b.line)
+        if m(8) is not None:
+            self._mcode(m(8), b.line)
+        for grp_m in (10,):
+            if m(grp_m) is not None:
+                self._mcode(m(grp_m), b.line)
+        if m(5) is not None:
+            self._outputs(m(5), w, b.line)
+        if g(0) == 40:
+            self._dwell(w, b.line)
+        if g(7) is not None:
+            self._kerf(g(7), w, b)
+        if g(12) is not None:
+            if self.kerf.active:
+                raise self._err("cannot change coordinate system with kerf compensation on", "kerf-state")
+            self.cs = (540, 550, 560, 570, 580, 590, 591, 592, 593).index(g(12)) + 1
+            self.params.set(P_CS, float(self.cs))
+        if g(13) is not None:
+            self._path_mode(g(13), w)
+        if g(3) is not None:
+            self.absolute = g(3) == 900
+        if g(4) is not None:
+            self.arc_absolute = g(4) == 901
+        g0 = g(0)
+        if g0 == 100:
+            self._g10(w)
+        elif g0 in (920, 921, 922, 923):
+            self._g92(g0, w)
+        motion = g(1)
+        if motion is not None:
+            self.motion = motion
+        has_axes = any(a in w for a in modal.AXIS_LETTERS)
+        arc_words = [k for k in ("i", "j", "k", "r") if k in w]
+        if g0 not in (100, 920) and has_axes:
+            self._motion(self.motion, w, g0 == 530)
+        elif arc_words and self.motion in (20, 30):
+            self._arc(self.motion == 20, w, tuple(self.pos), tuple(self.pos), b.line)  # reports the missing end point
+        elif arc_words:
+            letter = arc_words[0]
+            raise self._err(f"{letter.upper()} word with no arc motion to use it", "words", letter)
+        stop = m(4)
+        if stop is not None:
+            self._stop(stop, b.line)
+
+    # -- comments, M codes, outputs --------------------------------------------------------
+    def _comment(self, text: str, line: int) -> None:
+        head = text.lstrip()[:6].lower()
+        if head.startswith("msg,"):
+            self._event("message", line, text=text.lstrip()[4:])
+        elif head.startswith("debug,"):
+            self._event("message", line, text=self._substitute(text.lstrip()[6:]))
+
+    def _substitute(self, text: str) -> str:
+        from . import expr
+
+        def value(m: re.Match) -> str:
+            try:
+                ref, _ = expr.parse_parameter_ref(m.group(0).lower().replace(" ", ""), 0)
+                return f"{ref.evaluate(self.params):.6f}"
+            except GCodeError:
+                return m.group(0)
+
+        return re.sub(r"#(?:<[^>]*>|\d+)", value, text)
+
+    def _mcode(self, code: int, line: int) -> None:
+        actions = self.d.mcodes.get(code, ())
+        if code == 4 and not actions:
+            return
+        for action in actions:
+            name, state = action.rsplit("_", 1)
+            on = state == "on"
+            if name == "jet":
+                if self.jet != on:
+                    self.jet = on
+                    self._event("jet", line, on=on)
+            else:
+                bit = 1 << AUX_BITS[name]
+                self.aux = (self.aux | bit) if on else (self.aux & ~bit)
+        self._refresh_attrs()
+
+    def _outputs(self, code: int, w: dict, line: int) -> None:
+        if code in (66, 67, 68):
+            raise self._err(f"M{code} (analog/wait on input) is not available on this machine", "unsupported")
+        if "p" not in w:
+            raise self._err(f"M{code} needs a P word: the output number", "words")
+        p = w["p"]
+        if p != int(p) or not 0 <= p < 32:
+            raise self._err(f"M{code} output number P{p:g} must be a whole number 0 to 31", "words", "p")
+        bit = 1 << int(p)
+        on = code in (62, 64)
+        self.outputs = (self.outputs | bit) if on else (self.outputs & ~bit)
+        if code in (64, 65):
+            self._event("output", line, text=f"output {int(p)} {'on' if on else 'off'}", output=int(p), on=on)
+        self._refresh_attrs()
+
+    def _event(self, kind: str, line: int, **data) -> None:
+        self.kerf.event(Event(kind, line, data))
+
+    def _refresh_attrs(self) -> None:
+        self._attrs = Attrs(self.tolerance, self.jet, self.aux, self.outputs)
+
+    def _stop(self, code: int, line: int) -> None:
+        if code in (2, 30):
+            self.kerf.flush()
+            self.ended = True
+            return
+        kind = {0: "stop", 1: "optional_stop", 60: "pallet"}[code]
+        self._event(kind, line, text=f"M{code}")
+
+    # -- modes ---------------------------------------------------------------------------
+    def _dwell(self, w: dict, line: int) -> None:
+        if "p" not in w:
+            raise self._err("G4 needs a P word: the dwell time in seconds", "words")
+        if w["p"] < 0:
+            raise self._err(f"negative dwell time P{w['p']:g}", "words", "p")
+        self._event("dwell", line, seconds=w["p"], position=tuple(self.pos), jet=self.jet, aux=self.aux, outputs=self.outputs)
+
+    def _path_mode(self, code: int, w: dict) -> None:
+        if code in (610, 611):
+            self.tolerance = 0.0
+        else:
+            p = w.get("p")
+            if p is not None and p < 0:
+                raise self._err(f"G64 P{p:g}: the tolerance must be >= 0", "words", "p")
+            if "q" in w and w["q"] < 0:
+                raise self._err(f"G64 Q{w['q']:g}: the tolerance must be >= 0", "words", "q")
+            self.tolerance = p * self.units if p else self.d.default_tolerance_mm
+        self._refresh_attrs()
+
+    def _kerf(self, code: int, w: dict, b: Block) -> None:
+        if code == 400:
+            if self.kerf.active:
+                self.kerf.stop(b.line, 1)
+            return
+        if self.kerf.active:
+            raise self._err("kerf compensation is already on: turn it off with G40 first", "kerf-state")
+        side = 1 if code in (410, 411) else -1
+        if code in (411, 421):
+            if "d" not in w:
+                diameter = 0.0
+            else:
+                diameter = w["d"] * self.units
+                if diameter < 0:
+                    raise self._err(f"{modal.code_text('g', code)} D{w['d']:g}: the diameter must be >= 0", "kerf-state", "d")
+        else:
+            tool = self.tool
+            if "d" in w:
+                d = w["d"]
+                if d != int(d) or d < 0:
+                    raise self._err(f"D{d:g}: the nozzle number must be a whole number >= 0", "kerf-state", "d")
+                tool = int(d)
+            if tool not in self.d.tool_diameters_mm and tool != 0:
+                raise self._err(f"D{tool}: nozzle {tool} is not in the nozzle table", "kerf-state", "d" if "d" in w else None)
+            diameter = self.d.tool_diameters_mm.get(tool, 0.0)
+        self.kerf.start(side, diameter / 2.0, b.line, 1)
+
+    # -- coordinate systems --------------------------------------------------------------
+    def _offset(self, axis: int) -> float:
+        off = self.cs_origin[self.cs][axis]
+        if self.g92_on:
+            off += self.g92[axis]
+        return off
+
+    def _axis_values(self, w: dict) -> list[float | None]:
+        return [w[a] * self.units if a in w else None for a in modal.AXIS_LETTERS]
+
+    def _g10(self, w: dict) -> None:
+        l_word = w.get("l")
+        if l_word not in (2.0, 20.0):
+            raise self._err("G10 needs L2 or L20 (L1/L10/L11 tool-table editing is not available)", "words", "l" if "l" in w else None)
+        p = w.get("p")
+        if p is None or p != int(p) or not 0 <= p <= 9:
+            raise self._err("G10 needs P0 to P9: the coordinate system (0 = the current one)", "words", "p" if "p" in w else None)
+        cs = int(p) or self.cs
+        if "r" in w:
+            raise self._err("G10 R (rotation of the coordinate system) is not available", "unsupported", "r")
+        vals = self._axis_values(w)
+        for i, v in enumerate(vals):
+            if v is None:
+                continue
+            if l_word == 2.0:
+                self.cs_origin[cs][i] = v
+            else:  # L20: the current point gets coordinate v in system cs
+                g92 = self.g92[i] if self.g92_on else 0.0
+                self.cs_origin[cs][i] = self.pos[i] - g92 - v
+            self.params.set(P_CS_BASE + 20 * (cs - 1) + i, self.cs_origin[cs][i] / self.units)
+
+    def _g92(self, code: int, w: dict) -> None:
+        if code == 920:
+            vals = self._axis_values(w)
+            if all(v is None for v in vals):
+                raise self._err("G92 needs at least one axis word", "words")
+            if not self.g92_on:
+                self.g92 = [0.0, 0.0, 0.0]
+            for i, v in enumerate(vals):
+                if v is not None:
+                    self.g92[i] = self.pos[i] - self.cs_origin[self.cs][i] - v
+            self.g92_on = True
+        elif code == 921:
+            self.g92, self.g92_on = [0.0, 0.0, 0.0], False
+        elif code == 922:
+            self.g92_on = False
+        else:  # G92.3: restore from the parameters
+            self.g92 = [self.params.get(P_G92 + i) * self.units for i in range(3)]
+            self.g92_on = True
+        if code != 922:
+            for i in range(3):
+                self.params.set(P_G92 + i, self.g92[i] / self.units)
+        self.params.set(P_G92_ENABLED, 1.0 if self.g92_on else 0.0)
+
+    # -- motion --------------------------------------------------------------------------
+    def _target(self, w: dict, machine: bool) -> list[float]:
+        target = list(self.pos)
+        for i, a in enumerate(modal.AXIS_LETTERS):
+            if a in w:
+                v = w[a] * self.units
+                if machine:
+                    target[i] = v
+                elif self.absolute:
+                    target[i] = v + self._offset(i)
+                else:
+                    target[i] = self.pos[i] + v
+        return target
+
+    def _motion(self, motion: int, w: dict, g53: bool) -> None:
+        if motion == 800:
+            return
+        if g53:
+            if motion not in (0, 10):
+                raise self._err("G53 needs G0 or G1 motion", "modal-group")
+            if not self.absolute:
+                raise self._err("G53 cannot be used in incremental distance mode (G91)", "modal-group")
+            if self.kerf.active:
+                raise self._err("G53 cannot be used with kerf compensation on", "kerf-state")
+        target = self._target(w, g53)
+        start = tuple(self.pos)
+        end = tuple(target)
+        line = self._block.line
+        if motion == 0:
+            self.kerf.move(Move(RAPID, start, end, feed=math.nan, line=line, column=1, attrs=self._attrs))
+        elif motion == 10:
+            feed = self._feed_for(w, math.dist(start, end), "G1")
+            self.kerf.move(Move(LINE, start, end, feed=feed, line=line, column=1, attrs=self._attrs))
+        else:
+            self._arc(motion == 20, w, start, end, line)
+        self.pos = target
+
+    def _feed_for(self, w: dict, length_mm: float, what: str) -> float:
+        if self.inverse_time:
+            if "f" not in w:
+                raise self._err(f"{what} in inverse-time mode (G93) needs an F word on the same line", "feed")
+            if w["f"] <= 0:
+                raise self._err(f"{what} in inverse-time mode (G93) with zero F", "feed", "f")
+            return length_mm * w["f"]
+        if self.feed_mm <= 0:
+            raise self._err(f"{what} with zero feed rate: program an F word", "feed", "f" if "f" in w else None)
+        return self.feed_mm
+
+    def _arc(self, cw: bool, w: dict, start: tuple, end: tuple, line: int) -> None:
+        what = "G2" if cw else "G3"
+        if "x" not in w and "y" not in w:
+            raise self._err(f"{what} needs an X or Y word: the end point of the arc", "words")
+        if "k" in w:
+            raise self._err(f"K word in an XY-plane arc ({what}): use I and J", "words", "k")
+        turns = 0
+        if "p" in w:
+            p = w["p"]
+            if p != int(p) or p < 1:
+                raise self._err(f"{what} P{p:g}: the number of turns must be a whole number >= 1", "words", "p")
+            turns = int(p) - 1
+        x0, y0 = start[0], start[1]
+        x1, y1 = end[0], end[1]
+        if "r" in w:
+            if "i" in w or "j" in w:
+                raise self._err(f"{what} with both R and I/J: use one form", "words", "r")
+            r = w["r"] * self.units
+            try:
+                cx, cy = centre_from_radius(x0, y0, x1, y1, r, cw)
+            except GCodeError as err:
+                raise self._err(err.message, err.code, "r") from None
+        else:
+            if "i" not in w and "j" not in w:
+                raise self._err(f"{what} needs I and J (the centre) or R (the radius)", "words")
+            i, j = w.get("i", 0.0) * self.units, w.get("j", 0.0) * self.units
+            if self.arc_absolute:
+                cx, cy = i + self._offset(0), j + self._offset(1)
+            else:
+                cx, cy = x0 + i, y0 + j
+            r0 = math.hypot(x0 - cx, y0 - cy)
+            r1 = math.hypot(x1 - cx, y1 - cy)
+            if r0 == 0.0:
+                raise self._err(f"{what}: the centre is on the start point (zero radius arc)", "arc-radius", "i" if "i" in w else "j")
+            if abs(r1 - r0) > max(ARC_RADIUS_TOLERANCE_MM, ARC_RADIUS_RELATIVE_TOLERANCE * r0):
+                u = self.units
+                raise self._err(
+                    f"{what}: radius to the end point {r1 / u:.4f} differs from radius to the start {r0 / u:.4f} "
+                    f"(centre {cx / u:.4f}, {cy / u:.4f})",
+                    "arc-radius",
+                    "x" if "x" in w else "y",
+                )
+        feed = self._feed_for(w, self._arc_len(x0, y0, x1, y1, cx, cy, cw, turns, end[2] - start[2]), what)
+        self.kerf.move(Move(ARC, start, end, (cx, cy), cw, turns, feed, line, 1, self._attrs))
+
+    @staticmethod
+    def _arc_len(x0, y0, x1, y1, cx, cy, cw, turns, dz) -> float:
+        from .arcs import arc_length, sweep
+
+        return arc_length(math.hypot(x0 - cx, y0 - cy), sweep(x0, y0, x1, y1, cx, cy, cw, turns), dz)
+
+    # -- predefined named parameters -----------------------------------------------------
+    def _predefined(self, name: str) -> float | None:
+        axis = {"_x": 0, "_y": 1, "_z": 2}.get(name)
+        if axis is not None:
+            return (self.pos[axis] - self._offset(axis)) / self.units
+        return {
+            "_metric": 1.0 if self.units == 1.0 else 0.0,
+            "_imperial": 1.0 if self.units != 1.0 else 0.0,
+            "_absolute": 1.0 if self.absolute else 0.0,
+            "_incremental": 0.0 if self.absolute else 1.0,
+            "_feed": self.feed_mm / self.units,
+            "_rpm": self.speed,
+            "_motion_mode": self.motion / 10.0,
+            "_plane": 17.0,
+            "_coord_system": (540, 550, 560, 570, 580, 590, 591, 592, 593)[self.cs - 1] / 10.0,
+            "_current_tool": float(self.tool),
+            "_selected_tool": float(self.next_tool),
+            "_line": float(self.line_no),
+            "_call_level": float(len(getattr(self, "frames", ()))),
+        }.get(name)

@@ -1,0 +1,94 @@
+"""The bulk fast path gives exactly what the general path gives, errors included."""
+
+from __future__ import annotations
+
+import random
+
+import numpy as np
+import pytest
+
+from gcode.dialect import Dialect
+from gcode.errors import GCodeError
+from gcode.interp import Interpreter
+
+DIALECT = Dialect(axes="xyz", default_tolerance_mm=0.05)
+
+
+def _program(seed: int, n: int = 400, bad_line: int | None = None) -> str:
+    rng = random.Random(seed)
+    out = ["G21 G90 G17", "G10 L2 P1 X12.5 Y-3", "G54 M3 F600", "G0 X1 Y1"]
+    x = y = 1.0
+    mode = 0
+    for k in range(n):
+        r = rng.random()
+        if mode >= 2 and 0.35 <= r < 0.55:
+            r = 0.1  # a bare X/Y line after an arc would be an arc without a centre
+        nx, ny = x + rng.uniform(-20, 20), y + rng.uniform(-20, 20)
+        if r < 0.35:
+            out.append(f"G1 X{nx:.3f} Y{ny:.3f}" + (f" F{rng.randint(100, 3000)}" if rng.random() < 0.3 else ""))
+            mode = 1
+        elif r < 0.55:
+            out.append(f"X{nx:.4f} Y{ny:.4f}")
+        elif r < 0.65:
+            out.append(f"G0 X{nx:.2f} Y{ny:.2f} Z{rng.uniform(0, 5):.2f}")
+            mode = 0
+        elif r < 0.8:
+            # an arc with a consistent centre: pick a centre and put the end on the circle
+            cx, cy = x + rng.uniform(-10, 10), y + rng.uniform(-10, 10)
+            rad = ((x - cx) ** 2 + (y - cy) ** 2) ** 0.5
+            ang = rng.uniform(0, 6.283)
+            nx, ny = cx + rad * np.cos(ang), cy + rad * np.sin(ang)
+            out.append(f"G{rng.choice((2, 3))} X{nx:.6f} Y{ny:.6f} I{cx - x:.6f} J{cy - y:.6f}")
+            mode = 2
+        elif r < 0.9:
+            rr = rng.uniform(15, 40) * rng.choice((1, -1))
+            out.append(f"G{rng.choice((2, 3))} X{nx:.3f} Y{ny:.3f} R{rr:.3f} F{rng.randint(200, 900)}")
+            mode = 2
+        else:
+            out.append(f"N{k} G01 X{nx:.3f} Y{ny:.3f}")
+            mode = 1
+        x, y = nx, ny
+        if bad_line is not None and k == bad_line:
+            out.append(rng.choice(["G1 X1 X2", "G2 X5 Y5 I1 J1", "G0 Z1 Z2", "G1 X3 R2", "G2 X7 Y7 R0.1"]))
+    out.append("M5 M2")
+    return "\n".join(out) + "\n"
+
+
+def _both(text: str, dialect: Dialect = DIALECT):
+    results = []
+    for fast in (False, True):
+        try:
+            results.append(Interpreter(dialect, "p.ngc", fast=fast).run(text))
+        except GCodeError as err:
+            results.append(err)
+    return results
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_fast_path_equals_general_path_on_plain_cam_programs(seed):
+    slow, fast = _both(_program(seed))
+    assert not isinstance(slow, GCodeError), str(slow)
+    assert len(slow.segments) == len(fast.segments)
+    for name in slow.segments.dtype.names:
+        a, b = slow.segments[name], fast.segments[name]
+        if a.dtype.kind == "f":
+            assert np.allclose(a, b, rtol=0, atol=1e-9, equal_nan=True), name
+        else:
+            assert np.array_equal(a, b), name
+    s, f = slow.stats, fast.stats
+    assert (s.pierces, s.segments, s.lines) == (f.pierces, f.segments, f.lines)
+    for attr in ("cut_length_mm", "feed_length_mm", "rapid_length_mm"):
+        assert getattr(s, attr) == pytest.approx(getattr(f, attr), rel=1e-12)
+    assert np.allclose(s.bounds_min, f.bounds_min) and np.allclose(s.bounds_max, f.bounds_max)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fast_path_reports_the_same_error_as_the_general_path(seed):
+    slow, fast = _both(_program(seed, bad_line=150 + seed * 17))
+    assert isinstance(slow, GCodeError) and isinstance(fast, GCodeError)
+    assert (str(slow), slow.code) == (str(fast), fast.code)
+
+
+def test_fast_path_respects_a_machine_without_z():
+    slow, fast = _both(_program(3), Dialect(axes="xy"))
+    assert isinstance(slow, GCodeError) and str(slow) == str(fast) and "Z word" in slow.message
