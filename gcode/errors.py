@@ -43,9 +43,11 @@ class GCodeError(Exception):
     def located(self, file: str, line: int, column: int, source_line: str | None) -> "GCodeError":
         """Fill in where the error is, keeping what the raiser already knew."""
         if not self.line:
-            self.file, self.line, self.source_line = file, line, source_line
-            if not self.column:
-                self.column = column
-        elif self.file == "<string>":
+            self.line = line
+        if not self.column:
+            self.column = column
+        if self.file == "<string>":
             self.file = file
+        if self.source_line is None and self.line == line:
+            self.source_line = source_line
         return self

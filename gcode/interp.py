@@ -97,6 +97,7 @@ class Interpreter:
     def run(self, source: str | bytes, progress: Callable[[int, int], None] | None = None) -> Program:
         """Interpret the program; `progress(line, total)` is called now and then on long files."""
         self.progress = progress
+        self.lines, self.end = [], 0
         text = decode(source, self.file) if isinstance(source, (bytes, bytearray)) else source
         try:
             self.lines, self.end = split_lines(text, self.file)

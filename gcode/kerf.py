@@ -44,7 +44,9 @@ from .errors import GCodeError
 
 LEFT, RIGHT = 1, -1
 TANGENT_RAD = 0.05  # LinuxCNC's TOLERANCE_CONCAVE_CORNER: smaller bends get neither arc nor intersection
-SWEEP_SLACK_RAD = 0.001  # a cut-back arc may sweep this much more than programmed before it counts as a gouge
+# A cut-back arc may sweep this much more than programmed before it counts as a gouge. LinuxCNC
+# compares the angle with 0.0254 in mm programs (0.001 in inch programs); we work in mm.
+SWEEP_SLACK_RAD = 0.0254
 ENTRY_ARC_COS_MIN = 1e-4  # below this the entry arc's new centre is at infinity
 XY_EPS_MM = 1e-9  # moves shorter than this in XY are pure Z moves
 
