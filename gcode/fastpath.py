@@ -2,10 +2,11 @@
 
 Most of a CAM program is lines like `G1 X12.5 Y7.25` or `X13 Y8 F1200`: one motion code
 (G0-G3) at most, then X/Y/Z/I/J/R/F words with plain numbers, no comments, parameters or
-expressions. When kerf compensation, inverse-time feed and subroutines are off, such a run
-is interpreted as arrays: the words are cut out of the text by two regular expressions,
+expressions. Outside subroutines and inverse-time feed, such a run is interpreted as arrays: the words are cut out of the text by two regular expressions,
 modal values (motion code, feed, coordinates) are carried forward with an index trick,
 offsets and units applied, arc centres and radius checks computed for all arcs at once.
+With kerf compensation on, the moves computed in bulk then pass one by one through the
+compensator, exactly as the general path would hand them over.
 
 The result is exactly what the general path gives. Anything unusual in a line (a duplicated
 word, zero feed, an arc whose end is off its radius, an axis the machine lacks, an R arc
@@ -21,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .canon import ARC, LINE, RAPID
+from .canon import ARC, LINE, RAPID, Move
 
 if TYPE_CHECKING:
     from .interp import Interpreter
@@ -55,7 +56,7 @@ class FastPath:
     def run(self, pc: int, end: int) -> int:
         """Interpret lines pc.. in bulk if they start a long enough plain run; return how many were taken."""
         ip = self.ip
-        if pc < self.skip_until or ip.kerf.active or ip.inverse_time or ip.frames:
+        if pc < self.skip_until or ip.inverse_time or ip.frames:
             return 0
         stop = min(end, pc + MAX_RUN)
         m = _NOT_SIMPLE.search(self.text, int(self.starts[pc]), int(self.starts[stop]))
@@ -148,9 +149,12 @@ class FastPath:
                 length, lo, hi = length[keep_seg], lo[keep_seg], hi[keep_seg]
         fmm = np.where(kind == RAPID, np.nan, feed[idx])
         lines = first + idx + 1
-        lo_all = lo.min(axis=0) if len(idx) else np.full(3, np.inf)
-        hi_all = hi.max(axis=0) if len(idx) else np.full(3, -np.inf)
-        ip.builder.extend(kind, starts, e, center, cw, fmm, lines, ip._attrs, length, lo_all, hi_all)
+        if ip.kerf.active:
+            self._through_kerf(kind, starts, e, center, cw, fmm, lines)
+        else:
+            lo_all = lo.min(axis=0) if len(idx) else np.full(3, np.inf)
+            hi_all = hi.max(axis=0) if len(idx) else np.full(3, -np.inf)
+            ip.builder.extend(kind, starts, e, center, cw, fmm, lines, ip._attrs, length, lo_all, hi_all)
         # modal state after the run
         last = limit - 1
         ip.motion = int(round(motion[last] * 10))
@@ -158,6 +162,15 @@ class FastPath:
         if len(idx):
             ip.pos = [float(v) for v in e[-1]]
         return limit
+
+    def _through_kerf(self, kind, starts, ends, center, cw, feed, lines) -> None:
+        """With kerf compensation on, the moves go one by one through the compensator, as from the general path."""
+        ip = self.ip
+        move, attrs = ip.kerf.move, ip._attrs
+        for k, s_, e_, c_, cw_, f_, ln in zip(
+            kind.tolist(), starts.tolist(), ends.tolist(), center.tolist(), cw.tolist(), feed.tolist(), lines.tolist()
+        ):
+            move(Move(k, tuple(s_), tuple(e_), tuple(c_) if k == ARC else None, cw_, 0, f_, ln, 1, attrs))
 
     def _arcs(self, idx, arc, cw, starts, e, center, length, lo, hi, wi, wj, wr, units) -> int | None:
         """Centres, radius checks, lengths and bounds of every arc; index of the first bad one or None."""

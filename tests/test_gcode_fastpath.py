@@ -92,3 +92,30 @@ def test_fast_path_reports_the_same_error_as_the_general_path(seed):
 def test_fast_path_respects_a_machine_without_z():
     slow, fast = _both(_program(3), Dialect(axes="xy"))
     assert isinstance(slow, GCodeError) and str(slow) == str(fast) and "Z word" in slow.message
+
+
+def _contour_program(side: str, n: int = 600) -> str:
+    """A closed many-sided contour around (300, 300), lines and arcs on the circle, cut with kerf compensation."""
+    import math
+
+    out = ["G21 G90 F900", "G0 X500 Y300", "M3", f"{side} D0.3 G1 X500 Y300.5"]
+    for k in range(1, n + 1):
+        a = 2 * math.pi * k / n
+        x, y = 300 + 200 * math.cos(a), 300.5 + 200 * math.sin(a)
+        if k % 5 == 0:
+            out.append(f"G3 X{x:.6f} Y{y:.6f} I{300 - px:.6f} J{300.5 - py:.6f}")
+        else:
+            out.append(f"G1 X{x:.6f} Y{y:.6f}")
+        px, py = x, y
+    out += ["G40 G1 X520 Y300", "M5", "M2"]
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.parametrize("side", ["G41.1", "G42.1"])
+def test_fast_path_with_kerf_compensation_on_equals_the_general_path(side):
+    slow, fast = _both(_contour_program(side))
+    assert not isinstance(slow, GCodeError), str(slow)
+    assert len(slow.segments) == len(fast.segments) > 600
+    for name in ("kind", "start", "end", "center", "cw", "feed", "line", "jet"):
+        a, b = slow.segments[name], fast.segments[name]
+        assert np.allclose(a, b, atol=1e-9, equal_nan=True) if a.dtype.kind == "f" else np.array_equal(a, b), name
