@@ -15,7 +15,8 @@ Semantics follow LinuxCNC's interp_read.cc / interp_execute.cc, checked against 
 - `a mod b` is C fmod plus |b| when negative, so it is never negative: [-7 mod 3] is 2.
 - ROUND rounds half away from zero, FIX is floor, FUP is ceil.
 - Angles are degrees, converted with long-double pi as LinuxCNC does, so sin[30] is exactly 0.5.
-- A bracketed expression or function whose value is infinite or NaN is an error.
+- A bracketed expression or function whose value is infinite or NaN is an error; inside a
+  bracket an infinite or NaN intermediate is not: [10**400 gt 1] is 1, as in C.
 
 Value errors (division by zero, sqrt of a negative, #0, ...) are raised when the node is
 evaluated, not when it is parsed: LinuxCNC reports them only for lines it executes, and a
@@ -187,9 +188,10 @@ def _divide(a: float, b: float, at: int) -> float:
 
 
 def _modulo(a: float, b: float, at: int) -> float:
-    if b == 0.0 or not math.isfinite(a):  # C fmod gives NaN, which LinuxCNC then rejects
-        raise _error(f"Calculation resulted in 'not a number': {_fmt(a)} mod {_fmt(b)}", at, code="domain")
-    r = math.fmod(a, b)
+    try:
+        r = math.fmod(a, b)
+    except ValueError:  # x mod 0 or inf mod x: NaN in C; the enclosing bracket may still be finite
+        return math.nan
     return r + abs(b) if r < 0.0 else r
 
 
@@ -198,8 +200,11 @@ def _power(a: float, b: float, at: int) -> float:
         raise _error(f"Attempt to raise negative number {_fmt(a)} to non-integer power {_fmt(b)}", at, code="domain")
     try:
         return math.pow(a, b)
-    except (OverflowError, ValueError):  # overflow, or 0 to a negative power
-        raise _error(f"Calculation resulted in 'infinity': {_fmt(a)} ** {_fmt(b)}", at, code="overflow") from None
+    except (OverflowError, ValueError):
+        # C pow overflows to +-inf and gives +-inf for 0 to a negative power; LinuxCNC only
+        # rejects that if it is the value of the enclosing bracket: [10**400 gt 1] is 1.
+        odd_integer = b.is_integer() and math.fmod(b, 2.0) != 0.0
+        return math.copysign(math.inf, a) if odd_integer else math.inf
 
 
 _OPERATORS = {
@@ -220,9 +225,9 @@ _OPERATORS = {
     "xor": _Op("xor", 2, lambda a, b, c: 1.0 if (a != 0.0) != (b != 0.0) else 0.0),
 }
 # Candidates by first character, longest first ("**" before "*").
-_BY_FIRST: dict[str, list[str]] = {}
-for _symbol in sorted(_OPERATORS, key=len, reverse=True):
-    _BY_FIRST.setdefault(_symbol[0], []).append(_symbol)
+_BY_FIRST = {
+    first: sorted((s for s in _OPERATORS if s[0] == first), key=len, reverse=True) for first in {s[0] for s in _OPERATORS}
+}
 
 
 def _bracket(text: str, start: int, depth: int) -> tuple[Node, int]:
@@ -333,8 +338,9 @@ def _finite(node: Node, source: str, start: int) -> Node:
 
 
 def _not_finite(value: float, source: str, at: int) -> GCodeError:
-    what = "not a number" if math.isnan(value) else "infinity"
-    return _error(f"Calculation resulted in '{what}': {source}", at, code="overflow")
+    if math.isnan(value):
+        return _error(f"Calculation resulted in 'not a number': {source}", at, code="domain")
+    return _error(f"Calculation resulted in 'infinity': {source}", at, code="overflow")
 
 
 # -- functions ----------------------------------------------------------------------------------

@@ -33,7 +33,7 @@ _SIMPLE_LINE = (
 )
 _NOT_SIMPLE = re.compile(rf"^(?!{_SIMPLE_LINE}$)", re.M)
 _NUMBER = re.compile(_NUM)
-MIN_RUN = 24  # shorter runs are not worth the set-up: the general path takes them
+MIN_RUN = 8  # shorter runs are not worth the set-up: the general path takes them
 MAX_RUN = 200_000  # bounded arrays per run
 _TWO_PI = 2.0 * math.pi
 
@@ -56,7 +56,7 @@ class FastPath:
     def run(self, pc: int, end: int) -> int:
         """Interpret lines pc.. in bulk if they start a long enough plain run; return how many were taken."""
         ip = self.ip
-        if pc < self.skip_until or ip.inverse_time or ip.frames:
+        if pc < self.skip_until or ip.inverse_time or ip.frames or ip.rotated:
             return 0
         stop = min(end, pc + MAX_RUN)
         m = _NOT_SIMPLE.search(self.text, int(self.starts[pc]), int(self.starts[stop]))

@@ -77,6 +77,7 @@ class Interpreter:
         self.motion = 0  # G-code x10 of the modal motion (G0 at start, as LinuxCNC)
         self.cs = 1  # coordinate system 1..9 (G54..G59.3)
         self.cs_origin = [[0.0, 0.0, 0.0] for _ in range(10)]  # mm, index 1..9
+        self.cs_rotation = [0.0] * 10  # degrees CCW about the system's origin (G10 L2 R)
         self.g92 = [0.0, 0.0, 0.0]
         self.g92_on = False
         self.pos = list(dialect.start_position_mm)  # machine mm
@@ -101,6 +102,10 @@ class Interpreter:
         text = decode(source, self.file) if isinstance(source, (bytes, bytearray)) else source
         try:
             self.lines, self.end = split_lines(text, self.file)
+            self.tape_start = next((i for i, ln in enumerate(self.lines) if ln.strip()), -1)
+            self.tape_marked = self.tape_start >= 0 and self.lines[self.tape_start].strip() == "%"
+            if not self.tape_marked:
+                self.tape_start = -1
             self.fast = FastPath(self, "\n".join(self.lines) + "\n", self.lines)
             self._scan_owords()
             self._execute_lines()
@@ -135,6 +140,8 @@ class Interpreter:
             if block is None:
                 raw = lines[pc]
                 if raw.strip() == "%":
+                    if pc != self.tape_start:
+                        raise GCodeError("'%' is allowed only as the first and the last line (tape markers)", code="bad-character", line=pc + 1, column=raw.index("%") + 1)
                     pc += 1
                     continue
                 block = lex_line(raw, pc + 1)
@@ -151,6 +158,11 @@ class Interpreter:
         if self.frames and not self.ended:
             f = self.frames[-1]
             raise GCodeError(f"subroutine o<{f.label}> has no endsub", code="o-word", line=self.line_no, column=1)
+        if not self.ended and not self.tape_marked and self.lines:
+            last = max((i for i in range(min(end, len(lines))) if lines[i].strip()), default=0)
+            raise GCodeError(
+                "file ended with no program end (M2 or M30) and no closing '%'", code="program-end", line=last + 1, column=1
+            )
 
     # -- O-words -------------------------------------------------------------------------
     def _scan_owords(self) -> None:
@@ -338,9 +350,9 @@ class Interpreter:
             values = [(ref.target(params), node.evaluate(params)) for ref, node, _ in b.assignments]
             params.apply(values)
         self._block, self._wpos = b, wpos
-        groups = self._check_groups(b, g_codes, m_codes)
-        self._check_words(b, w, wpos, groups)
-        self._run_block(b, w, groups)
+        gg, mm = self._check_groups(b, g_codes, m_codes) if g_codes or m_codes else ({}, {})
+        self._check_words(b, w, gg, mm)
+        self._run_block(b, w, gg, mm)
 
     def _col(self, b: Block, norm_pos: int) -> int:
         from .lexer import column_of
@@ -353,8 +365,9 @@ class Interpreter:
         col = self._col(b, pos) if pos is not None else 1
         return GCodeError(message, code=code, line=b.line, column=col)
 
-    def _check_groups(self, b: Block, g_codes, m_codes) -> dict:
-        groups: dict = {}
+    def _check_groups(self, b: Block, g_codes, m_codes) -> tuple[dict, dict]:
+        """One code per modal group (group 0, the non-modal codes, included): {group: code} for G and M."""
+        gg: dict[int, int] = {}
         for code, pos in g_codes:
             if code not in modal.G_SUPPORTED:
                 why = modal.G_WHY_NOT.get(code, f"{modal.code_text('g', code)} is not available on this machine")
@@ -362,42 +375,33 @@ class Interpreter:
                     raise GCodeError(why, code="unsupported", column=self._col(b, pos))
                 continue
             grp = modal.G_GROUP[code]
-            key = ("g", grp)
-            if key in groups and not (grp == 0 and groups[key][0] != code):
+            if grp in gg:
                 raise GCodeError(
-                    f"two G codes from the same modal group: {modal.code_text('g', groups[key][0])} and {modal.code_text('g', code)}",
+                    f"two G codes from the same modal group: {modal.code_text('g', gg[grp])} and {modal.code_text('g', code)}",
                     code="modal-group", column=self._col(b, pos),
                 )
-            if grp == 0:
-                groups.setdefault(("g0", code), (code, pos))
-                if key in groups:
-                    raise GCodeError(
-                        f"two non-modal G codes on one line: {modal.code_text('g', groups[key][0])} and {modal.code_text('g', code)}",
-                        code="modal-group", column=self._col(b, pos),
-                    )
-            groups[key] = (code, pos)
+            gg[grp] = code
+        mm: dict[int, int] = {}
         if len(m_codes) > 5:
             raise GCodeError("too many M codes on one line (at most 5)", code="modal-group", column=self._col(b, m_codes[5][1]))
         for code, pos in m_codes:
             actions = self.d.mcodes.get(code)
             grp = (7 if any(a.startswith("jet") for a in actions) else 8) if actions else modal.M_GROUP[code]
-            key = ("m", grp)
-            if key in groups:
-                raise GCodeError(f"two M codes from the same modal group: M{groups[key][0]} and M{code}", code="modal-group", column=self._col(b, pos))
-            if code not in modal.M_ALWAYS and code not in self.d.mcodes and code not in (4,):
+            if grp in mm:
+                raise GCodeError(f"two M codes from the same modal group: M{mm[grp]} and M{code}", code="modal-group", column=self._col(b, pos))
+            if code not in modal.M_ALWAYS and code not in self.d.mcodes and code != 4:
                 raise GCodeError(f"M{code} is not used on this machine", code="unsupported", column=self._col(b, pos))
             if code == 4 and 4 not in self.d.mcodes:
                 raise GCodeError("M4 (spindle counter-clockwise) has no meaning on this machine: the jet is M3/M5", code="unsupported", column=self._col(b, pos))
-            groups[key] = (code, pos)
-        return groups
+            mm[grp] = code
+        return gg, mm
 
-    def _check_words(self, b: Block, w: dict, wpos: dict, groups: dict) -> None:
+    def _check_words(self, b: Block, w: dict, gg: dict, mm: dict) -> None:
         for letter in w:
             if letter in modal.UNSUPPORTED_AXES or (letter in modal.AXIS_LETTERS and letter not in self.d.axes):
                 have = ", ".join(a.upper() for a in self.d.axes)
                 raise self._err(f"{letter.upper()} word: the machine has no {letter.upper()} axis (axes: {have})", "axis", letter)
-        g0 = groups.get(("g", 0), (None,))[0]
-        g1 = groups.get(("g", 1), (None,))[0]
+        g0, g1 = gg.get(0), gg.get(1)
         has_axes = any(a in w for a in modal.AXIS_LETTERS)
         if g0 in (100, 920) and g1 is not None and g1 != 800:
             raise self._err(
@@ -406,17 +410,16 @@ class Interpreter:
             )
         if g1 == 800 and has_axes and g0 not in (100, 920):
             raise self._err("G80 cancels motion: axis words cannot be used with it", "words", next(a for a in modal.AXIS_LETTERS if a in w))
-        self._check_unused(w, groups, has_axes, g0, g1)
+        if len(w) > sum(1 for a in modal.AXIS_LETTERS if a in w) + ("f" in w) + ("s" in w) + ("t" in w):
+            self._check_unused(w, gg, mm, has_axes, g0, g1)
 
-    def _check_unused(self, w: dict, groups: dict, has_axes: bool, g0, g1) -> None:
+    def _check_unused(self, w: dict, gg: dict, mm: dict, has_axes: bool, g0, g1) -> None:
         """A word nothing on the line uses is an error, as in LinuxCNC (`G1 X3 R2` is a typo, not a line)."""
         motion = g1 if g1 is not None else self.motion
         arc = motion in (20, 30) and (has_axes or g1 in (20, 30))
-        g7 = groups.get(("g", 7), (None,))[0]
-        g13 = groups.get(("g", 13), (None,))[0]
-        m5 = groups.get(("m", 5), (None,))[0]
+        g7, g13, m5 = gg.get(7), gg.get(13), mm.get(5)
         users = {
-            "i": arc, "j": arc, "k": arc, "r": arc,
+            "i": arc, "j": arc, "k": arc, "r": arc or g0 == 100,
             "p": arc or g0 in (40, 100) or g13 == 640 or m5 is not None,
             "q": g13 == 640,
             "l": g0 == 100,
@@ -428,9 +431,8 @@ class Interpreter:
                 raise self._err(f"{letter.upper()} word with no G or M code on the line that uses it", "words", letter)
 
     # -- execution in RS274/NGC order -----------------------------------------------------
-    def _run_block(self, b: Block, w: dict, groups: dict) -> None:
-        g = lambda grp: groups.get(("g", grp), (None,))[0]  # noqa: E731
-        m = lambda grp: groups.get(("m", grp), (None,))[0]  # noqa: E731
+    def _run_block(self, b: Block, w: dict, gg: dict, mm: dict) -> None:
+        g, m = gg.get, mm.get
         for text in b.comments:
             self._comment(text, b.line)
         fm = g(5)
@@ -489,7 +491,7 @@ class Interpreter:
         if motion is not None:
             self.motion = motion
         has_axes = any(a in w for a in modal.AXIS_LETTERS)
-        arc_words = [k for k in ("i", "j", "k", "r") if k in w]
+        arc_words = [k for k in ("i", "j", "k", "r") if k in w and not (k == "r" and g0 == 100)]
         if g0 not in (100, 920) and has_axes:
             self._motion(self.motion, w, g0 == 530)
         elif arc_words and self.motion in (20, 30):
@@ -614,11 +616,48 @@ class Interpreter:
         self.kerf.start(side, diameter / 2.0, b.line, 1)
 
     # -- coordinate systems --------------------------------------------------------------
+    # machine XY = R(rotation) . (work XY + G92 XY) + origin XY, as LinuxCNC applies them
     def _offset(self, axis: int) -> float:
+        """Translation from work to machine coordinates along one axis (valid while unrotated)."""
         off = self.cs_origin[self.cs][axis]
         if self.g92_on:
             off += self.g92[axis]
         return off
+
+    @property
+    def rotated(self) -> bool:
+        return self.cs_rotation[self.cs] != 0.0
+
+    def _g92v(self) -> list[float]:
+        return self.g92 if self.g92_on else [0.0, 0.0, 0.0]
+
+    def _to_machine(self, work: list[float], cs: int | None = None) -> list[float]:
+        cs = self.cs if cs is None else cs
+        g, o = self._g92v(), self.cs_origin[cs]
+        x, y = work[0] + g[0], work[1] + g[1]
+        a = math.radians(self.cs_rotation[cs])
+        if a:
+            c, s_ = math.cos(a), math.sin(a)
+            x, y = c * x - s_ * y, s_ * x + c * y
+        return [x + o[0], y + o[1], work[2] + g[2] + o[2]]
+
+    def _to_work(self, machine: list[float], cs: int | None = None) -> list[float]:
+        cs = self.cs if cs is None else cs
+        g, o = self._g92v(), self.cs_origin[cs]
+        x, y = machine[0] - o[0], machine[1] - o[1]
+        a = math.radians(self.cs_rotation[cs])
+        if a:
+            c, s_ = math.cos(a), math.sin(a)
+            x, y = c * x + s_ * y, -s_ * x + c * y
+        return [x - g[0], y - g[1], machine[2] - o[2] - g[2]]
+
+    def _rotate(self, vx: float, vy: float) -> tuple[float, float]:
+        """A work-frame vector (I/J increments) in machine orientation."""
+        a = math.radians(self.cs_rotation[self.cs])
+        if not a:
+            return vx, vy
+        c, s_ = math.cos(a), math.sin(a)
+        return c * vx - s_ * vy, s_ * vx + c * vy
 
     def _axis_values(self, w: dict) -> list[float | None]:
         return [w[a] * self.units if a in w else None for a in modal.AXIS_LETTERS]
@@ -631,18 +670,33 @@ class Interpreter:
         if p is None or p != int(p) or not 0 <= p <= 9:
             raise self._err("G10 needs P0 to P9: the coordinate system (0 = the current one)", "words", "p" if "p" in w else None)
         cs = int(p) or self.cs
-        if "r" in w:
-            raise self._err("G10 R (rotation of the coordinate system) is not available", "unsupported", "r")
         vals = self._axis_values(w)
-        for i, v in enumerate(vals):
-            if v is None:
-                continue
-            if l_word == 2.0:
-                self.cs_origin[cs][i] = v
-            else:  # L20: the current point gets coordinate v in system cs
-                g92 = self.g92[i] if self.g92_on else 0.0
-                self.cs_origin[cs][i] = self.pos[i] - g92 - v
+        if l_word == 2.0:
+            for i, v in enumerate(vals):
+                if v is not None:
+                    self.cs_origin[cs][i] = v
+            if "r" in w:
+                self.cs_rotation[cs] = w["r"]
+        else:  # L20: the current point gets the given coordinates in system cs
+            if "r" in w:
+                self.cs_rotation[cs] = w["r"]
+            work = self._to_work(self.pos, cs)
+            for i, v in enumerate(vals):
+                if v is not None:
+                    work[i] = v
+            g = self._g92v()
+            x, y = work[0] + g[0], work[1] + g[1]
+            a = math.radians(self.cs_rotation[cs])
+            c, s_ = math.cos(a), math.sin(a)
+            origin = self.cs_origin[cs]
+            if vals[0] is not None or vals[1] is not None or "r" in w:
+                origin[0] = self.pos[0] - (c * x - s_ * y)
+                origin[1] = self.pos[1] - (s_ * x + c * y)
+            if vals[2] is not None:
+                origin[2] = self.pos[2] - work[2] - g[2]
+        for i in range(3):
             self.params.set(P_CS_BASE + 20 * (cs - 1) + i, self.cs_origin[cs][i] / self.units)
+        self.params.set(P_CS_BASE + 20 * (cs - 1) + 9, self.cs_rotation[cs])
 
     def _g92(self, code: int, w: dict) -> None:
         if code == 920:
@@ -651,10 +705,12 @@ class Interpreter:
                 raise self._err("G92 needs at least one axis word", "words")
             if not self.g92_on:
                 self.g92 = [0.0, 0.0, 0.0]
+                self.g92_on = True
+            rel = self._to_work(self.pos)  # work coordinates without G92 are rel + g92
+            base = [rel[i] + self.g92[i] for i in range(3)]
             for i, v in enumerate(vals):
                 if v is not None:
-                    self.g92[i] = self.pos[i] - self.cs_origin[self.cs][i] - v
-            self.g92_on = True
+                    self.g92[i] = base[i] - v
         elif code == 921:
             self.g92, self.g92_on = [0.0, 0.0, 0.0], False
         elif code == 922:
@@ -669,17 +725,21 @@ class Interpreter:
 
     # -- motion --------------------------------------------------------------------------
     def _target(self, w: dict, machine: bool) -> list[float]:
-        target = list(self.pos)
+        if machine:
+            return [w[a] * self.units if a in w else self.pos[i] for i, a in enumerate(modal.AXIS_LETTERS)]
+        if not self.rotated:
+            target = list(self.pos)
+            for i, a in enumerate(modal.AXIS_LETTERS):
+                if a in w:
+                    v = w[a] * self.units
+                    target[i] = v + self._offset(i) if self.absolute else self.pos[i] + v
+            return target
+        work = self._to_work(self.pos)
         for i, a in enumerate(modal.AXIS_LETTERS):
             if a in w:
                 v = w[a] * self.units
-                if machine:
-                    target[i] = v
-                elif self.absolute:
-                    target[i] = v + self._offset(i)
-                else:
-                    target[i] = self.pos[i] + v
-        return target
+                work[i] = v if self.absolute else work[i] + v
+        return self._to_machine(work)
 
     def _motion(self, motion: int, w: dict, g53: bool) -> None:
         if motion == 800:
@@ -717,8 +777,6 @@ class Interpreter:
 
     def _arc(self, cw: bool, w: dict, start: tuple, end: tuple, line: int) -> None:
         what = "G2" if cw else "G3"
-        if "x" not in w and "y" not in w:
-            raise self._err(f"{what} needs an X or Y word: the end point of the arc", "words")
         if "k" in w:
             raise self._err(f"K word in an XY-plane arc ({what}): use I and J", "words", "k")
         turns = 0
@@ -742,9 +800,10 @@ class Interpreter:
                 raise self._err(f"{what} needs I and J (the centre) or R (the radius)", "words")
             i, j = w.get("i", 0.0) * self.units, w.get("j", 0.0) * self.units
             if self.arc_absolute:
-                cx, cy = i + self._offset(0), j + self._offset(1)
+                cx, cy, _ = self._to_machine([i, j, 0.0])
             else:
-                cx, cy = x0 + i, y0 + j
+                di, dj = self._rotate(i, j)
+                cx, cy = x0 + di, y0 + dj
             r0 = math.hypot(x0 - cx, y0 - cy)
             r1 = math.hypot(x1 - cx, y1 - cy)
             if r0 == 0.0:
@@ -770,7 +829,7 @@ class Interpreter:
     def _predefined(self, name: str) -> float | None:
         axis = {"_x": 0, "_y": 1, "_z": 2}.get(name)
         if axis is not None:
-            return (self.pos[axis] - self._offset(axis)) / self.units
+            return self._to_work(self.pos)[axis] / self.units
         return {
             "_metric": 1.0 if self.units == 1.0 else 0.0,
             "_imperial": 1.0 if self.units != 1.0 else 0.0,

@@ -59,6 +59,7 @@ class _Held:
     """A compensated move waiting for the next corner; `direction` and `sweep_rad` detect reversal."""
 
     move: Move
+    programmed: tuple[XY, XY]  # programmed XY start and end, for messages
     direction: XY | None = None  # programmed XY direction of a line; None: never checked
     sweep_rad: float = 0.0  # programmed sweep of an arc; 0: never checked
 
@@ -100,7 +101,9 @@ class KerfCompensator:
     def stop(self, line: int, column: int) -> None:
         """G40: end the held move at its offset end; the next move is the exit move."""
         if self.active and self._radius_mm > 0.0 and not self._entry_pending:
-            self._release_at(self._tool_xy(), line, column)
+            first = self._first_held_move()
+            corner = first.programmed[0] if first else self._programmed
+            self._release_at(self._tool_xy(), corner, line, column)
             self._exit_pending = True
         self._side, self._entry_pending = 0, False
 
@@ -136,7 +139,7 @@ class KerfCompensator:
         """End of program or a stop: emit what is held, the last move ending at its offset end."""
         first = self._first_held_move()
         if first is not None:
-            self._release_at(self._tool_xy(), first.move.line, first.move.column)
+            self._release_at(self._tool_xy(), first.programmed[0], first.move.line, first.move.column)
 
     # entry
 
@@ -151,17 +154,19 @@ class KerfCompensator:
                 code="kerf-entry", line=m.line, column=m.column,
             )
         if m.kind == ARC:
-            held = _Held(self._entry_arc(m))
+            entry = self._entry_arc(m)
         else:
             normal = _rotate(_unit_of(_sub(end, start)), self._side)
-            held = _Held(replace(m, end=(*_add(end, _scale(normal, self._radius_mm)), m.end[2])))
-        self._hold(held, end, held_start=None)
+            entry = replace(m, end=(*_add(end, _scale(normal, self._radius_mm)), m.end[2]))
+        # The entry never counts as reversed: cutting it back cannot take its end behind the
+        # uncompensated start, only beside it (LinuxCNC does not check it either).
+        self._hold(_Held(entry, (start, end)), held_start=None)
         self._entry_pending = False
 
     def _entry_arc(self, m: Move) -> Move:
         """The arc from the current point to the offset end whose centre lies on the end's radius."""
         center, start, end = m.center, _xy(m.start), _xy(m.end)
-        self._check_arc_radius(m)
+        self._check_arc_radius(m, at=start)
         toward_center = _unit_of(_sub(center, end))
         offset_end = _add(end, _scale(toward_center, self._radius_mm if self._inside(m) else -self._radius_mm))
         # The new centre is on the line through offset_end toward the centre, equidistant
@@ -184,68 +189,79 @@ class KerfCompensator:
         corner, end = _xy(m.start), _xy(m.end)
         direction = _sub(end, corner)
         normal = _rotate(_unit_of(direction), self._side)
-        offset_start = _add(corner, _scale(normal, self._radius_mm))
-        offset_end = _add(end, _scale(normal, self._radius_mm))
         incoming = self._incoming()
         bend = self._bend(corner, _angle(direction))
-        outside_arc_before = incoming.kind == ARC and not self._inside(incoming)
+        # A reversal after an arc the jet is outside of is concave, but only while that arc is
+        # still held (not after a flush), as in LinuxCNC.
+        held_arc = self._first_held_move() is not None and incoming.kind == ARC
         concave = bend < -TANGENT_RAD or bend > math.pi + TANGENT_RAD or (
-            bend > math.pi - TANGENT_RAD and outside_arc_before
+            bend > math.pi - TANGENT_RAD and held_arc and not self._inside(incoming)
         )
-        if concave:
+
+        def meet() -> XY:
             if incoming.kind == ARC:
-                meet = self._arc_meets_line(incoming, corner, direction, m)
-            else:
-                # Offset lines meet short of the jet's position by r*tan(inside turn/2).
-                back = -self._radius_mm * math.tan(bend / 2.0)
-                meet = _sub(self._tool_xy(), _scale(self._incoming_direction(corner), back))
-            start = self._release_at(meet, m.line, m.column)
-        elif bend > TANGENT_RAD:
-            self._release_at(self._tool_xy(), m.line, m.column)
-            self._emit_corner(m, corner, offset_start)
-            start = offset_start
-        else:
-            self._release_unchecked()
-            start = self._tool_xy()
-        held = _Held(replace(m, start=(*(start or self._tool_xy()), m.start[2]),
-                             end=(*offset_end, m.end[2])), direction=direction)
-        self._hold(held, end, held_start=start)
+                return self._arc_meets_line(incoming, corner, direction, m)
+            # Two offset lines meet short of the jet's position by r*tan(inside turn/2).
+            back = -self._radius_mm * math.tan(bend / 2.0)
+            return _sub(self._tool_xy(), _scale(self._incoming_direction(corner), back))
+
+        offset_start = _add(corner, _scale(normal, self._radius_mm))
+        anchor = self._join(m, corner, bend, concave, meet, offset_start, check_convex=True)
+        start = anchor or self._tool_xy()
+        piece = replace(m, start=(*start, m.start[2]), end=(*_add(end, _scale(normal, self._radius_mm)), m.end[2]))
+        self._hold(_Held(piece, (corner, end), direction=direction), held_start=anchor)
 
     def _arc(self, m: Move) -> None:
-        self._check_arc_radius(m)
         corner, end, center = _xy(m.start), _xy(m.end), m.center
+        self._check_arc_radius(m, at=end)
         inside = self._inside(m)
         out = -1.0 if inside else 1.0  # the jet is toward the centre when inside the arc
-        offset_start = _add(corner, _scale(_unit_of(_sub(corner, center)), out * self._radius_mm))
-        offset_end = _add(end, _scale(_unit_of(_sub(end, center)), out * self._radius_mm))
         tangent = _angle(_sub(corner, center)) + (-math.pi / 2 if m.cw else math.pi / 2)
         bend = self._bend(corner, tangent)
         concave = bend < -TANGENT_RAD or bend > math.pi + TANGENT_RAD or (
             abs(bend - math.pi) < TANGENT_RAD and not inside
         )
-        if concave:
+
+        def meet() -> XY:
             incoming = self._incoming()
-            if incoming.kind == ARC:
-                meet = self._arcs_meet(incoming, m)
-            else:
-                meet = self._line_meets_arc(m, corner)
-            start = self._release_at(meet, m.line, m.column)
-        elif bend > TANGENT_RAD:
-            self._release_unchecked()
-            self._emit_corner(m, corner, offset_start)
-            start = offset_start
-        else:
-            self._release_unchecked()
-            start = self._tool_xy()
+            return self._arcs_meet(incoming, m) if incoming.kind == ARC else self._line_meets_arc(m, corner)
+
+        offset_start = _add(corner, _scale(_unit_of(_sub(corner, center)), out * self._radius_mm))
+        anchor = self._join(m, corner, bend, concave, meet, offset_start, check_convex=False)
+        start = anchor or self._tool_xy()
+        offset_end = _add(end, _scale(_unit_of(_sub(end, center)), out * self._radius_mm))
+        if corner == end and math.dist(start, offset_end) < XY_EPS_MM:
+            offset_end = start  # a full circle stays one, exactly
+        piece = replace(m, start=(*start, m.start[2]), end=(*offset_end, m.end[2]))
         sweep = _sweep_rad(corner, center, _turn(m), end)
-        held = _Held(replace(m, start=(*(start or self._tool_xy()), m.start[2]),
-                             end=(*offset_end, m.end[2])), sweep_rad=sweep)
-        self._hold(held, end, held_start=start)
+        self._hold(_Held(piece, (corner, end), sweep_rad=sweep), held_start=anchor)
+
+    def _join(
+        self, m: Move, corner: XY, bend: float, concave: bool,
+        meet: Callable[[], XY], offset_start: XY, check_convex: bool,
+    ) -> XY | None:
+        """Joins the held move to `m` at `corner`; returns where `m` starts, None if nothing was held to join.
+
+        A tangent join starts `m` where the jet is. Before a convex corner arc LinuxCNC checks
+        the held move for reversal when a line follows but not when an arc does.
+        """
+        if concave:
+            return self._release_at(meet(), corner, m.line, m.column)
+        if bend > TANGENT_RAD:
+            if check_convex:
+                self._release_at(self._tool_xy(), corner, m.line, m.column)
+            else:
+                self._release_unchecked()
+            self._emit_corner(m, corner, offset_start)
+            return offset_start
+        self._release_unchecked()
+        return self._tool_xy()
 
     def _pure_z(self, m: Move) -> None:
         """No XY motion: queue behind the held move at the jet's XY, so a concave corner moves it too."""
         x, y = self._tool_xy()
-        self._held.append(_Held(replace(m, start=(x, y, m.start[2]), end=(x, y, m.end[2])), direction=(0.0, 0.0)))
+        piece = replace(m, start=(x, y, m.start[2]), end=(x, y, m.end[2]))
+        self._held.append(_Held(piece, (_xy(m.start), _xy(m.end)), direction=(0.0, 0.0)))
         self._tool = (x, y, m.end[2])
 
     def _bend(self, corner: XY, outgoing_rad: float) -> float:
@@ -278,7 +294,7 @@ class KerfCompensator:
         line_point = _add(self._on_circle(arc.center, nominal, corner), _scale(_rotate(unit, self._side), self._radius_mm))
         roots = _line_circle(line_point, unit, arc.center, radius)
         if roots is None:
-            raise self._unreachable(m.line, m.column, "the offset arc before it never meets the offset line")
+            raise self._unreachable(m.line, m.column, _xy(m.start), "the offset arc before it never meets the offset line")
         # Inside the arc the jet meets the line at its first crossing, outside at its second.
         t = roots[0] if self._inside(arc) else roots[1]
         return _add(line_point, _scale(unit, t))
@@ -292,7 +308,7 @@ class KerfCompensator:
         line_point = _add(self._on_circle(m.center, nominal, corner), offset)
         roots = _line_circle(line_point, direction, m.center, radius)
         if roots is None:
-            raise self._unreachable(m.line, m.column, "the offset line before it never meets the offset arc")
+            raise self._unreachable(m.line, m.column, _xy(m.start), "the offset line before it never meets the offset arc")
         # Inside the arc the jet leaves the line at its second crossing, outside at its first.
         t = roots[1] if self._inside(m) else roots[0]
         return _add(line_point, _scale(direction, t))
@@ -308,33 +324,36 @@ class KerfCompensator:
         radius1 = math.dist(_xy(m.end), m.center) + (-self._radius_mm if self._inside(m) else self._radius_mm)
         between = math.dist(center0, m.center)
         if radius0 == 0.0 or between == 0.0:
-            raise self._unreachable(m.line, m.column, "the arcs on both sides of it have the same centre")
+            raise self._unreachable(m.line, m.column, _xy(m.start), "the arcs on both sides of it have the same centre")
         cos_a = (radius0**2 + between**2 - radius1**2) / (2.0 * radius0 * between)
         if abs(cos_a) > 1.0:
-            raise self._unreachable(m.line, m.column, "the offset arcs on both sides of it never meet")
+            raise self._unreachable(m.line, m.column, _xy(m.start), "the offset arcs on both sides of it never meet")
         left = self._inside(before) == (not m.cw)
         a = _angle(_sub(m.center, center0)) + (math.acos(cos_a) if left else -math.acos(cos_a))
         return (center0[0] + radius0 * math.cos(a), center0[1] + radius0 * math.sin(a))
 
     # the held queue
 
-    def _hold(self, held: _Held, programmed_end: XY, held_start: XY | None) -> None:
+    def _hold(self, held: _Held, held_start: XY | None) -> None:
         self._held.append(held)
         self._held_start = held_start
         self._last = held.move
         self._tool = held.move.end
-        self._programmed = programmed_end
+        self._programmed = held.programmed[1]
 
-    def _release_at(self, point: XY, line: int, column: int) -> XY | None:
-        """End every held move at `point` and emit the queue; None if nothing was held."""
+    def _release_at(self, point: XY, corner: XY, line: int, column: int) -> XY | None:
+        """End every held move at `point` (the jet's corner point) and emit the queue; None if nothing was held."""
         moves = [h for h in self._held if isinstance(h, _Held)]
         if not moves:
             self._release_unchecked()
             return None
         for h in moves:
             if self._reverses(h, point):
+                (x0, y0), (x1, y1) = h.programmed
                 what = "arc" if h.move.kind == ARC else "line"
-                raise self._unreachable(line, column, f"the {what} before it is too short")
+                raise self._unreachable(
+                    line, column, corner, f"the {what} from X{x0:.3f} Y{y0:.3f} to X{x1:.3f} Y{y1:.3f} is too short"
+                )
         for h in moves:
             h.move = replace(h.move, end=(*point, h.move.end[2]))
         self._release_unchecked()
@@ -397,8 +416,9 @@ class KerfCompensator:
         """The jet is inside an arc when the arc turns toward the jet's side."""
         return (self._side == LEFT) != arc.cw
 
-    def _check_arc_radius(self, m: Move) -> None:
-        radius = math.dist(_xy(m.end), m.center)
+    def _check_arc_radius(self, m: Move, at: XY) -> None:
+        """The jet must fit inside an arc it cuts from the inside (radius measured to `at`, as LinuxCNC does)."""
+        radius = math.dist(at, m.center)
         if self._inside(m) and radius <= self._radius_mm:
             relation = "is smaller than" if radius < self._radius_mm else "equals"
             raise GCodeError(
@@ -406,11 +426,10 @@ class KerfCompensator:
                 code="kerf-arc-radius", line=m.line, column=m.column,
             )
 
-    def _unreachable(self, line: int, column: int, why: str) -> GCodeError:
-        x, y = self._programmed
+    def _unreachable(self, line: int, column: int, corner: XY, why: str) -> GCodeError:
         return GCodeError(
-            f"the jet cannot reach the concave corner at X{x:.3f} Y{y:.3f} without gouging: {why} "
-            f"for kerf compensation radius {self._radius_mm:.3f} mm",
+            f"the jet cannot reach the concave corner at X{corner[0]:.3f} Y{corner[1]:.3f} without gouging "
+            f"(kerf compensation radius {self._radius_mm:.3f} mm): {why}",
             code="kerf-concave-corner", line=line, column=column,
         )
 

@@ -17,6 +17,9 @@ XYZ = Dialect(axes="xyz")
 
 
 def run(text: str, dialect: Dialect = XYZ):
+    """Interpret; programs here end with M2 unless they test the ending themselves."""
+    if isinstance(text, str) and "M2" not in text and "%" not in text:
+        text += "M2\n"
     return interpret(text, dialect, file="part.ngc")
 
 
@@ -134,13 +137,27 @@ def test_operator_messages_and_stops_are_kept_with_their_place():
 def test_comments_spaces_case_line_numbers_and_block_delete():
     p = run("n10 g 1 x 1 0 f 1 0 0 (comment) ; rest\n/G0 X99\nN20 G0 Y5 (a)(b)\n")
     assert ends(p) == [(10, 0, 0), (99, 0, 0), (99, 5, 0)], "block delete switch off: '/' lines run"
-    skipped = interpret("G0 X1\n/G0 X99\nG0 X2\n", Dialect(axes="xyz", block_delete=True))
+    skipped = interpret("G0 X1\n/G0 X99\nG0 X2\nM2\n", Dialect(axes="xyz", block_delete=True))
     assert ends(skipped) == [(1, 0, 0), (2, 0, 0)]
 
 
 def test_tape_markers_crlf_and_latin1_text():
-    p = interpret(b"%\r\n(Leder \xfcber)\r\nG0 X1\r\n%\r\nG0 X99\r\n", XYZ)
+    p = interpret(b"%\r\n(Leder \xfcber)\r\nG0 X1\r\n%\r\nG0 X99\r\n", XYZ)  # after the closing % nothing runs
     assert ends(p) == [(1, 0, 0)]
+
+
+def test_a_file_must_end_with_m2_m30_or_a_closing_percent_as_in_linuxcnc():
+    err = error_raw("G0 X1\nG0 X2\n\n")
+    assert (err.line, err.code) == (2, "program-end")
+    assert ends(interpret("%\nG0 X1\n%\n", XYZ)) == [(1, 0, 0)]
+    err = error_raw("G0 X1\n%\nM2\n")
+    assert (err.line, err.code) == (2, "bad-character")
+
+
+def error_raw(text: str) -> GCodeError:
+    with pytest.raises(GCodeError) as err:
+        interpret(text, XYZ, file="part.ngc")
+    return err.value
 
 
 def test_binary_files_are_refused_with_where():
@@ -185,7 +202,7 @@ def test_if_elseif_else_while_do_repeat_break_and_continue():
 
 
 def test_an_endless_loop_is_stopped_with_an_error_not_a_hang():
-    err = error("o1 while [1]\nG0 X1\no1 endwhile\n", Dialect(axes="xyz", max_blocks=10_000))
+    err = error("o1 while [1]\nG0 X1\no1 endwhile\nM2\n", Dialect(axes="xyz", max_blocks=10_000))
     assert err.code == "runaway" and "endless loop" in err.message
 
 
