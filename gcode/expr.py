@@ -226,7 +226,8 @@ _OPERATORS = {
 }
 # Candidates by first character, longest first ("**" before "*").
 _BY_FIRST = {
-    first: sorted((s for s in _OPERATORS if s[0] == first), key=len, reverse=True) for first in {s[0] for s in _OPERATORS}
+    first: sorted((s for s in _OPERATORS if s[0] == first), key=len, reverse=True)
+    for first in {s[0] for s in _OPERATORS}
 }
 
 

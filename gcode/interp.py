@@ -347,8 +347,11 @@ class Interpreter:
                 w[letter] = value
                 wpos[letter] = word.pos
         if b.assignments:
-            values = [(ref.target(params), node.evaluate(params)) for ref, node, _ in b.assignments]
-            params.apply(values)
+            targets = [ref.target(params) for ref, _, _ in b.assignments]
+            for t in targets:
+                if isinstance(t, str) and not params.exists(t):
+                    params.declare(t)  # LinuxCNC creates a named parameter when it reads `#<name>=`
+            params.apply([(t, node.evaluate(params)) for t, (_, node, _) in zip(targets, b.assignments)])
         self._block, self._wpos = b, wpos
         gg, mm = self._check_groups(b, g_codes, m_codes) if g_codes or m_codes else ({}, {})
         self._check_words(b, w, gg, mm)

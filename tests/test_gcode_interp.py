@@ -269,3 +269,9 @@ def test_segments_chain_and_serialise_to_the_exchange_format(tmp_path):
     assert recs[0] == {"kind": "rapid", "start": [0.0, 0.0, 0.0], "end": [1.0, 1.0, 0.0], "feed": None, "line": 1}
     assert recs[2]["kind"] == "arc" and recs[2]["cw"] is True and recs[2]["turns"] == 0 and len(recs[2]["center"]) == 2
     assert recs[3] == {"kind": "dwell", "seconds": 0.25, "line": 4}
+
+
+def test_a_named_parameter_exists_from_the_moment_its_setting_is_read():
+    """LinuxCNC: `#<a>=1 #<b>=#<a>` on one line gives b the 0 that a held when the line was read."""
+    p = run("#<a>=1 #<b>=#<a>\nG0 X#<b> Y#<a>\n")
+    assert ends(p) == [(0, 1, 0)]
