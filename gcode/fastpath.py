@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,12 +28,9 @@ from .canon import ARC, LINE, RAPID, Move
 if TYPE_CHECKING:
     from .interp import Interpreter
 
-_NUM = r"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)"
-_SIMPLE_LINE = (
-    rf"[ \t]*(?:[nN][0-9]+[ \t]*)?(?:[gG]0*[0-3](?![0-9.])[ \t]*)?(?:[xXyYzZfFiIjJrR][ \t]*{_NUM}[ \t]*)*"
-)
-_NOT_SIMPLE = re.compile(rf"^(?!{_SIMPLE_LINE}$)", re.M)
-_NUMBER = re.compile(_NUM)
+# A character outside these ends a plain run; the run's structure is then checked in bulk.
+_NOT_PLAIN = re.compile(r"[^ \t\n0-9.+\-nNgGxXyYzZfFiIjJrR]")
+_LETTERS_TO_SPACES = str.maketrans({c: " " for c in "ngxyzfijr\n\t"})
 MIN_RUN = 8  # shorter runs are not worth the set-up: the general path takes them
 MAX_RUN = 200_000  # bounded arrays per run
 _TWO_PI = 2.0 * math.pi
@@ -59,7 +57,7 @@ class FastPath:
         if pc < self.skip_until or ip.inverse_time or ip.frames or ip.rotated:
             return 0
         stop = min(end, pc + MAX_RUN)
-        m = _NOT_SIMPLE.search(self.text, int(self.starts[pc]), int(self.starts[stop]))
+        m = _NOT_PLAIN.search(self.text, int(self.starts[pc]), int(self.starts[stop]))
         run_end = stop if m is None else int(np.searchsorted(self.starts, m.start(), side="right")) - 1
         if run_end - pc < MIN_RUN:
             return 0
@@ -72,15 +70,38 @@ class FastPath:
     # -----------------------------------------------------------------------------------
     def _bulk(self, first: int, nl: int, low: str) -> int:
         ip = self.ip
+        low = low.replace(" ", "")
         raw = np.frombuffer(low.encode("ascii"), dtype=np.uint8)
         letter_pos = np.flatnonzero((raw >= 97) & (raw <= 122))
         letters = raw[letter_pos]
         line_of = np.searchsorted(np.flatnonzero(raw == 10), letter_pos)
-        values = np.array(_NUMBER.findall(low), dtype=np.float64)
-        keep = letters != ord("n")
-        letters, line_of, values = letters[keep], line_of[keep], values[keep]
+        # the shape letter-number letter-number ...: every letter is followed by a number, every
+        # number follows a letter (a line such as "x1.2.3" or "12 x1" goes to the general path)
+        after = raw[np.minimum(letter_pos + 1, len(raw) - 1)]
+        starts_number = ((after >= 48) & (after <= 57)) | (after == 43) | (after == 45) | (after == 46)
+        number_start = np.zeros(len(raw) + 1, dtype=bool)
+        digitish = ((raw >= 48) & (raw <= 57)) | (raw == 43) | (raw == 45) | (raw == 46)
+        number_start[1:][digitish] = True
+        number_start[1:][1:][digitish[1:] & digitish[:-1]] = False  # only the first char of each number
+        first_chars = np.flatnonzero(number_start[1:])
+        if not starts_number.all() or len(first_chars) != len(letter_pos) or not np.array_equal(first_chars, letter_pos + 1):
+            return 0
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            try:
+                values = np.fromstring(low.translate(_LETTERS_TO_SPACES), dtype=np.float64, sep=" ")
+            except (ValueError, DeprecationWarning):
+                return 0
         if len(values) != len(letters):
-            return 0  # not the one-number-per-letter shape after all
+            return 0
+        # N (line number) must be the first word of its line
+        is_n = letters == ord("n")
+        if is_n.any():
+            k = np.flatnonzero(is_n)
+            if (k > 0).any() and (line_of[k[k > 0] - 1] == line_of[k[k > 0]]).any():
+                return 0
+        keep = ~is_n
+        letters, line_of, values = letters[keep], line_of[keep], values[keep]
         limit = nl  # lines [0, limit) are taken; lowered at the first line that needs the general path
 
         def column(ch: str) -> np.ndarray:
@@ -97,6 +118,7 @@ class FastPath:
             return out
 
         g, f = column("g"), column("f")
+        limit = _first(~np.isnan(g) & ~np.isin(g, (0.0, 1.0, 2.0, 3.0)), limit)  # G codes other than G0-G3
         ax = [column(a) for a in "xyz"]
         wi, wj, wr = column("i"), column("j"), column("r")
         has_axis = ~(np.isnan(ax[0]) & np.isnan(ax[1]) & np.isnan(ax[2]))

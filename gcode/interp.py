@@ -33,7 +33,8 @@ from .source import decode, split_lines
 INCH_MM = 25.4
 ARC_RADIUS_TOLERANCE_MM = 0.002 * INCH_MM / 1.0  # LinuxCNC accepts this much spiral (end radius - start radius)
 ARC_RADIUS_RELATIVE_TOLERANCE = 0.001
-_OLINE = re.compile(r"^[ \t]*(?:/[ \t]*)?(?:[nN][\d. \t]*)?[oO]", re.M)
+_OLINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[nN][\d. \t]*)?[oO]")
+_O_CHAR = re.compile(r"[oO]")
 _MOTION_CODES = (0, 10, 20, 30, 800)
 _AXIS_GROUP0 = (100, 920, 530)  # non-modal codes that take axis words (G53 modifies motion)
 
@@ -170,10 +171,13 @@ class Interpreter:
         self._olines: dict[int, OWord] = {}
         self._by_label: dict[str, list[tuple[int, str]]] = {}
         self._subs: dict[str, tuple[int, int]] = {}
-        starts = self.fast.starts
-        for m in _OLINE.finditer(self.fast.text, 0, int(starts[min(self.end, len(self.lines))])):
-            i = int(np.searchsorted(starts, m.start(), side="right")) - 1
+        starts, text = self.fast.starts, self.fast.text
+        stop = int(starts[min(self.end, len(self.lines))])
+        candidates = {int(np.searchsorted(starts, m.start(), side="right")) - 1 for m in _O_CHAR.finditer(text, 0, stop)}
+        for i in sorted(candidates):
             raw = self.lines[i]
+            if not _OLINE.match(raw):
+                continue
             self.line_no = i + 1
             ow = lex_line(raw, i + 1).oword
             if ow is None:

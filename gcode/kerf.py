@@ -39,7 +39,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Callable
 
-from .canon import ARC, DWELL, RAPID, Event, Move
+from .canon import ARC, DWELL, LINE, RAPID, Event, Move
 from .errors import GCodeError
 
 LEFT, RIGHT = 1, -1
@@ -49,6 +49,7 @@ TANGENT_RAD = 0.05  # LinuxCNC's TOLERANCE_CONCAVE_CORNER: smaller bends get nei
 SWEEP_SLACK_RAD = 0.0254
 ENTRY_ARC_COS_MIN = 1e-4  # below this the entry arc's new centre is at infinity
 XY_EPS_MM = 1e-9  # moves shorter than this in XY are pure Z moves
+COLLAPSED_MM = 1e-6  # an offset arc whose ends are closer than this has shrunk to nothing
 
 Sink = Callable[[Move | Event], None]
 XY = tuple[float, float]
@@ -363,8 +364,8 @@ class KerfCompensator:
         if self._held_start is None:
             return False
         if h.move.kind == ARC:
-            if not h.sweep_rad:
-                return False
+            if not h.sweep_rad or math.dist(point, self._held_start) < COLLAPSED_MM:
+                return False  # an arc cut back to nothing has not reversed
             sweep = _sweep_rad(self._held_start, h.move.center, _turn(h.move), point)
             return abs(sweep) > abs(h.sweep_rad) + SWEEP_SLACK_RAD
         return h.direction is not None and _dot(h.direction, _sub(point, self._held_start)) < 0.0
@@ -373,7 +374,7 @@ class KerfCompensator:
         held, self._held, self._held_start = self._held, [], None
         for item in held:
             if isinstance(item, _Held):
-                self._emit(item.move, chained=True)
+                self._emit(_collapsed(item), chained=True)
             else:
                 self._sink(item)
 
@@ -432,6 +433,15 @@ class KerfCompensator:
             f"(kerf compensation radius {self._radius_mm:.3f} mm): {why}",
             code="kerf-concave-corner", line=line, column=column,
         )
+
+
+def _collapsed(h: _Held) -> Move:
+    """A partial arc whose offset ends meet became a straight (Z only) move, not a full circle."""
+    m = h.move
+    partial = h.programmed[0] != h.programmed[1]
+    if m.kind == ARC and partial and math.dist(_xy(m.start), _xy(m.end)) < COLLAPSED_MM:
+        return replace(m, kind=LINE, end=(*_xy(m.start), m.end[2]), center=None, cw=False, turns=0)
+    return m
 
 
 def _xy(p) -> XY:
