@@ -116,7 +116,7 @@ class Interpreter:
             raise err.located(self.file, n, err.column or 1, self.lines[n - 1] if 0 < n <= len(self.lines) else None) from None
         except RecursionError:
             raise GCodeError("expression or call nesting too deep", code="nesting", file=self.file, line=self.line_no) from None
-        return self.builder.build(self.file, min(self.end, len(self.lines)))
+        return self.builder.build(self.file, len(self.lines))
 
     def _execute_lines(self) -> None:
         pc, end, lines = 0, self.end, self.lines

@@ -364,8 +364,9 @@ class KerfCompensator:
         if self._held_start is None:
             return False
         if h.move.kind == ARC:
-            if not h.sweep_rad or math.dist(point, self._held_start) < COLLAPSED_MM:
-                return False  # an arc cut back to nothing has not reversed
+            if not h.sweep_rad:
+                return False
+            # An arc cut back to nothing sweeps a full turn here: a gouge, as in LinuxCNC.
             sweep = _sweep_rad(self._held_start, h.move.center, _turn(h.move), point)
             return abs(sweep) > abs(h.sweep_rad) + SWEEP_SLACK_RAD
         return h.direction is not None and _dot(h.direction, _sub(point, self._held_start)) < 0.0
