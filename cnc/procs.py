@@ -53,6 +53,8 @@ def run_hardware(rt: Runtime, ready) -> None:
         board.close()
         token.undeclare()
         session.close()
+        del server  # its numpy views of the segment must go before the segment is closed
+        area.close()
 
 
 def run_servo(rt: Runtime, ready) -> None:
@@ -80,6 +82,9 @@ def run_servo(rt: Runtime, ready) -> None:
     finally:
         token.undeclare()
         session.close()
+        del servo, shutdown
+        fifo.close()
+        area.close()
 
 
 def run_gateway(rt: Runtime, ready) -> None:
@@ -96,6 +101,9 @@ def run_gateway(rt: Runtime, ready) -> None:
     finally:
         gateway.close()
         session.close()
+        del gateway
+        fifo.close()
+        area.close()
 
 
 PROCESS_MAINS = {"hardware": run_hardware, "servo": run_servo, "gateway": run_gateway}
