@@ -27,6 +27,7 @@ from .canon import ARC, LINE, RAPID, Move
 
 if TYPE_CHECKING:
     from .interp import Interpreter
+    from .source import SourceLines
 
 # A character outside these ends a plain run; the run's structure is then checked in bulk.
 _NOT_PLAIN = re.compile(r"[^ \t\n0-9.+\-nNgGxXyYzZfFiIjJrR]")
@@ -39,16 +40,10 @@ _TWO_PI = 2.0 * math.pi
 class FastPath:
     """Bulk interpretation of plain-motion runs for one `Interpreter`."""
 
-    def __init__(self, interp: "Interpreter", text: str, lines: list[str]) -> None:
+    def __init__(self, interp: "Interpreter", lines: "SourceLines") -> None:
         self.ip = interp
-        self.text = text
-        starts = np.empty(len(lines) + 1, dtype=np.int64)
-        starts[0] = 0
-        if text.isascii():  # byte offsets are character offsets: find the newlines in C
-            starts[1:] = np.flatnonzero(np.frombuffer(text.encode("ascii"), dtype=np.uint8) == 10) + 1
-        else:
-            np.cumsum(np.fromiter((len(s) + 1 for s in lines), dtype=np.int64, count=len(lines)), out=starts[1:])
-        self.starts = starts
+        self.text = lines.text
+        self.starts = lines.starts
         self.skip_until = 0  # lines before this index were judged not worth a bulk run
 
     def run(self, pc: int, end: int) -> int:

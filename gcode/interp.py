@@ -28,7 +28,7 @@ from .kerf import KerfCompensator
 from .lexer import Block, OWord, lex_line
 from .params import Parameters
 from .program import Attrs, Program, ProgramBuilder
-from .source import decode, split_lines
+from .source import SourceLines, decode, split_lines
 
 INCH_MM = 25.4
 ARC_RADIUS_TOLERANCE_MM = 0.002 * INCH_MM / 1.0  # LinuxCNC accepts this much spiral (end radius - start radius)
@@ -99,15 +99,16 @@ class Interpreter:
     def run(self, source: str | bytes, progress: Callable[[int, int], None] | None = None) -> Program:
         """Interpret the program; `progress(line, total)` is called now and then on long files."""
         self.progress = progress
-        self.lines, self.end = [], 0
+        self.lines, self.end = SourceLines(""), 0
         text = decode(source, self.file) if isinstance(source, (bytes, bytearray)) else source
         try:
             self.lines, self.end = split_lines(text, self.file)
-            self.tape_start = next((i for i, ln in enumerate(self.lines) if ln.strip()), -1)
+            nonblank = re.search(r"\S", self.lines.text)
+            self.tape_start = int(np.searchsorted(self.lines.starts, nonblank.start(), side="right")) - 1 if nonblank else -1
             self.tape_marked = self.tape_start >= 0 and self.lines[self.tape_start].strip() == "%"
             if not self.tape_marked:
                 self.tape_start = -1
-            self.fast = FastPath(self, "\n".join(self.lines) + "\n", self.lines)
+            self.fast = FastPath(self, self.lines)
             self._scan_owords()
             self._execute_lines()
             self.kerf.flush()
@@ -160,7 +161,8 @@ class Interpreter:
             f = self.frames[-1]
             raise GCodeError(f"subroutine o<{f.label}> has no endsub", code="o-word", line=self.line_no, column=1)
         if not self.ended and not self.tape_marked and self.lines:
-            last = max((i for i in range(min(end, len(lines))) if lines[i].strip()), default=0)
+            body = lines.text[: int(lines.starts[min(end, len(lines))])].rstrip()
+            last = max(int(np.searchsorted(lines.starts, len(body) - 1, side="right")) - 1, 0) if body else 0
             raise GCodeError(
                 "file ended with no program end (M2 or M30) and no closing '%'", code="program-end", line=last + 1, column=1
             )

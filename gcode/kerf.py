@@ -30,7 +30,13 @@ cannot reach the concave corner: an error, never a silently rounded corner.
 
 Exit. G40 ends the held move at its offset end; the next move (which must be straight) runs
 from there to its programmed end. `flush` (end of program, M0/M1) does the same without
-turning compensation off.
+turning compensation off, so a concave corner right after a stop is not joined.
+
+Where rs274 prints something a planner cannot use, we differ: an offset arc that shrinks to
+nothing (an inside arc barely larger than the kerf, or an arc cut back to zero length) is
+handed on as a straight move, never as an arc whose start equals its end, which reads as a
+full circle. Exact tangencies, where LinuxCNC's rounding decides between meeting and an
+error, count as meeting.
 """
 
 from __future__ import annotations
@@ -78,7 +84,6 @@ class KerfCompensator:
         self._held_start: XY | None = None  # where the held XY move starts; None: not checked for reversal
         self._last: Move | None = None  # the last compensated XY move, held or not
         self._tool: tuple[float, float, float] | None = None  # where the compensated path ends
-        self._programmed: XY = (0.0, 0.0)  # programmed end of the last compensated move
         self._position: tuple[float, float, float] | None = None  # end of the last move handed on
 
     @property
@@ -102,13 +107,12 @@ class KerfCompensator:
     def stop(self, line: int, column: int) -> None:
         """G40: end the held move at its offset end; the next move is the exit move."""
         if self.active and self._radius_mm > 0.0 and not self._entry_pending:
-            first = self._first_held_move()
-            corner = first.programmed[0] if first else self._programmed
-            self._release_at(self._tool_xy(), corner, line, column)
+            self._end_held(line, column)
             self._exit_pending = True
         self._side, self._entry_pending = 0, False
 
     def move(self, m: Move) -> None:
+        """A programmed move (machine coordinates, mm); handed on now, or held until its corner is known."""
         if m.kind == DWELL:
             self._queue_or_emit(m)
             return
@@ -134,13 +138,15 @@ class KerfCompensator:
             self._straight(m)
 
     def event(self, e: Event) -> None:
+        """A non-motion item: handed on now, or queued behind the held move to keep its place."""
         self._queue_or_emit(e)
 
     def flush(self) -> None:
-        """End of program or a stop: emit what is held, the last move ending at its offset end."""
-        first = self._first_held_move()
-        if first is not None:
-            self._release_at(self._tool_xy(), first.programmed[0], first.move.line, first.move.column)
+        """End of program or a stop (M0, M1, M2, M30): emit what is held, the last move ending at its offset end.
+
+        Compensation stays on. A held move found reversed here is reported at its own block.
+        """
+        self._end_held(None, None)
 
     # entry
 
@@ -148,10 +154,10 @@ class KerfCompensator:
         start, end = _xy(m.start), _xy(m.end)
         distance = math.dist(start, end)
         if distance <= self._radius_mm:
-            what = "arc ends" if m.kind == ARC else "move is"
+            what = "arc's chord" if m.kind == ARC else "move"
             raise GCodeError(
-                f"kerf compensation entry {what} {distance:.3f} mm from its start in XY, "
-                f"not farther than the kerf compensation radius {self._radius_mm:.3f} mm",
+                f"kerf compensation entry {what} is {distance:.3f} mm long in XY; "
+                f"it must be longer than the kerf compensation radius {self._radius_mm:.3f} mm",
                 code="kerf-entry", line=m.line, column=m.column,
             )
         if m.kind == ARC:
@@ -285,23 +291,29 @@ class KerfCompensator:
     def _arc_meets_line(self, arc: Move, corner: XY, direction: XY, m: Move) -> XY:
         """Offset line after an arc: where it crosses the arc's offset circle.
 
-        Like LinuxCNC, the corner is taken on the arc's nominal circle (offset radius back off
-        the offset one), along the radius through the programmed corner; for an exact arc that
-        is the programmed corner itself.
+        Like LinuxCNC, the line is offset from the corner as seen on the arc's programmed circle
+        (the offset radius with the kerf radius taken back off) along the radius through the
+        programmed corner. For an exact arc that is the programmed corner itself; an entry arc,
+        whose centre moved, or a slightly spiral arc shift it a little.
         """
         radius = math.dist(_xy(arc.end), arc.center)
         nominal = radius + (self._radius_mm if self._inside(arc) else -self._radius_mm)
         unit = _unit_of(direction)
-        line_point = _add(self._on_circle(arc.center, nominal, corner), _scale(_rotate(unit, self._side), self._radius_mm))
+        offset = _scale(_rotate(unit, self._side), self._radius_mm)
+        line_point = _add(self._on_circle(arc.center, nominal, corner), offset)
         roots = _line_circle(line_point, unit, arc.center, radius)
         if roots is None:
-            raise self._unreachable(m.line, m.column, _xy(m.start), "the offset arc before it never meets the offset line")
+            raise self._unreachable(m.line, m.column, corner, "the offset arc before it never meets the offset line")
         # Inside the arc the jet meets the line at its first crossing, outside at its second.
         t = roots[0] if self._inside(arc) else roots[1]
         return _add(line_point, _scale(unit, t))
 
     def _line_meets_arc(self, m: Move, corner: XY) -> XY:
-        """Offset line before an arc: where it crosses the arc's offset circle (corner on the arc's end radius)."""
+        """Offset line before an arc: where it crosses the arc's offset circle.
+
+        Like LinuxCNC, the line runs through the corner as seen on the circle of the arc's end
+        radius, which differs from the programmed corner only for a slightly spiral arc.
+        """
         nominal = math.dist(_xy(m.end), m.center)
         radius = nominal + (-self._radius_mm if self._inside(m) else self._radius_mm)
         offset = _sub(self._tool_xy(), corner)
@@ -309,7 +321,7 @@ class KerfCompensator:
         line_point = _add(self._on_circle(m.center, nominal, corner), offset)
         roots = _line_circle(line_point, direction, m.center, radius)
         if roots is None:
-            raise self._unreachable(m.line, m.column, _xy(m.start), "the offset line before it never meets the offset arc")
+            raise self._unreachable(m.line, m.column, corner, "the offset line before it never meets the offset arc")
         # Inside the arc the jet leaves the line at its second crossing, outside at its first.
         t = roots[1] if self._inside(m) else roots[0]
         return _add(line_point, _scale(direction, t))
@@ -325,10 +337,10 @@ class KerfCompensator:
         radius1 = math.dist(_xy(m.end), m.center) + (-self._radius_mm if self._inside(m) else self._radius_mm)
         between = math.dist(center0, m.center)
         if radius0 == 0.0 or between == 0.0:
-            raise self._unreachable(m.line, m.column, _xy(m.start), "the arcs on both sides of it have the same centre")
+            raise self._unreachable(m.line, m.column, _xy(m.start), "the arcs on either side have the same centre")
         cos_a = (radius0**2 + between**2 - radius1**2) / (2.0 * radius0 * between)
         if abs(cos_a) > 1.0:
-            raise self._unreachable(m.line, m.column, _xy(m.start), "the offset arcs on both sides of it never meet")
+            raise self._unreachable(m.line, m.column, _xy(m.start), "the offset arcs on either side never meet")
         left = self._inside(before) == (not m.cw)
         a = _angle(_sub(m.center, center0)) + (math.acos(cos_a) if left else -math.acos(cos_a))
         return (center0[0] + radius0 * math.cos(a), center0[1] + radius0 * math.sin(a))
@@ -340,7 +352,14 @@ class KerfCompensator:
         self._held_start = held_start
         self._last = held.move
         self._tool = held.move.end
-        self._programmed = held.programmed[1]
+
+    def _end_held(self, line: int | None, column: int | None) -> None:
+        """End the held moves where the jet is, at their offset end, and hand them on."""
+        first = self._first_held_move()
+        if first is not None:
+            line = first.move.line if line is None else line
+            column = first.move.column if column is None else column
+            self._release_at(self._tool_xy(), first.programmed[0], line, column)
 
     def _release_at(self, point: XY, corner: XY, line: int, column: int) -> XY | None:
         """End every held move at `point` (the jet's corner point) and emit the queue; None if nothing was held."""
