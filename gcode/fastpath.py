@@ -23,17 +23,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .canon import ARC, LINE, RAPID, Move
+from .canon import ARC, DWELL, LINE, RAPID, Move
+from .dialect import AUX_BITS
 
 if TYPE_CHECKING:
     from .interp import Interpreter
     from .source import SourceLines
 
 # A character outside these ends a plain run; the run's structure is then checked in bulk.
-_NOT_PLAIN = re.compile(r"[^ \t\n0-9.+\-nNgGxXyYzZfFiIjJrR]")
-_LETTERS_TO_SPACES = str.maketrans({c: " " for c in "ngxyzfijr\n\t"})
+_NOT_PLAIN = re.compile(r"[^ \t\n0-9.+\-nNgGxXyYzZfFiIjJrRmMpP]")
+_LETTERS_TO_SPACES = str.maketrans({c: " " for c in "ngxyzfijrmp\n\t"})
 MIN_RUN = 8  # shorter runs are not worth the set-up: the general path takes them
-MAX_RUN = 200_000  # bounded arrays per run
+MAX_RUN = 20_000  # bounded arrays per run: memory stays flat, the set-up is still negligible
 _TWO_PI = 2.0 * math.pi
 
 
@@ -112,21 +113,25 @@ class FastPath:
                 out[ids] = values[sel]
             return out
 
-        g, f = column("g"), column("f")
-        limit = _first(~np.isnan(g) & ~np.isin(g, (0.0, 1.0, 2.0, 3.0)), limit)  # G codes other than G0-G3
+        g, f, mc, pw = column("g"), column("f"), column("m"), column("p")
+        is_dwell = g == 4.0
+        limit = _first(~np.isnan(g) & ~np.isin(g, (0.0, 1.0, 2.0, 3.0, 4.0)), limit)  # other G codes
+        limit = _first(~np.isnan(mc) & ~np.isin(mc, list(ip.d.mcodes)), limit)  # only the machine's jet/aux M codes
         ax = [column(a) for a in "xyz"]
         wi, wj, wr = column("i"), column("j"), column("r")
         has_axis = ~(np.isnan(ax[0]) & np.isnan(ax[1]) & np.isnan(ax[2]))
-        if "z" not in ip.d.axes:
-            limit = _first(~np.isnan(ax[2]), limit)
-        motion = _ffill(g, ip.motion / 10.0)
-        feed = _ffill(f * ip.units, ip.feed_mm)  # mm/min
-        is_arc = has_axis & (motion >= 2.0)
         has_ij = ~(np.isnan(wi) & np.isnan(wj))
         has_r = ~np.isnan(wr)
-        # words without a motion to use them, arcs without an end point or centre, mixed forms
+        # G4 P<seconds> alone (with M codes at most); P anywhere else (arc turns) goes the general way
+        limit = _first(is_dwell & (has_axis | has_ij | has_r | np.isnan(pw) | (pw < 0.0)), limit)
+        limit = _first(~np.isnan(pw) & ~is_dwell, limit)
+        if "z" not in ip.d.axes:
+            limit = _first(~np.isnan(ax[2]), limit)
+        motion = _ffill(np.where(is_dwell, np.nan, g), ip.motion / 10.0)
+        feed = _ffill(f * ip.units, ip.feed_mm)  # mm/min
+        is_arc = has_axis & (motion >= 2.0)
+        # words without a motion to use them, arcs without a centre, mixed forms, zero feed
         limit = _first((has_ij | has_r) & ~is_arc, limit)
-        limit = _first(is_arc & np.isnan(ax[0]) & np.isnan(ax[1]), limit)
         limit = _first(is_arc & (has_ij == has_r), limit)
         limit = _first(has_axis & (motion >= 1.0) & (feed <= 0.0), limit)
         if limit < MIN_RUN:
@@ -165,29 +170,103 @@ class FastPath:
                 idx, kind, cw, starts, e, center = idx[keep_seg], kind[keep_seg], cw[keep_seg], starts[keep_seg], e[keep_seg], center[keep_seg]
                 length, lo, hi = length[keep_seg], lo[keep_seg], hi[keep_seg]
         fmm = np.where(kind == RAPID, np.nan, feed[idx])
-        lines = first + idx + 1
+        dwells = np.flatnonzero(is_dwell[:limit])
         if ip.kerf.active:
-            self._through_kerf(kind, starts, e, center, cw, fmm, lines)
+            self._through_kerf(first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm)
         else:
-            lo_all = lo.min(axis=0) if len(idx) else np.full(3, np.inf)
-            hi_all = hi.max(axis=0) if len(idx) else np.full(3, -np.inf)
-            ip.builder.extend(kind, starts, e, center, cw, fmm, lines, ip._attrs, length, lo_all, hi_all)
+            self._emit(first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm, length, lo, hi)
         # modal state after the run
         last = limit - 1
         ip.motion = int(round(motion[last] * 10))
         ip.feed_mm = float(feed[last])
-        if len(idx):
-            ip.pos = [float(v) for v in e[-1]]
+        ip.pos = [float(v) for v in ends[last]]
         return limit
 
-    def _through_kerf(self, kind, starts, ends, center, cw, feed, lines) -> None:
-        """With kerf compensation on, the moves go one by one through the compensator, as from the general path."""
+    def _outputs_by_line(self, limit: int, mc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Jet state, aux bits and jet-off events per line after each line's M codes (machine M-code map)."""
         ip = self.ip
-        move, attrs = ip.kerf.move, ip._attrs
-        for k, s_, e_, c_, cw_, f_, ln in zip(
-            kind.tolist(), starts.tolist(), ends.tolist(), center.tolist(), cw.tolist(), feed.tolist(), lines.tolist()
-        ):
-            move(Move(k, tuple(s_), tuple(e_), tuple(c_) if k == ARC else None, cw_, 0, f_, ln, 1, attrs))
+        jet_set = np.full(limit, np.nan)
+        bits = {b: np.full(limit, np.nan) for b in AUX_BITS.values()}
+        for code, actions in ip.d.mcodes.items():
+            at = mc[:limit] == code
+            if not at.any():
+                continue
+            for action in actions:
+                name, state = action.rsplit("_", 1)
+                target = jet_set if name == "jet" else bits[AUX_BITS[name]]
+                target[at] = 1.0 if state == "on" else 0.0
+        jet = _ffill(jet_set, float(ip.jet)).astype(bool)
+        aux = np.zeros(limit, dtype=np.uint32)
+        for b, col in bits.items():
+            aux |= _ffill(col, float(ip.aux >> b & 1)).astype(np.uint32) << b
+        before = np.concatenate(([ip.jet], jet[:-1]))
+        jet_off = (jet_set == 0.0) & before  # the general path emits an event only on a change
+        return jet, aux, jet_off
+
+    def _emit(self, first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm, length, lo, hi) -> None:
+        """No kerf compensation: moves and dwells go to the program builder as arrays."""
+        ip = self.ip
+        jet_l, aux_l, jet_off = self._outputs_by_line(limit, mc)
+        order = np.argsort(np.concatenate((idx, dwells)), kind="stable")
+        nm, nd = len(idx), len(dwells)
+        seg_line = np.concatenate((idx, dwells))[order]
+        cat = lambda a, b: np.concatenate((a, b))[order]  # noqa: E731
+        pos_d = ends[dwells]
+        k_all = cat(kind, np.full(nd, DWELL, dtype=np.uint8))
+        st_all = cat(starts, pos_d)
+        en_all = cat(e, pos_d)
+        ce_all = cat(center, np.zeros((nd, 2)))
+        cw_all = cat(cw, np.zeros(nd, dtype=bool))
+        fe_all = cat(fmm, np.full(nd, np.nan))
+        dw_all = cat(np.zeros(nm), pw[dwells])
+        le_all = cat(length, np.zeros(nd))
+        jet = jet_l[seg_line]
+        # pierces: a cutting move with the jet on whose previous cutting move had it off, or
+        # with the jet switched off in between (as ProgramBuilder counts them one by one)
+        s0 = ip.builder._jet_was_on
+        off_cum = np.cumsum(jet_off)
+        cut = (k_all == LINE) | (k_all == ARC)
+        cl, cj = seg_line[cut], jet[cut]
+        if len(cl):
+            prev_line = np.concatenate(([-1], cl[:-1]))
+            offs_between = off_cum[cl] - np.where(prev_line >= 0, off_cum[np.maximum(prev_line, 0)], 0)
+            prev_state = np.concatenate(([s0], cj[:-1])) & (offs_between == 0)
+            pierces = int((cj & ~prev_state).sum())
+            after = bool(cj[-1]) and off_cum[limit - 1] == off_cum[cl[-1]]
+        else:
+            pierces, after = 0, bool(s0) and off_cum[limit - 1] == 0
+        lo_all = lo.min(axis=0) if nm else np.full(3, np.inf)
+        hi_all = hi.max(axis=0) if nm else np.full(3, -np.inf)
+        tol = np.where(k_all == DWELL, 0.0, ip._attrs.tolerance_mm)
+        ip.builder.extend(
+            k_all, st_all, en_all, ce_all, cw_all, fe_all, dw_all, jet, aux_l[seg_line], first + seg_line + 1,
+            ip._attrs, tol, le_all, lo_all, hi_all, pierces, after,
+        )
+        if len(mc) and not np.isnan(mc[:limit]).all():
+            ip.jet, ip.aux = bool(jet_l[limit - 1]), int(aux_l[limit - 1])
+            ip._refresh_attrs()
+
+    def _through_kerf(self, first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm) -> None:
+        """With kerf compensation on, each line's M codes, dwell and move go one by one through the
+        compensator, in the general path's order (M codes, then dwell, then motion)."""
+        ip = self.ip
+        move = ip.kerf.move
+        m_lines = np.flatnonzero(~np.isnan(mc[:limit]))
+        lines = np.union1d(np.union1d(idx, dwells), m_lines).tolist()
+        seg_of = dict(zip(idx.tolist(), range(len(idx))))
+        dwell_set = set(dwells.tolist())
+        m_set = set(m_lines.tolist())
+        kind_l, st_l, en_l, ce_l, cw_l, fe_l = kind.tolist(), starts.tolist(), e.tolist(), center.tolist(), cw.tolist(), fmm.tolist()
+        for L in lines:
+            line_no = first + L + 1
+            if L in m_set:
+                ip._mcode(int(mc[L]), line_no)
+            if L in dwell_set:
+                ip._event("dwell", line_no, seconds=float(pw[L]), position=tuple(ends[L].tolist()), jet=ip.jet, aux=ip.aux, outputs=ip.outputs)
+            k = seg_of.get(L)
+            if k is not None:
+                kk = kind_l[k]
+                move(Move(kk, tuple(st_l[k]), tuple(en_l[k]), tuple(ce_l[k]) if kk == ARC else None, cw_l[k], 0, fe_l[k], line_no, 1, ip._attrs))
 
     def _arcs(self, idx, arc, cw, starts, e, center, length, lo, hi, wi, wj, wr, units) -> int | None:
         """Centres, radius checks, lengths and bounds of every arc; index of the first bad one or None."""

@@ -183,34 +183,33 @@ class ProgramBuilder:
 
     def extend(
         self, kind: np.ndarray, start: np.ndarray, end: np.ndarray, center: np.ndarray, cw: np.ndarray,
-        feed: np.ndarray, line: np.ndarray, attrs: Attrs, length: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+        feed: np.ndarray, dwell: np.ndarray, jet: np.ndarray, aux: np.ndarray, line: np.ndarray, attrs: Attrs,
+        tolerance: np.ndarray, length: np.ndarray, lo: np.ndarray, hi: np.ndarray, pierces: int, jet_was_on_after: bool,
     ) -> None:
-        """Append a run of moves computed in bulk (the interpreter's fast path); same result as `move` one by one."""
+        """Append a run of segments computed in bulk (the interpreter's fast path); the same result
+        as `move`/`event` one by one, with pierces counted by the caller."""
         n = len(kind)
         if not n:
             return
         self.kind.frombytes(kind.astype(np.uint8).tobytes())
         self.cw.frombytes(cw.astype(np.uint8).tobytes())
-        self.jet.frombytes(np.full(n, int(attrs.jet), dtype=np.uint8).tobytes())
+        self.jet.frombytes(jet.astype(np.uint8).tobytes())
         self.turns.frombytes(np.zeros(n, dtype=np.int32).tobytes())
-        self.aux.frombytes(np.full(n, attrs.aux, dtype=np.uint32).tobytes())
+        self.aux.frombytes(aux.astype(np.uint32).tobytes())
         self.outputs.frombytes(np.full(n, attrs.outputs, dtype=np.uint32).tobytes())
         self.line.frombytes(line.astype(np.int32).tobytes())
         block = np.empty((n, 11))
         block[:, 0:3], block[:, 3:6], block[:, 6:8] = start, end, center
-        block[:, 8], block[:, 9], block[:, 10] = feed, attrs.tolerance_mm, 0.0
+        block[:, 8], block[:, 9], block[:, 10] = feed, tolerance, dwell
         self.floats.frombytes(block.tobytes())
         st = self.stats
-        rapid = kind == RAPID
+        rapid, move = kind == RAPID, (kind == LINE) | (kind == ARC)
         st.rapid_length_mm += float(length[rapid].sum())
-        feed_len = float(length[~rapid].sum())
-        st.feed_length_mm += feed_len
-        if attrs.jet:
-            st.cut_length_mm += feed_len
-            if (~rapid).any() and not self._jet_was_on:
-                st.pierces += 1
-        if (~rapid).any():
-            self._jet_was_on = attrs.jet
+        st.feed_length_mm += float(length[move].sum())
+        st.cut_length_mm += float(length[move & jet.astype(bool)].sum())
+        st.dwell_s += float(dwell.sum())
+        st.pierces += pierces
+        self._jet_was_on = jet_was_on_after
         self._extend(*lo, *hi)
 
     def _extend(self, x0: float, y0: float, z0: float, x1: float, y1: float, z1: float) -> None:

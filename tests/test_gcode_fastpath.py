@@ -48,6 +48,13 @@ def _program(seed: int, n: int = 400, bad_line: int | None = None) -> str:
             out.append(f"N{k} G01 X{nx:.3f} Y{ny:.3f}")
             mode = 1
         x, y = nx, ny
+        extra = rng.random()
+        if extra < 0.04:
+            out.append(rng.choice(["M5", "M3", "M7", "M9", "M8", "M5 M9"]))
+        elif extra < 0.06:
+            out.append(f"G4 P{rng.uniform(0, 1):.3f}")
+        elif extra < 0.07:
+            out.append(f"M3 G4 P0.2")
         if bad_line is not None and k == bad_line:
             out.append(rng.choice(["G1 X1 X2", "G2 X5 Y5 I1 J1", "G0 Z1 Z2", "G1 X3 R2", "G2 X7 Y7 R0.1"]))
     out.append("M5 M2")
@@ -77,6 +84,7 @@ def test_fast_path_equals_general_path_on_plain_cam_programs(seed):
             assert np.array_equal(a, b), name
     s, f = slow.stats, fast.stats
     assert (s.pierces, s.segments, s.lines) == (f.pierces, f.segments, f.lines)
+    assert s.dwell_s == pytest.approx(f.dwell_s) and s.pierces > 1 and s.dwell_s > 0
     for attr in ("cut_length_mm", "feed_length_mm", "rapid_length_mm"):
         assert getattr(s, attr) == pytest.approx(getattr(f, attr), rel=1e-12)
     assert np.allclose(s.bounds_min, f.bounds_min) and np.allclose(s.bounds_max, f.bounds_max)
@@ -102,6 +110,8 @@ def _contour_program(side: str, n: int = 600) -> str:
     for k in range(1, n + 1):
         a = 2 * math.pi * k / n
         x, y = 300 + 200 * math.cos(a), 300.5 + 200 * math.sin(a)
+        if k % 97 == 0:
+            out.append("M7 G4 P0.1" if k % 2 else "M9")
         if k % 5 == 0:
             out.append(f"G3 X{x:.6f} Y{y:.6f} I{300 - px:.6f} J{300.5 - py:.6f}")
         else:
@@ -116,6 +126,6 @@ def test_fast_path_with_kerf_compensation_on_equals_the_general_path(side):
     slow, fast = _both(_contour_program(side))
     assert not isinstance(slow, GCodeError), str(slow)
     assert len(slow.segments) == len(fast.segments) > 600
-    for name in ("kind", "start", "end", "center", "cw", "feed", "line", "jet"):
+    for name in ("kind", "start", "end", "center", "cw", "feed", "line", "jet", "aux", "dwell", "tolerance"):
         a, b = slow.segments[name], fast.segments[name]
         assert np.allclose(a, b, atol=1e-9, equal_nan=True) if a.dtype.kind == "f" else np.array_equal(a, b), name
