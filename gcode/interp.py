@@ -25,7 +25,7 @@ from .dialect import AUX_BITS, Dialect
 from .errors import GCodeError
 from .fastpath import FastPath
 from .kerf import KerfCompensator
-from .lexer import Block, OWord, lex_line
+from .lexer import Block, OWord, column_of, lex_line
 from .params import Parameters
 from .program import Attrs, Program, ProgramBuilder
 from .source import SourceLines, decode, split_lines
@@ -94,6 +94,8 @@ class Interpreter:
         self.line_no = 0
         self.ended = False
         self.blocks_run = 0
+        self.frames: list[_Frame] = []  # subroutine calls in progress
+        self._main_repeats: dict[int, int] = {}  # repeat counters outside any subroutine
 
     # -- driver --------------------------------------------------------------------------
     def run(self, source: str | bytes, progress: Callable[[int, int], None] | None = None) -> Program:
@@ -121,7 +123,6 @@ class Interpreter:
 
     def _execute_lines(self) -> None:
         pc, end, lines = 0, self.end, self.lines
-        self.frames: list[_Frame] = []
         self._cache: dict[int, Block] = {}
         while pc < end and not self.ended:
             self.line_no = pc + 1
@@ -303,11 +304,7 @@ class Interpreter:
         return cands[-1]
 
     def _repeats(self) -> dict:
-        if self.frames:
-            return self.frames[-1].repeat
-        if not hasattr(self, "_main_repeats"):
-            self._main_repeats: dict = {}
-        return self._main_repeats
+        return self.frames[-1].repeat if self.frames else self._main_repeats
 
     def _break_continue(self, label: str, pc: int, kw: str) -> int:
         starts = [(i, k) for i, k in self._by_label.get(label, ()) if i < pc and k in ("while", "do", "repeat") and i not in self._do_end]
@@ -364,8 +361,6 @@ class Interpreter:
         self._run_block(b, w, gg, mm)
 
     def _col(self, b: Block, norm_pos: int) -> int:
-        from .lexer import column_of
-
         return column_of(b.text, norm_pos)
 
     def _err(self, message: str, code: str, letter: str | None = None) -> GCodeError:
@@ -852,5 +847,5 @@ class Interpreter:
             "_current_tool": float(self.tool),
             "_selected_tool": float(self.next_tool),
             "_line": float(self.line_no),
-            "_call_level": float(len(getattr(self, "frames", ()))),
+            "_call_level": float(len(self.frames)),
         }.get(name)
