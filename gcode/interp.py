@@ -123,12 +123,14 @@ class Interpreter:
 
     def _execute_lines(self) -> None:
         pc, end, lines = 0, self.end, self.lines
+        self._next_progress = 16384
         self._cache: dict[int, Block] = {}
         while pc < end and not self.ended:
             self.line_no = pc + 1
             self.blocks_run += 1
-            if not self.blocks_run & 0x3FFF and self.progress is not None:
+            if self.progress is not None and self.blocks_run >= self._next_progress:
                 self.progress(pc + 1, end)
+                self._next_progress = self.blocks_run + 16384
             if self.blocks_run > self.d.max_blocks:
                 raise GCodeError(
                     f"program executed more than {self.d.max_blocks} blocks: an endless loop?", code="runaway", line=pc + 1, column=1

@@ -94,3 +94,34 @@ def test_unreadable_program_and_bad_tool_table_are_named(tmp_path):
     tbl.write_text("T1 P1 D2.0\nthis is not a tool\n")
     res = check(str(prog), "--tool-table", str(tbl))
     assert res.returncode == 1 and f"{tbl}:2:1: error: tool table line must be fields like 'T1 P1 D2.0'" in res.stderr
+
+
+def test_a_progress_bar_is_drawn_on_a_terminal_for_long_programs(tmp_path):
+    import os
+    import pty
+
+    prog = tmp_path / "long.ngc"
+    body = "".join(f"G1 X{k % 1000}.5 Y{(k * 7) % 900}.25\n" for k in range(300_000))
+    prog.write_text("G21 G90 F3000\n" + body + "M2\n")
+    master, slave = pty.openpty()
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "cnc.cli", "check", str(prog), "--machine", str(MACHINE_FILE)],
+            cwd=REPO, stdout=subprocess.PIPE, stderr=slave, text=True,
+        )
+        os.close(slave)
+        seen = b""
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:
+                break
+            if not chunk:
+                break
+            seen += chunk
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        os.close(master)
+    assert proc.returncode == 0, out
+    assert b"[#" in seen and b"% line" in seen, seen[:200]
+    assert "lines            300002" in out
