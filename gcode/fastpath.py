@@ -171,7 +171,7 @@ class FastPath:
                 length, lo, hi = length[keep_seg], lo[keep_seg], hi[keep_seg]
         fmm = np.where(kind == RAPID, np.nan, feed[idx])
         dwells = np.flatnonzero(is_dwell[:limit])
-        if ip.kerf.active:
+        if not ip.kerf.idle:
             self._through_kerf(first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm)
         else:
             self._emit(first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm, length, lo, hi)
@@ -242,6 +242,9 @@ class FastPath:
             k_all, st_all, en_all, ce_all, cw_all, fe_all, dw_all, jet, aux_l[seg_line], first + seg_line + 1,
             ip._attrs, tol, le_all, lo_all, hi_all, pierces, after,
         )
+        moved = k_all != DWELL
+        if moved.any():
+            ip.kerf.moved_to(tuple(en_all[np.flatnonzero(moved)[-1]].tolist()))
         if len(mc) and not np.isnan(mc[:limit]).all():
             ip.jet, ip.aux = bool(jet_l[limit - 1]), int(aux_l[limit - 1])
             ip._refresh_attrs()

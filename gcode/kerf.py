@@ -109,6 +109,11 @@ class KerfCompensator:
     def active(self) -> bool:
         return self._side != 0
 
+    @property
+    def idle(self) -> bool:
+        """Off, holding nothing, no exit move pending: moves may pass it by (see `moved_to`)."""
+        return not self._side and not self._held and not self._exit_pending
+
     def start(self, side: int, radius_mm: float, line: int, column: int) -> None:
         """G41/G42 (side +1/-1). A negative radius swaps sides, as a negative tool diameter does in LinuxCNC."""
         if side not in (LEFT, RIGHT):
@@ -155,6 +160,12 @@ class KerfCompensator:
             self._pure_z(m)
         else:
             self._straight(m)
+
+    def moved_to(self, point: tuple[float, float, float]) -> None:
+        """Moves were handed on past the compensator (it is off): the next chained move starts at `point`."""
+        if not self.idle:
+            raise RuntimeError("moves can be handed on past the compensator only while it is idle")
+        self._position = tuple(point)
 
     def event(self, e: Event) -> None:
         """A non-motion item: handed on now, or queued behind the held move to keep its place."""

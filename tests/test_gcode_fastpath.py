@@ -129,3 +129,23 @@ def test_fast_path_with_kerf_compensation_on_equals_the_general_path(side):
     for name in ("kind", "start", "end", "center", "cw", "feed", "line", "jet", "aux", "dwell", "tolerance"):
         a, b = slow.segments[name], fast.segments[name]
         assert np.allclose(a, b, atol=1e-9, equal_nan=True) if a.dtype.kind == "f" else np.array_equal(a, b), name
+
+
+def test_a_kerf_entry_after_a_bulk_run_starts_where_that_run_ended():
+    """Regression: moves the fast path hands on past the compensator must move its chain point too."""
+    lines = ["G21 G90 F1000", "G0 X0 Y0", "G41.1 D2 G1 X10 Y0", "G1 X10 Y10", "G1 X0 Y10", "G40 G1 X-5 Y15", "M5"]
+    lines += [f"G0 X{50 + k} Y{k}" for k in range(12)]
+    lines += ["M3", "G41.1 D2 G1 X80 Y0", "G1 X80 Y10", "G1 X70 Y10", "G40 G1 X60 Y20", "M2"]
+    slow, fast = _both("\n".join(lines) + "\n")
+    assert np.allclose(slow.segments["start"], fast.segments["start"]) and np.allclose(slow.segments["end"], fast.segments["end"])
+    moves = fast.segments
+    assert np.allclose(moves["start"][1:], moves["end"][:-1]), "every segment starts where the last one ended"
+
+
+def test_the_exit_move_after_a_bare_g40_keeps_its_chained_start_in_a_bulk_run():
+    """After `G40` alone, the next move is the exit move: it runs from the last offset point."""
+    lines = ["G21 G90 F1000", "G0 X0 Y0", "G41.1 D2 G1 X10 Y0", "G1 X10 Y10", "G40"]
+    lines += [f"G1 X{10 - k} Y{10 + k}" for k in range(1, 30)] + ["M2"]
+    slow, fast = _both("\n".join(lines) + "\n")
+    assert np.allclose(slow.segments["start"], fast.segments["start"]) and np.allclose(slow.segments["end"], fast.segments["end"])
+    assert tuple(fast.segments["start"][3][:2]) == pytest.approx((9.0, 10.0)), "the exit starts at the offset corner"
