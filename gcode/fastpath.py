@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .canon import ARC, DWELL, LINE, RAPID, Move
+from . import kerf_bulk
 from .dialect import AUX_BITS
 
 if TYPE_CHECKING:
@@ -31,8 +32,9 @@ if TYPE_CHECKING:
     from .source import SourceLines
 
 # A character outside these ends a plain run; the run's structure is then checked in bulk.
-_NOT_PLAIN = re.compile(r"[^ \t\n0-9.+\-nNgGxXyYzZfFiIjJrRmMpP]")
-_LETTERS_TO_SPACES = str.maketrans({c: " " for c in "ngxyzfijrmp\n\t"})
+_NOT_PLAIN = re.compile(r"[^ \t\n0-9.+\-nNgGxXyYzZfFiIjJrRmMpPdD]")
+_LETTERS_TO_SPACES = str.maketrans({c: " " for c in "ngxyzfijrmpd\n\t"})
+_KERF_CODES = (40.0, 41.0, 42.0, 41.1, 42.1)
 MIN_RUN = 8  # shorter runs are not worth the set-up: the general path takes them
 MAX_RUN = 20_000  # bounded arrays per run: memory stays flat, the set-up is still negligible
 _TWO_PI = 2.0 * math.pi
@@ -98,6 +100,9 @@ class FastPath:
                 return 0
         keep = ~is_n
         letters, line_of, values = letters[keep], line_of[keep], values[keep]
+        # kerf G codes are a group of their own: one line may carry G41 and G1
+        letters = letters.copy()
+        letters[(letters == ord("g")) & np.isin(values, _KERF_CODES)] = ord("k")
         limit = nl  # lines [0, limit) are taken; lowered at the first line that needs the general path
 
         def column(ch: str) -> np.ndarray:
@@ -114,6 +119,10 @@ class FastPath:
             return out
 
         g, f, mc, pw = column("g"), column("f"), column("m"), column("p")
+        kc, dw = column("k"), column("d")
+        limit = _first(~np.isnan(dw) & ~np.isin(kc, (41.0, 42.0, 41.1, 42.1)), limit)  # D only with G41/G42
+        if not ip.kerf.idle:
+            limit = _first(~np.isnan(kc), limit)  # the per-move compensator is mid-contour: leave it alone
         is_dwell = g == 4.0
         limit = _first(~np.isnan(g) & ~np.isin(g, (0.0, 1.0, 2.0, 3.0, 4.0)), limit)  # other G codes
         limit = _first(~np.isnan(mc) & ~np.isin(mc, list(ip.d.mcodes)), limit)  # only the machine's jet/aux M codes
@@ -134,6 +143,9 @@ class FastPath:
         limit = _first((has_ij | has_r) & ~is_arc, limit)
         limit = _first(is_arc & (has_ij == has_r), limit)
         limit = _first(has_axis & (motion >= 1.0) & (feed <= 0.0), limit)
+        stretches = None
+        if limit >= MIN_RUN and not np.isnan(kc[:limit]).all():
+            limit, stretches = self._stretches(limit, kc, dw, has_axis, motion, mc, is_dwell)
         if limit < MIN_RUN:
             return 0
         # end points in machine mm
@@ -170,17 +182,95 @@ class FastPath:
                 idx, kind, cw, starts, e, center = idx[keep_seg], kind[keep_seg], cw[keep_seg], starts[keep_seg], e[keep_seg], center[keep_seg]
                 length, lo, hi = length[keep_seg], lo[keep_seg], hi[keep_seg]
         fmm = np.where(kind == RAPID, np.nan, feed[idx])
+        seg_lines = idx
+        if stretches is not None and len(idx):
+            comp, limit = self._compensate(stretches, limit, idx, kind, starts, e, center, cw)
+            if comp is None:
+                return 0
+            keep_seg = idx < limit
+            fmm = fmm[keep_seg][comp.source]
+            seg_lines = idx[keep_seg][comp.source]
+            kind, starts, e, center, cw = comp.kind, comp.start, comp.end, comp.center, comp.cw
+            length, lo, hi = _geometry(kind, starts, e, center, cw)
         dwells = np.flatnonzero(is_dwell[:limit])
         if not ip.kerf.idle:
             self._through_kerf(first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm)
         else:
-            self._emit(first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm, length, lo, hi)
+            self._emit(first, limit, mc, dwells, pw, ends, seg_lines, kind, starts, e, center, cw, fmm, length, lo, hi)
         # modal state after the run
         last = limit - 1
         ip.motion = int(round(motion[last] * 10))
         ip.feed_mm = float(feed[last])
         ip.pos = [float(v) for v in ends[last]]
         return limit
+
+    def _stretches(self, limit, kc, dw, has_axis, motion, mc, is_dwell) -> tuple[int, list]:
+        """Find the compensated stretches (G41/G42 entry line .. G40 exit line) that the bulk
+        compensator can take; the run ends before the first one it cannot. Returns (limit, stretches)
+        with stretches as (entry line, exit line, side, radius mm)."""
+        ip = self.ip
+        out, open_ = [], None
+        events = np.concatenate(([0], np.cumsum(~np.isnan(mc[:limit]) | is_dwell[:limit]))).tolist()
+        axis_l, motion_l, dw_l = has_axis.tolist(), motion.tolist(), dw.tolist()
+        for L in np.flatnonzero(~np.isnan(kc[:limit])).tolist():
+            code = kc[L]
+            if code == 40.0:
+                if open_ is None:
+                    continue  # G40 with compensation off does nothing
+                entry, side, radius = open_
+                if not axis_l[L] or motion_l[L] >= 2.0:
+                    return entry, out  # a bare G40 or an arc exit: the per-move compensator decides
+                if events[L + 1] != events[entry]:
+                    return entry, out  # events inside the contour keep their place there
+                out.append((entry, L, side, radius))
+                open_ = None
+                continue
+            if open_ is not None or not axis_l[L]:
+                return (open_[0] if open_ is not None else L), out
+            side = 1 if code in (41.0, 41.1) else -1
+            d = dw_l[L]
+            if code in (41.1, 42.1):
+                diameter = 0.0 if d != d else d * ip.units
+            else:
+                tool = ip.tool if d != d else d
+                if tool != int(tool) or tool < 0 or int(tool) not in ip.d.tool_diameters_mm:
+                    return L, out
+                diameter = ip.d.tool_diameters_mm[int(tool)]
+            if diameter <= 0.0:
+                return L, out  # no or negative kerf: the per-move path knows what that means
+            open_ = (L, side, diameter / 2.0)
+        if open_ is not None:
+            return open_[0], out
+        return limit, out
+
+    def _compensate(self, stretches, limit, idx, kind, starts, e, center, cw):
+        """Kerf-compensate the stretches of the run; the run ends before one the bulk compensator cannot do."""
+        while True:
+            for entry, exit_line, _, _ in stretches:
+                if entry < limit <= exit_line:
+                    limit = entry  # a run never ends inside a contour
+            if limit < MIN_RUN:
+                return None, limit
+            keep = idx < limit
+            lines = idx[keep]
+            closed = [st for st in stretches if st[1] < limit]
+            entries = np.array([st[0] for st in closed], dtype=np.int64)
+            exits = np.array([st[1] for st in closed], dtype=np.int64)
+            k = np.searchsorted(entries, lines, side="right") - 1  # the last stretch entered at or before each line
+            inside = (k >= 0) & (lines <= exits[np.maximum(k, 0)]) if len(closed) else np.zeros(len(lines), dtype=bool)
+            stretch = np.where(inside, k, -1)
+            side = np.where(inside, np.array([st[2] for st in closed] or [0.0])[np.maximum(k, 0)], 0.0)
+            radius = np.where(inside, np.array([st[3] for st in closed] or [0.0])[np.maximum(k, 0)], 0.0)
+            first_ = inside & (lines == entries[np.maximum(k, 0)]) if len(closed) else inside
+            exit_ = inside & (lines == exits[np.maximum(k, 0)]) if len(closed) else inside
+            comp, bad = kerf_bulk.compensate(
+                kind[keep], starts[keep], e[keep], center[keep], cw[keep], stretch, side, radius, first_, exit_
+            )
+            if bad is None:
+                return comp, limit
+            limit = int(lines[bad])
+            if limit < MIN_RUN:
+                return None, limit
 
     def _outputs_by_line(self, limit: int, mc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Jet state, aux bits and jet-off events per line after each line's M codes (machine M-code map)."""
@@ -330,6 +420,32 @@ class FastPath:
         if bad.any():
             return int(a[np.flatnonzero(bad)[0]])
         return None
+
+
+def _geometry(kind, starts, ends, centers, cw) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Length and XYZ bounds of every piece, arcs' quadrant points included."""
+    length = np.sqrt(((ends - starts) ** 2).sum(axis=1))
+    lo, hi = np.minimum(starts, ends), np.maximum(starts, ends)
+    a = np.flatnonzero(kind == ARC)
+    if len(a):
+        x0, y0, x1, y1 = starts[a, 0], starts[a, 1], ends[a, 0], ends[a, 1]
+        cx, cy = centers[a, 0], centers[a, 1]
+        r0 = np.hypot(x0 - cx, y0 - cy)
+        a0, a1 = np.arctan2(y0 - cy, x0 - cx), np.arctan2(y1 - cy, x1 - cx)
+        d = np.where(cw[a], a0 - a1, a1 - a0)
+        d = np.where(d <= 1e-12, d + _TWO_PI, d)
+        swept = np.where(cw[a], -d, d)
+        length[a] = np.hypot(np.abs(r0 * swept), ends[a, 2] - starts[a, 2])
+        lo_s, hi_s = np.where(swept >= 0, a0, a0 + swept), np.where(swept >= 0, a0 + swept, a0)
+        for k, (px, py) in enumerate(((1, 0), (0, 1), (-1, 0), (0, -1))):
+            ang = k * math.pi / 2.0
+            inside = ang + _TWO_PI * np.ceil((lo_s - ang) / _TWO_PI) <= hi_s
+            qx, qy = cx + px * r0, cy + py * r0
+            lo[a, 0] = np.where(inside, np.minimum(lo[a, 0], qx), lo[a, 0])
+            lo[a, 1] = np.where(inside, np.minimum(lo[a, 1], qy), lo[a, 1])
+            hi[a, 0] = np.where(inside, np.maximum(hi[a, 0], qx), hi[a, 0])
+            hi[a, 1] = np.where(inside, np.maximum(hi[a, 1], qy), hi[a, 1])
+    return length, lo, hi
 
 
 def _ffill(values: np.ndarray, initial: float) -> np.ndarray:

@@ -149,3 +149,81 @@ def test_the_exit_move_after_a_bare_g40_keeps_its_chained_start_in_a_bulk_run():
     slow, fast = _both("\n".join(lines) + "\n")
     assert np.allclose(slow.segments["start"], fast.segments["start"]) and np.allclose(slow.segments["end"], fast.segments["end"])
     assert tuple(fast.segments["start"][3][:2]) == pytest.approx((9.0, 10.0)), "the exit starts at the offset corner"
+
+
+def _nest(seed: int, parts: int = 60, gouge_at: int | None = None) -> str:
+    """A nest of small parts cut with kerf compensation, as a CAM post writes it, with variety:
+    both sides, both directions, nozzle-table D and direct diameters, lines, I/J and R arcs,
+    and now and then what the bulk compensator leaves to the per-move one."""
+    import math
+
+    rng = random.Random(seed)
+    out = ["G21 G90 G17 F2400", "T1 M6"]
+    for k in range(parts):
+        ox, oy = 30 + (k % 12) * 60.0, 30 + (k // 12) * 50.0
+        comp = rng.choice(["G41 D1", "G42 D2", "G41.1 D0.6", "G42.1 D0.3"])
+        ccw = rng.random() < 0.5
+        out += [f"G0 X{ox - 3:.3f} Y{oy - 3:.3f}", "M3", "G4 P0.2", f"{comp} G1 X{ox:.3f} Y{oy:.3f}"]
+        shape = rng.random() if gouge_at != k else 0.0
+        pts: list[str] = []
+        if shape < 0.4:  # rounded rectangle
+            w, h, r = rng.uniform(20, 40), rng.uniform(15, 30), rng.uniform(2, 5)
+            steps = rng.randint(2, 6)
+            pts += [f"G1 X{ox + (w - r) * i / steps:.4f} Y{oy:.4f}" for i in range(1, steps + 1)]
+            pts += [f"G3 X{ox + w:.4f} Y{oy + r:.4f} I0 J{r:.4f}", f"G1 X{ox + w:.4f} Y{oy + h - r:.4f}",
+                    f"G3 X{ox + w - r:.4f} Y{oy + h:.4f} I{-r:.4f} J0", f"G1 X{ox:.4f} Y{oy + h:.4f}", f"G1 X{ox:.4f} Y{oy:.4f}"]
+        elif shape < 0.75:  # circle of R arcs and chords
+            rad = rng.uniform(8, 16)
+            n = rng.randint(12, 30)
+            cx, cy = ox, oy + rad
+            for i in range(1, n + 1):
+                a = -math.pi / 2 + (1 if ccw else -1) * 2 * math.pi * i / n
+                x, y = cx + rad * math.cos(a), cy + rad * math.sin(a)
+                g = 3 if ccw else 2
+                pts.append(f"G{g} X{x:.4f} Y{y:.4f} R{rad:.4f}" if i % 3 == 0 else f"G1 X{x:.4f} Y{y:.4f}")
+        else:  # slot
+            ln, rad = rng.uniform(15, 30), rng.uniform(3, 6)
+            pts += [f"G1 X{ox + ln:.3f} Y{oy:.3f}", f"G3 X{ox + ln:.3f} Y{oy + 2 * rad:.3f} I0 J{rad:.3f}",
+                    f"G1 X{ox:.3f} Y{oy + 2 * rad:.3f}", f"G3 X{ox:.3f} Y{oy:.3f} I0 J{-rad:.3f}"]
+        if gouge_at == k:  # two 0.2 mm slots, into and out of the part: the jet fits neither side
+            x0 = ox + (w - r) / steps
+            pts[1:1] = [f"G1 X{x0:.4f} Y{oy + 0.5:.4f}", f"G1 X{x0 + 0.2:.4f} Y{oy + 0.5:.4f}", f"G1 X{x0 + 0.2:.4f} Y{oy:.4f}",
+                        f"G1 X{x0 + 0.4:.4f} Y{oy:.4f}", f"G1 X{x0 + 0.4:.4f} Y{oy - 0.5:.4f}", f"G1 X{x0 + 0.6:.4f} Y{oy - 0.5:.4f}",
+                        f"G1 X{x0 + 0.6:.4f} Y{oy:.4f}"]
+        odd = rng.random()
+        if odd < 0.05 and len(pts) > 2:
+            pts.insert(2, "M7")  # an event inside the contour: left to the per-move compensator
+        out += pts
+        if odd > 0.95:
+            out += ["G40", f"G1 X{ox - 4:.3f} Y{oy - 4:.3f}"]  # a bare G40: the next move is the exit
+        else:
+            out.append(f"G40 G1 X{ox - 4:.3f} Y{oy - 4:.3f}")
+        out += ["M5"]
+    out += ["G0 X0 Y0", "M2"]
+    return "\n".join(out) + "\n"
+
+
+NEST_DIALECT = Dialect(axes="xyz", tool_diameters_mm={1: 0.8, 2: 1.2}, default_tolerance_mm=0.05)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_bulk_kerf_compensation_of_a_nest_equals_the_per_move_compensator(seed):
+    slow, fast = _both(_nest(seed), NEST_DIALECT)
+    if isinstance(slow, GCodeError):
+        assert isinstance(fast, GCodeError) and (str(slow), slow.code) == (str(fast), fast.code)
+        return
+    assert len(slow.segments) == len(fast.segments) > 1000
+    for name in slow.segments.dtype.names:
+        a, b = slow.segments[name], fast.segments[name]
+        assert np.allclose(a, b, atol=1e-9, equal_nan=True) if a.dtype.kind == "f" else np.array_equal(a, b), name
+    s, f = slow.stats, fast.stats
+    assert (s.pierces, s.segments) == (f.pierces, f.segments) and s.pierces == 60
+    assert s.cut_length_mm == pytest.approx(f.cut_length_mm, rel=1e-12)
+    assert np.allclose(s.bounds_min, f.bounds_min) and np.allclose(s.bounds_max, f.bounds_max)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_bulk_kerf_reports_a_gouge_as_the_per_move_compensator_does(seed):
+    slow, fast = _both(_nest(seed, gouge_at=20 + seed * 7), NEST_DIALECT)
+    assert isinstance(slow, GCodeError) and slow.code.startswith("kerf"), str(slow)
+    assert isinstance(fast, GCodeError) and (str(slow), slow.code) == (str(fast), fast.code)
