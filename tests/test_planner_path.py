@@ -1,0 +1,82 @@
+"""Planner path: corners blended within the tolerance, measured against the programmed path."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+import pytest
+
+from gcode.canon import ARC, LINE
+from gcode.dialect import Dialect
+from gcode.interp import interpret
+
+from cnc.planner.path import blend_corners, deviation, elements_from_program
+
+XY = Dialect(axes="xyz", default_tolerance_mm=0.05)
+
+
+def path_of(text: str, dialect: Dialect = XY):
+    programmed = elements_from_program(interpret(text + "M2\n", dialect).segments)
+    return programmed, blend_corners(programmed)
+
+
+def chained(path) -> bool:
+    return all(math.dist(a.end, b.start) < 1e-9 for a, b in zip(path, path[1:]))
+
+
+def test_a_right_angle_corner_is_blended_to_exactly_the_tolerance():
+    programmed, path = path_of("G64 P0.1\nG1 X100 Y0 F6000\nG1 X100 Y100\n")
+    assert [e.kind for e in path] == [LINE, ARC, LINE] and path[1].blend
+    r = 0.1 / (1.0 - math.cos(math.pi / 4))
+    cx, cy = path[1].center
+    assert math.hypot(path[1].start[0] - cx, path[1].start[1] - cy) == pytest.approx(r)
+    dev = deviation(path, programmed, step_mm=0.001)
+    assert dev.max() <= 0.1 + 1e-9 and dev.max() == pytest.approx(0.1, abs=1e-3), "the bound is used, not wasted (to the sampling step)"
+    assert chained(path)
+
+
+def test_exact_stop_mode_keeps_every_corner():
+    programmed, path = path_of("G61\nG1 X10 F600\nG1 Y10\nG1 X0\n")
+    assert len(path) == len(programmed) == 3 and not any(e.blend for e in path)
+    assert deviation(path, programmed).max() < 1e-12
+
+
+def test_blends_never_overlap_on_short_segments():
+    programmed, path = path_of("G64 P5\nG1 X1 F600\nG1 Y1\nG1 X2\nG1 Y2\n")
+    lines = [e for e in path if e.kind == LINE]
+    assert all(e.length_mm >= -1e-12 for e in lines)
+    assert chained(path) and deviation(path, programmed, 0.001).max() <= 5.0
+
+
+def test_no_blend_where_the_jet_switches_or_at_a_reversal_or_an_arc():
+    _, path = path_of("G64 P0.5\nG1 X10 F600\nM3\nG1 Y10\nM5\n")
+    assert not any(e.blend for e in path), "the jet switches exactly at the corner"
+    _, path = path_of("G64 P0.5\nG1 X10 F600\nG1 X0\n")
+    assert not any(e.blend for e in path), "a reversal is a stop"
+    _, path = path_of("G64 P0.5\nG1 X10 F600\nG2 X20 Y0 R5\n")
+    assert not any(e.blend for e in path)
+
+
+def test_cam_polyline_corners_all_blend_within_their_tolerance():
+    rng = random.Random(4)
+    x = y = 0.0
+    heading = 0.0
+    text = ["G64 P0.02", "G1 X0 Y0 F3000"]
+    for _ in range(300):
+        heading += rng.uniform(-0.6, 0.6)
+        step = rng.uniform(0.3, 3.0)
+        x, y = x + step * math.cos(heading), y + step * math.sin(heading)
+        text.append(f"G1 X{x:.4f} Y{y:.4f}")
+    programmed, path = path_of("\n".join(text) + "\n")
+    blends = [e for e in path if e.blend]
+    assert len(blends) > 250, "nearly every corner of a CAM polyline is blended"
+    assert chained(path)
+    assert deviation(path, programmed, 0.002).max() <= 0.02 + 1e-9
+
+
+def test_the_path_keeps_segment_and_line_for_progress():
+    _, path = path_of("G64 P0.1\nG1 X10 F600\nG1 Y10\n")
+    assert [e.line for e in path] == [2, 3, 3] and [e.segment for e in path] == [0, 1, 1]
+    assert all(e.feed_mm_s == pytest.approx(10.0) for e in path)
