@@ -191,6 +191,15 @@ class GcodeConfig:
 
 
 @dataclass(frozen=True)
+class PlannerConfig:
+    """How the path planner shares the axes' limits."""
+
+    arc_normal_share: float = opt(
+        0.5, "", "share of acceleration and jerk an arc may spend turning (the rest speeds up and slows down)", 0.05, 0.95
+    )
+
+
+@dataclass(frozen=True)
 class GatewayConfig:
     """The HMI's door on Zenoh."""
 
@@ -227,6 +236,7 @@ class MachineConfig:
     mcodes: McodeConfig = field(default_factory=McodeConfig)
     gcode: GcodeConfig = field(default_factory=GcodeConfig)
     nozzle: list[NozzleConfig] = field(default_factory=list, metadata={"array_of": NozzleConfig})
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
     gateway: GatewayConfig = field(default_factory=GatewayConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
