@@ -169,18 +169,14 @@ class FastPath:
         arc = kind == ARC
         cw = motion[idx] == 2.0
         center = np.zeros((len(idx), 2))
-        length = np.sqrt(((e - starts) ** 2).sum(axis=1))
-        lo = np.minimum(starts, e)
-        hi = np.maximum(starts, e)
         if arc.any():
-            bad = self._arcs(idx, arc, cw, starts, e, center, length, lo, hi, wi, wj, wr, units)
+            bad = self._arcs(idx, arc, cw, starts, e, center, wi, wj, wr, units)
             if bad is not None:
                 limit = int(idx[bad])
                 if limit < MIN_RUN:
                     return 0
                 keep_seg = idx < limit
                 idx, kind, cw, starts, e, center = idx[keep_seg], kind[keep_seg], cw[keep_seg], starts[keep_seg], e[keep_seg], center[keep_seg]
-                length, lo, hi = length[keep_seg], lo[keep_seg], hi[keep_seg]
         fmm = np.where(kind == RAPID, np.nan, feed[idx])
         seg_lines = idx
         if stretches is not None and len(idx):
@@ -191,7 +187,7 @@ class FastPath:
             fmm = fmm[keep_seg][comp.source]
             seg_lines = idx[keep_seg][comp.source]
             kind, starts, e, center, cw = comp.kind, comp.start, comp.end, comp.center, comp.cw
-            length, lo, hi = _geometry(kind, starts, e, center, cw)
+        length, lo, hi = _geometry(kind, starts, e, center, cw)
         dwells = np.flatnonzero(is_dwell[:limit])
         if not ip.kerf.idle:
             self._through_kerf(first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm)
@@ -361,8 +357,8 @@ class FastPath:
                 kk = kind_l[k]
                 move(Move(kk, tuple(st_l[k]), tuple(en_l[k]), tuple(ce_l[k]) if kk == ARC else None, cw_l[k], 0, fe_l[k], line_no, 1, ip._attrs))
 
-    def _arcs(self, idx, arc, cw, starts, e, center, length, lo, hi, wi, wj, wr, units) -> int | None:
-        """Centres, radius checks, lengths and bounds of every arc; index of the first bad one or None."""
+    def _arcs(self, idx, arc, cw, starts, e, center, wi, wj, wr, units) -> int | None:
+        """Centres and radius checks of every arc; index of the first bad one or None."""
         from .interp import ARC_RADIUS_RELATIVE_TOLERANCE, ARC_RADIUS_TOLERANCE_MM
 
         ip = self.ip
@@ -396,27 +392,7 @@ class FastPath:
         r1 = np.hypot(x1 - cx, y1 - cy)
         ij = ~r_form
         bad |= ij & ((r0 == 0.0) | (np.abs(r1 - r0) > np.maximum(ARC_RADIUS_TOLERANCE_MM, ARC_RADIUS_RELATIVE_TOLERANCE * r0)))
-        # sweep, as gcode.arcs.sweep
-        a0 = np.arctan2(y0 - cy, x0 - cx)
-        a1 = np.arctan2(y1 - cy, x1 - cx)
-        d = np.where(cw[a], a0 - a1, a1 - a0)
-        d = np.where(d <= 1e-12, d + _TWO_PI, d)
-        swept = np.where(cw[a], -d, d)
-        dz = e[a, 2] - starts[a, 2]
-        length[a] = np.hypot(np.abs(r0 * swept), dz)
         center[a, 0], center[a, 1] = cx, cy
-        # bounds: start and end already in lo/hi; add the quadrant points the arc passes
-        lo_s = np.where(swept >= 0, a0, a0 + swept)
-        hi_s = np.where(swept >= 0, a0 + swept, a0)
-        for k, (px, py) in enumerate(((1, 0), (0, 1), (-1, 0), (0, -1))):
-            ang = k * math.pi / 2.0
-            n = np.ceil((lo_s - ang) / _TWO_PI)
-            inside = ang + _TWO_PI * n <= hi_s
-            qx, qy = cx + px * r0, cy + py * r0
-            lo[a, 0] = np.where(inside, np.minimum(lo[a, 0], qx), lo[a, 0])
-            lo[a, 1] = np.where(inside, np.minimum(lo[a, 1], qy), lo[a, 1])
-            hi[a, 0] = np.where(inside, np.maximum(hi[a, 0], qx), hi[a, 0])
-            hi[a, 1] = np.where(inside, np.maximum(hi[a, 1], qy), hi[a, 1])
         if bad.any():
             return int(a[np.flatnonzero(bad)[0]])
         return None

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gcode.arcs import sweep
 from gcode.canon import ARC, DWELL, LINE, RAPID
 
 COLLINEAR_RAD = 1e-6  # turns smaller than this are straight on: no blend needed
@@ -60,14 +61,7 @@ class Element:
     @property
     def sweep_rad(self) -> float:
         """Signed swept angle of an arc (negative clockwise), full circles and extra turns included."""
-        cx, cy = self.center
-        a0 = math.atan2(self.start[1] - cy, self.start[0] - cx)
-        a1 = math.atan2(self.end[1] - cy, self.end[0] - cx)
-        d = (a0 - a1) if self.cw else (a1 - a0)
-        if d <= 1e-12:
-            d += 2.0 * math.pi
-        d += 2.0 * math.pi * self.turns
-        return -d if self.cw else d
+        return sweep(self.start[0], self.start[1], self.end[0], self.end[1], *self.center, self.cw, self.turns)
 
     def direction_at_start(self) -> tuple[float, float]:
         return self._direction(self.start)
