@@ -62,6 +62,7 @@ class Gateway:
                     home_switch=bool(ain & AxisIn.HOME),
                     drive_ready=bool(ain & AxisIn.DRIVE_READY),
                     drive_enabled=bool(ain & AxisIn.DRIVE_ENABLED),
+                    homed=bool(sv["homed_mask"] >> i & 1),
                 )
             )
         self.seq += 1

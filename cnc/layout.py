@@ -115,6 +115,9 @@ def servo_layout(n: int) -> BlockLayout:
             F("underruns", "Q"),  # ticks the FIFO ran dry during a motion
             F("loop_ns", "q"),  # compute time of the last tick
             F("reset_seq", "Q"),  # last command.reset_seq the servo acted on
+            F("position_offset_mm", "d", n),  # machine position = encoder counts * resolution + offset
+            F("position_ref_seq", "Q"),  # last command.position_ref_seq the servo applied
+            F("homed_mask", "I"),  # bit i: axis i has a position reference (is homed)
         ],
     )
 
@@ -128,6 +131,10 @@ def command_layout(n: int) -> BlockLayout:
             F("safe_state", "I"),  # hold the board in the safe state
             F("shutdown", "I"),  # bit per process (Proc): stop it
             F("virtual_run_until", "Q"),  # virtual clock: do not tick past this tick (0: run freely)
+            F("position_ref_seq", "Q"),  # +1 = apply the position reference below
+            F("position_ref_mask", "I"),  # axes it applies to
+            F("position_ref_counts", "q", n),  # this encoder count ...
+            F("position_ref_mm", "d", n),  # ... is this machine position
         ],
     )
 

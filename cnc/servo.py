@@ -79,6 +79,7 @@ class Servo:
         self._h_trip, self._h_safe, self._h_reset = hx["watchdog_tripped"], hx["safe_state"], hx["reset_seq"]
         cx = self.command.layout.index
         self._c_enable, self._c_reset, self._c_safe = cx["servo_enable"], cx["reset_seq"], cx["safe_state"]
+        self._c_ref = (cx["position_ref_seq"], cx["position_ref_mask"], cx["position_ref_counts"], cx["position_ref_mm"])
         v = self.out.values
         if v[self._i["ticks_processed"]]:
             # a restarted servo: the position it held is not known to be the one the planner expects
@@ -100,8 +101,11 @@ class Servo:
         self.first = False
         self.last_tick = tick
         enc = hw[self._h_enc]
-        actual = [enc[i] * self.res[i] for i in range(n)]
+        offset = v[I["position_offset_mm"]]
+        actual = [enc[i] * self.res[i] + offset[i] for i in range(n)]
         state = v[I["state"]]
+        if cmd[self._c_ref[0]] != v[I["position_ref_seq"]] and state != ServoState.TRACKING:
+            actual = self._apply_reference(cmd, enc, actual)
 
         # A reset is acted on once the hardware server, upstream in the tick, has acted on it:
         # the image then shows the watchdog and safe state as they are after the reset.
@@ -123,6 +127,8 @@ class Servo:
             state = ServoState.DISABLED
             self._open_loop(actual)
         else:
+            if state == ServoState.DISABLED:
+                self._open_loop(actual)  # close the loop where the table is, whatever was commanded before
             state = self._close_loop(actual, tick, steps)
 
         v[I["state"]] = state
@@ -193,6 +199,27 @@ class Servo:
         v[I["drive_enable_mask"]] = (1 << n) - 1
         v[I["digital_out"]] = flags & OUTPUT_MASK
         return ServoState.TRACKING if flags & _IN_MOTION else ServoState.HOLDING
+
+    def _apply_reference(self, cmd: tuple, enc: tuple, actual: list[float]) -> list[float]:
+        """Homing: `position_ref_counts` of the masked axes is `position_ref_mm`. Applied only while
+        not following a motion; the commanded position becomes the new actual one, so nothing jumps."""
+        v, I = self.out.values, self._i
+        i_seq, i_mask, i_counts, i_mm = self._c_ref
+        mask, counts, mm = cmd[i_mask], cmd[i_counts], cmd[i_mm]
+        offset = v[I["position_offset_mm"]]
+        commanded = v[I["commanded_mm"]]
+        for i in range(self.n):
+            if mask >> i & 1:
+                shift = (mm[i] - counts[i] * self.res[i]) - offset[i]
+                offset[i] += shift
+                actual[i] += shift
+                commanded[i] = actual[i]
+                self.integral[i] = 0.0
+        v[I["position_offset_mm"]] = offset
+        v[I["commanded_mm"]] = commanded
+        v[I["homed_mask"]] |= mask
+        v[I["position_ref_seq"]] = cmd[i_seq]
+        return actual
 
     def _interlock(self, hw: tuple, cmd: tuple) -> tuple[ServoFault, int] | None:
         """Conditions that trip the servo whatever it is doing."""

@@ -257,6 +257,23 @@ class Supervisor:
         self.command.set("reset_seq", self.command.get("reset_seq") + 1)
         self.command.publish()
 
+    def set_position_reference(self, axis: int, counts: int, position_mm: float) -> int:
+        """Homing: encoder count `counts` of `axis` is machine position `position_mm`; returns the request's number."""
+        if not 0 <= axis < len(self.config.axis_names):
+            raise ValueError(f"axis {axis} is not one of 0..{len(self.config.axis_names) - 1}")
+        counts_l = list(self.command.get("position_ref_counts"))
+        mm_l = list(self.command.get("position_ref_mm"))
+        counts_l[axis], mm_l[axis] = int(counts), float(position_mm)
+        self.command.set("position_ref_counts", counts_l)
+        self.command.set("position_ref_mm", mm_l)
+        pending = self.servo()["position_ref_seq"] != self.command.get("position_ref_seq")
+        mask = (self.command.get("position_ref_mask") if pending else 0) | 1 << axis  # keep an unapplied one
+        self.command.set("position_ref_mask", mask)
+        seq = self.command.get("position_ref_seq") + 1
+        self.command.set("position_ref_seq", seq)
+        self.command.publish()
+        return seq
+
     def set_safe_state(self, on: bool = True) -> None:
         self.command.set("safe_state", int(on))
         self.command.publish()

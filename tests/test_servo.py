@@ -148,3 +148,78 @@ def test_setpoint_records_carry_position_velocity_flags_segment_and_line():
     dt = setpoint_dtype(2)
     assert dt.names == ("position", "velocity", "flags", "segment", "line")
     assert dt.itemsize == 48
+
+
+def test_a_position_reference_shifts_the_frame_without_moving_the_table():
+    """Homing: `counts` is `position`; the commanded position follows so no speed command jumps."""
+    cfg = machine_config()
+    area = SharedArea.create(unique_name("test", "ref"), controller_layouts(2))
+    fifo = SetpointFifo.create(unique_name("test", "rfifo"), 16, 2)
+    try:
+        hw = area.writer("hw")
+        hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
+        hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
+        hw.set("encoder_counts", [100_000, 50_000])
+        command = area.writer("command")
+        command.set("servo_enable", 1)
+        command.publish()
+        servo = Servo(cfg, area, fifo, record_latency=False)
+        tick = 0
+
+        def step():
+            nonlocal tick
+            tick += 1
+            hw.set("tick", tick)
+            hw.publish()
+            servo.tick()
+            return area.reader("servo").read_dict()
+
+        s = step()
+        assert s["actual_mm"] == [100.0, 50.0] and s["homed_mask"] == 0
+        assert s["state"] == ServoState.HOLDING, "enabled from the first tick: the loop closes where the table is"
+        command.set("position_ref_counts", [90_000, 0])
+        command.set("position_ref_mm", [810.0, 0.0])
+        command.set("position_ref_mask", 0b01)
+        command.set("position_ref_seq", 1)
+        command.publish()
+        s = step()
+        assert s["actual_mm"][0] == pytest.approx(820.0) and s["actual_mm"][1] == 50.0
+        assert s["commanded_mm"][0] == pytest.approx(820.0), "the command moved with the frame"
+        assert s["position_offset_mm"][0] == pytest.approx(720.0) and s["homed_mask"] == 0b01
+        assert s["position_ref_seq"] == 1 and abs(s["speed_cmd_v"][0]) < 1e-9
+        # while following a motion a new reference waits
+        fifo.push_one((820.1, 50.0), (10.0, 0.0), SetpointFlag.IN_MOTION)
+        s = step()
+        assert s["state"] == ServoState.TRACKING
+        command.set("position_ref_mask", 0b10)
+        command.set("position_ref_seq", 2)
+        command.publish()
+        s = step()
+        assert s["position_ref_seq"] == 1 and s["homed_mask"] == 0b01, "not while tracking"
+        del servo
+    finally:
+        fifo.close()
+        area.close()
+
+
+def test_homing_against_the_index_pulse_puts_the_machine_frame_on_the_table():
+    """The simulated encoder counts from power-up (encoder_zero_mm); a reference on the latched
+    index pulse (every 10 mm of machine position) gives positions in machine coordinates."""
+    from cnc.supervisor import Supervisor
+
+    config = machine_config(**{"sim.axes.x.encoder_zero_mm": 123.0})
+    with Supervisor(config, clock="virtual") as sup:
+        start = enable_and_hold(sup)
+        assert start[0] == pytest.approx(800.0 - 123.0), "unhomed: the counter's frame"
+        latch_seq = sup.hw()["index_latch_seq"][0]
+        feed(sup, move_setpoints(config, start, [start[0] + 15.0, start[1]], velocity_scale=0.1))
+        sup.wait_motion_done()
+        hw = sup.hw()
+        assert hw["index_latch_seq"][0] > latch_seq, "an index pulse was crossed"
+        latched = hw["index_latch_counts"][0]  # the count at the last index mark: machine 810 mm
+        assert latched == round((810.0 - 123.0) / 0.001)
+        seq = sup.set_position_reference(0, latched, 810.0)
+        sup.wait_until(lambda: sup.servo()["position_ref_seq"] == seq, 5.0, "the reference to apply")
+        s = sup.servo()
+        assert s["homed_mask"] & 1 and abs(s["actual_mm"][0] - 815.0) < 0.01
+        assert s["state"] == ServoState.HOLDING and s["fault"] == ServoFault.NONE

@@ -28,6 +28,7 @@ class AxisStatus(msgspec.Struct, frozen=True):
     home_switch: bool
     drive_ready: bool
     drive_enabled: bool
+    homed: bool = False
 
 
 class Status(msgspec.Struct, frozen=True):
