@@ -12,7 +12,7 @@ which is what keeps the following error small on curves rather than only on stra
 
 Each tick: read the hardware image, take the next setpoint (hold position when none is
 commanded; count an underrun when the FIFO runs dry in the middle of a motion), check
-interlocks, soft limits and the following error, compute and publish. Any trip sets the
+interlocks, soft limits (on homed axes) and the following error, compute and publish. Any trip sets the
 speed commands to 0, disables the drives, closes the jet and records why; it is latched
 until a reset. The servo counts its own ticks against the hardware tick counter
 (QMotor 2.0's sequence counter) to detect overruns.
@@ -154,8 +154,11 @@ class Servo:
         commanded = v[I["commanded_mm"]]
         if rec is not None:
             pos, vel, flags = rec[:n], rec[n : 2 * n], rec[2 * n]
+            homed = v[I["homed_mask"]]
             for i in range(n):
-                if not self.lo[i] <= pos[i] <= self.hi[i]:
+                # soft limits hold once an axis is homed: before, its position means nothing
+                # (and homing itself travels onto the switch beyond the travel end)
+                if homed >> i & 1 and not self.lo[i] <= pos[i] <= self.hi[i]:
                     self._trip(ServoFault.SOFT_LIMIT, i, pos[i], tick)
                     self._open_loop(actual)
                     self.fifo.flush()

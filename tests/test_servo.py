@@ -55,6 +55,9 @@ def test_following_error_beyond_limit_trips_servo_drives_off_and_jet_closed(virt
 def test_setpoint_outside_travel_trips_soft_limit_and_nothing_moves(virtual_controller):
     sup = virtual_controller
     start = enable_and_hold(sup)
+    counts = sup.hw()["encoder_counts"][0]
+    seq = sup.set_position_reference(0, counts, counts * 0.001)  # home X where it stands
+    sup.wait_until(lambda: sup.servo()["position_ref_seq"] == seq, 5.0, "X homed")
     sup.fifo.push_one((1600.5, start[1]), (0.0, 0.0), SetpointFlag.IN_MOTION)
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT, 5.0, "the soft-limit trip")
     s = sup.servo()
@@ -103,6 +106,24 @@ def test_setpoint_output_flags_drive_the_jet_valve(virtual_controller):
     feed(sup, move_setpoints(sup.config, [start[0] + 5.0, start[1]], start))
     sup.wait_motion_done()
     sup.wait_until(lambda: sup.hw()["digital_out"] == 0, 5.0, "jet and aux off with the next move")
+
+
+def test_an_unhomed_axis_has_no_soft_limits_but_its_hard_limit_switch_trips():
+    from cnc.supervisor import Supervisor
+
+    with Supervisor(machine_config(**{"sim.axes.x.start_position_mm": 3.0}), clock="virtual") as sup:
+        start = enable_and_hold(sup)
+        # walk X down at 10 mm/s towards -9 mm, past the travel end (0) and the limit switch (-5)
+        walk = np.zeros(4000, dtype=setpoint_dtype(2))
+        walk["position"][:, 0] = start[0] - np.minimum(np.arange(1, 4001) * 0.01, 12.0)
+        walk["position"][:, 1] = start[1]
+        walk["velocity"][:, 0] = -10.0
+        walk["flags"] = SetpointFlag.IN_MOTION
+        feed(sup, walk)
+        sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT, 10.0, "the hard limit")
+        s = sup.servo()
+        assert s["fault"] == ServoFault.HARD_LIMIT and s["fault_axis"] == 0
+        assert s["actual_mm"][0] < 0.0, "it went below the travel end: no soft limit before homing"
 
 
 def test_disabling_opens_the_loop_and_the_drives(virtual_controller):
