@@ -103,6 +103,16 @@ class AxisConfig:
     integral_limit_mm_s: float = opt(
         50.0, "mm/s", "clamp of the integral term's contribution to the speed command", 0.0, 10000.0
     )
+    home_search_velocity_mm_s: float = opt(
+        -20.0, "mm/s", "speed and direction of the home-switch search (negative: towards travel_min)", -1000.0, 1000.0
+    )
+    home_latch_velocity_mm_s: float = opt(
+        2.0, "mm/s", "speed at which the axis backs off the switch to the index pulse", 0.01, 100.0
+    )
+    home_index_position_mm: float = opt(
+        0.0, "mm", "machine position of the first index pulse after the home switch releases", -100000.0, 100000.0
+    )
+    home_final_position_mm: float = opt(5.0, "mm", "where the axis parks after homing", -100000.0, 100000.0)
 
     @property
     def counts_per_mm(self) -> float:
@@ -379,6 +389,14 @@ def _cross_check(cfg: MachineConfig) -> None:
             raise ConfigError(
                 src, f"axis.{axis}", "travel_max_mm",
                 f"{a.travel_max_mm:g} must be greater than travel_min_mm {a.travel_min_mm:g}",
+            )
+    for axis, a in cfg.axis.items():
+        if a.home_search_velocity_mm_s == 0.0:
+            raise ConfigError(src, f"axis.{axis}", "home_search_velocity_mm_s", "must not be 0: its sign is the search direction")
+        if not a.travel_min_mm <= a.home_final_position_mm <= a.travel_max_mm:
+            raise ConfigError(
+                src, f"axis.{axis}", "home_final_position_mm",
+                f"{a.home_final_position_mm:g} is outside the travel {a.travel_min_mm:g} to {a.travel_max_mm:g} mm",
             )
     for axis in cfg.sim.axes:
         if axis not in cfg.axis:

@@ -1,0 +1,214 @@
+"""Homing an axis: search the home switch, back off it onto the encoder's index pulse, set the position.
+
+Incremental encoders count from wherever the machine was switched on, so each axis must be
+homed before positions mean anything (and before soft limits or programs apply):
+
+1. search: run towards the switch at `home_search_velocity_mm_s` until it is active;
+2. stop, jerk-limited;
+3. latch: back off at `home_latch_velocity_mm_s` until the switch releases, then on until the
+   encoder's index pulse; the count the board latched at that pulse is the reference;
+4. set the position: that count is `home_index_position_mm` (the servo shifts its frame
+   at a tick boundary without moving the table), then park at `home_final_position_mm`.
+
+Motion goes out as setpoints in short chunks through a `MotionPort`, so that a switch is
+seen within one chunk. The port is the commander's today (`SupervisorPort`) and the planner
+process's once it exists.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import numpy as np
+from ruckig import ControlInterface, InputParameter, Result, Ruckig, Trajectory
+
+from .config import MachineConfig
+from .fifo import SetpointFlag, setpoint_dtype
+from .hw.board import AxisIn
+from .layout import ServoFault, ServoState
+
+CHUNK_S = 0.02  # setpoints pushed per step: a switch is seen within this much motion
+
+
+class HomingError(RuntimeError):
+    """Homing could not be completed; the message says which axis and why."""
+
+
+class MotionPort(Protocol):
+    """What homing needs from whoever feeds the servo."""
+
+    def push(self, records: np.ndarray) -> None:
+        """Stream these setpoints; return once they have been taken (up to a few ticks)."""
+
+    def hw(self) -> dict: ...
+
+    def servo(self) -> dict: ...
+
+    def set_reference(self, axis: int, counts: int, position_mm: float) -> None:
+        """Apply a position reference and return once the servo has."""
+
+
+class Homing:
+    """Homes the axes of one machine through a motion port."""
+
+    def __init__(self, config: MachineConfig, port: MotionPort) -> None:
+        self.config, self.port = config, port
+        self.n = len(config.axis_names)
+        self.dt = config.timing.period_s
+
+    def home(self, axes: list[str] | None = None) -> None:
+        for name in axes or list(self.config.axis_names):
+            if name not in self.config.axis:
+                raise HomingError(f"no axis {name!r} on this machine (axes: {', '.join(self.config.axis_names)})")
+            self.home_axis(self.config.axis_names.index(name))
+
+    def home_axis(self, i: int) -> None:
+        name = self.config.axis_names[i].upper()
+        a = self.config.axis[self.config.axis_names[i]]
+        self._check_servo(name)
+        position = list(self.port.servo()["commanded_mm"])
+        # 1-2. search the switch (unless already on it), then stop
+        search = a.home_search_velocity_mm_s
+        limit_mm = (a.travel_max_mm - a.travel_min_mm) * 1.2 + 50.0
+        if not self._on_switch(i):
+            position = self._run(i, position, search, until=lambda: self._on_switch(i), max_mm=limit_mm, what="the home switch")
+        # 3. back off the switch, then on to the next index pulse
+        back = -math.copysign(a.home_latch_velocity_mm_s, search)
+        position = self._run(i, position, back, until=lambda: not self._on_switch(i), max_mm=limit_mm, what="the switch to release")
+        released = self.port.hw()["index_latch_seq"][i]
+        pitch_guard = 50.0  # mm: several index pitches
+        position = self._run(
+            i, position, back, until=lambda: self.port.hw()["index_latch_seq"][i] != released,
+            max_mm=pitch_guard, what="the encoder index pulse",
+        )
+        counts = self.port.hw()["index_latch_counts"][i]
+        # 4. set the position, park
+        self.port.set_reference(i, counts, a.home_index_position_mm)
+        self.port.push(self._park(i, list(self.port.servo()["commanded_mm"]), a.home_final_position_mm))
+        self._check_servo(name)
+
+    # -----------------------------------------------------------------------------------
+    def _run(self, i: int, position: list[float], velocity: float, until, max_mm: float, what: str) -> list[float]:
+        """Accelerate to `velocity` along axis i, hold it until `until()`, stop; return where the stop ends."""
+        name = self.config.axis_names[i].upper()
+        travelled, v = 0.0, 0.0
+        while True:
+            chunk, v = self._ramp(i, position, v, velocity, CHUNK_S)
+            self.port.push(chunk)
+            travelled += abs(chunk["position"][-1][i] - position[i])
+            position = list(chunk["position"][-1])
+            self._check_servo(name)
+            if until():
+                break
+            if travelled > max_mm:
+                self._stop(i, position, v)
+                raise HomingError(f"axis {name}: {what} not found within {max_mm:.0f} mm")
+        return self._stop(i, position, v)
+
+    def _stop(self, i: int, position: list[float], v: float) -> list[float]:
+        chunk, _ = self._ramp(i, position, v, 0.0, None)
+        self.port.push(chunk)
+        return list(chunk["position"][-1]) if len(chunk) else position
+
+    def _ramp(self, i: int, position: list[float], v0: float, v1: float, hold_s: float | None):
+        """Setpoints for a jerk-limited change of axis i's velocity from v0 to v1, then `hold_s` at v1."""
+        a = self.config.axis[self.config.axis_names[i]]
+        otg, inp, traj = Ruckig(1), InputParameter(1), Trajectory(1)
+        inp.control_interface = ControlInterface.Velocity
+        inp.current_position, inp.current_velocity, inp.current_acceleration = [position[i]], [v0], [0.0]
+        inp.target_velocity, inp.target_acceleration = [v1], [0.0]
+        inp.max_velocity, inp.max_acceleration, inp.max_jerk = [a.max_velocity_mm_s], [a.max_accel_mm_s2], [a.max_jerk_mm_s3]
+        if otg.calculate(inp, traj) not in (Result.Working, Result.Finished):
+            raise HomingError(f"axis {self.config.axis_names[i].upper()}: no velocity ramp from {v0:g} to {v1:g} mm/s")
+        ramp_steps = math.ceil(traj.duration / self.dt) if v0 != v1 else 0
+        hold_steps = 0 if hold_s is None else max(1, round(hold_s / self.dt))
+        out = np.zeros(ramp_steps + hold_steps, dtype=setpoint_dtype(self.n))
+        out["position"][:] = position
+        for k in range(ramp_steps):
+            p, vel, _ = traj.at_time(min((k + 1) * self.dt, traj.duration))
+            out["position"][k, i], out["velocity"][k, i] = p[0], vel[0]
+        end = out["position"][ramp_steps - 1, i] if ramp_steps else position[i]
+        for k in range(hold_steps):
+            out["position"][ramp_steps + k, i] = end + v1 * (k + 1) * self.dt
+            out["velocity"][ramp_steps + k, i] = v1
+        out["flags"] = SetpointFlag.IN_MOTION
+        if v1 == 0.0 and len(out):
+            out["flags"][-1] = 0
+            out["velocity"][-1] = 0.0
+        return out, v1
+
+    def _park(self, i: int, position: list[float], target: float) -> np.ndarray:
+        """A jerk-limited move of axis i alone to `target` (the other axes may not be homed yet)."""
+        a = self.config.axis[self.config.axis_names[i]]
+        otg, inp, traj = Ruckig(1), InputParameter(1), Trajectory(1)
+        inp.current_position, inp.current_velocity, inp.current_acceleration = [position[i]], [0.0], [0.0]
+        inp.target_position, inp.target_velocity = [target], [0.0]
+        inp.max_velocity, inp.max_acceleration, inp.max_jerk = [a.max_velocity_mm_s], [a.max_accel_mm_s2], [a.max_jerk_mm_s3]
+        if otg.calculate(inp, traj) not in (Result.Working, Result.Finished):
+            raise HomingError(f"axis {self.config.axis_names[i].upper()}: no move to the park position {target:g} mm")
+        steps = max(1, math.ceil(traj.duration / self.dt))
+        out = np.zeros(steps, dtype=setpoint_dtype(self.n))
+        out["position"][:] = position
+        for k in range(steps):
+            p, vel, _ = traj.at_time(min((k + 1) * self.dt, traj.duration))
+            out["position"][k, i], out["velocity"][k, i] = p[0], vel[0]
+        out["position"][-1, i], out["velocity"][-1] = target, 0.0
+        out["flags"] = SetpointFlag.IN_MOTION
+        out["flags"][-1] = 0
+        return out
+
+    def _on_switch(self, i: int) -> bool:
+        return bool(self.port.hw()["axis_inputs"][i] & AxisIn.HOME)
+
+    def _check_servo(self, name: str) -> None:
+        s = self.port.servo()
+        if s["state"] == ServoState.FAULT:
+            raise HomingError(f"axis {name}: homing stopped, the servo tripped ({ServoFault(s['fault']).name})")
+        if s["state"] == ServoState.DISABLED:
+            raise HomingError(f"axis {name}: the drives are off; enable them before homing")
+
+
+class SupervisorPort:
+    """The commander's motion port: lock-steps the virtual clock, or waits on the real-time one."""
+
+    def __init__(self, sup, low_watermark: int = 4) -> None:
+        self.sup, self.low = sup, low_watermark
+        self.virtual = sup.clock == "virtual"
+        if self.virtual:
+            sup.pause_virtual_clock()
+
+    def close(self) -> None:
+        if self.virtual:
+            self.sup.resume_virtual_clock()
+
+    def push(self, records: np.ndarray) -> None:
+        pushed = 0
+        while pushed < len(records):
+            n = self.sup.fifo.push(records[pushed:])
+            pushed += n
+            if self.virtual:
+                self.sup.run_ticks(max(n, 1))  # time stands still between chunks: no underrun
+            else:
+                self.sup.wait_until(lambda: self.sup.fifo.fill() <= self.low, 30.0, "the servo to take the setpoints")
+
+    def hw(self) -> dict:
+        return self.sup.hw()
+
+    def servo(self) -> dict:
+        return self.sup.servo()
+
+    def set_reference(self, axis: int, counts: int, position_mm: float) -> None:
+        seq = self.sup.set_position_reference(axis, counts, position_mm)
+        if self.virtual:
+            self.sup.run_ticks(2)
+        self.sup.wait_until(lambda: self.sup.servo()["position_ref_seq"] == seq, 5.0, "the position reference")
+
+
+def home_machine(sup, axes: list[str] | None = None) -> None:
+    """Home the machine a supervisor runs (the commander's side, until the planner process does it)."""
+    port = SupervisorPort(sup)
+    try:
+        Homing(sup.config, port).home(axes)
+    finally:
+        port.close()
