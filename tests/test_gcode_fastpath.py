@@ -54,7 +54,7 @@ def _program(seed: int, n: int = 400, bad_line: int | None = None) -> str:
         elif extra < 0.06:
             out.append(f"G4 P{rng.uniform(0, 1):.3f}")
         elif extra < 0.07:
-            out.append(f"M3 G4 P0.2")
+            out.append("M3 G4 P0.2")
         if bad_line is not None and k == bad_line:
             out.append(rng.choice(["G1 X1 X2", "G2 X5 Y5 I1 J1", "G0 Z1 Z2", "G1 X3 R2", "G2 X7 Y7 R0.1"]))
     out.append("M5 M2")
@@ -107,6 +107,7 @@ def _contour_program(side: str, n: int = 600) -> str:
     import math
 
     out = ["G21 G90 F900", "G0 X500 Y300", "M3", f"{side} D0.3 G1 X500 Y300.5"]
+    px, py = 500.0, 300.5
     for k in range(1, n + 1):
         a = 2 * math.pi * k / n
         x, y = 300 + 200 * math.cos(a), 300.5 + 200 * math.sin(a)

@@ -217,7 +217,7 @@ def test_a_position_reference_shifts_the_frame_without_moving_the_table():
         command.publish()
         s = step()
         assert s["position_ref_seq"] == 1 and s["homed_mask"] == 0b01, "not while tracking"
-        del servo
+        servo = None  # drop its views of the shared memory before closing it
     finally:
         fifo.close()
         area.close()
