@@ -94,6 +94,11 @@ class Servo:
         cmd, _ = self.command.read()
         v, I, n = self.out.values, self._i, self.n
         tick = hw[self._h_tick]
+        if not self.first and tick <= self.last_tick:
+            # A late servo can read the image of the next tick before that tick's wake-up
+            # arrives; the wake-up then finds a tick already done. Running it again would
+            # take one setpoint too many (a following error of one period's travel).
+            return
         steps = 1
         if not self.first and tick > self.last_tick + 1:
             steps = tick - self.last_tick

@@ -171,6 +171,34 @@ def test_setpoint_records_carry_position_velocity_flags_segment_and_line():
     assert dt.itemsize == 48
 
 
+def test_a_second_wake_up_for_a_tick_already_done_changes_nothing():
+    """Regression: a late servo that already read tick k's image must not run tick k again."""
+    cfg = machine_config()
+    area = SharedArea.create(unique_name("test", "twice"), controller_layouts(2))
+    fifo = SetpointFifo.create(unique_name("test", "tfifo"), 16, 2)
+    try:
+        hw = area.writer("hw")
+        hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
+        hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
+        command = area.writer("command")
+        command.set("servo_enable", 1)
+        command.publish()
+        for k in range(6):
+            fifo.push_one((0.5 * k, 0.0), (500.0, 0.0), SetpointFlag.IN_MOTION, segment=k)
+        servo = Servo(cfg, area, fifo, record_latency=False)
+        for tick in (1, 2, 2, 3):  # tick 2's wake-up arrives after tick 2 was already done
+            hw.set("tick", tick)
+            hw.publish()
+            servo.tick()
+        s = area.reader("servo").read_dict()
+        assert s["ticks_processed"] == 3 and s["setpoint_segment"] == 2, "one setpoint per tick, none extra"
+        assert s["overruns"] == 0
+        servo = None  # drop its views of the shared memory before closing it
+    finally:
+        fifo.close()
+        area.close()
+
+
 def test_a_position_reference_shifts_the_frame_without_moving_the_table():
     """Homing: `counts` is `position`; the commanded position follows so no speed command jumps."""
     cfg = machine_config()
@@ -241,6 +269,9 @@ def test_homing_against_the_index_pulse_puts_the_machine_frame_on_the_table():
         assert latched == round((810.0 - 123.0) / 0.001)
         seq = sup.set_position_reference(0, latched, 810.0)
         sup.wait_until(lambda: sup.servo()["position_ref_seq"] == seq, 5.0, "the reference to apply")
-        s = sup.servo()
-        assert s["homed_mask"] & 1 and abs(s["actual_mm"][0] - 815.0) < 0.01
-        assert s["state"] == ServoState.HOLDING and s["fault"] == ServoFault.NONE
+        sup.pause_virtual_clock()  # read the servo and the encoder at the same tick
+        s, hw = sup.servo(), sup.hw()
+        sup.resume_virtual_clock()
+        assert s["homed_mask"] & 1 and s["state"] == ServoState.HOLDING and s["fault"] == ServoFault.NONE
+        assert s["actual_mm"][0] == pytest.approx(hw["encoder_counts"][0] * 0.001 + 123.0, abs=1e-9), "machine frame"
+        assert abs(s["actual_mm"][0] - 815.0) < 0.05, "where the move ended, in machine coordinates"
