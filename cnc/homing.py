@@ -113,26 +113,16 @@ class Homing:
 
     def _ramp(self, i: int, position: list[float], v0: float, v1: float, hold_s: float | None):
         """Setpoints for a jerk-limited change of axis i's velocity from v0 to v1, then `hold_s` at v1."""
-        a = self.config.axis[self.config.axis_names[i]]
-        otg, inp, traj = Ruckig(1), InputParameter(1), Trajectory(1)
-        inp.control_interface = ControlInterface.Velocity
-        inp.current_position, inp.current_velocity, inp.current_acceleration = [position[i]], [v0], [0.0]
-        inp.target_velocity, inp.target_acceleration = [v1], [0.0]
-        inp.max_velocity, inp.max_acceleration, inp.max_jerk = [a.max_velocity_mm_s], [a.max_accel_mm_s2], [a.max_jerk_mm_s3]
-        if otg.calculate(inp, traj) not in (Result.Working, Result.Finished):
+        traj = self._solve(i, position[i], v0, target_velocity=v1)
+        if traj is None:
             raise HomingError(f"axis {self.config.axis_names[i].upper()}: no velocity ramp from {v0:g} to {v1:g} mm/s")
         ramp_steps = math.ceil(traj.duration / self.dt) if v0 != v1 else 0
         hold_steps = 0 if hold_s is None else max(1, round(hold_s / self.dt))
-        out = np.zeros(ramp_steps + hold_steps, dtype=setpoint_dtype(self.n))
-        out["position"][:] = position
-        for k in range(ramp_steps):
-            p, vel, _ = traj.at_time(min((k + 1) * self.dt, traj.duration))
-            out["position"][k, i], out["velocity"][k, i] = p[0], vel[0]
+        out = self._sample(traj, i, position, ramp_steps, hold_steps)
         end = out["position"][ramp_steps - 1, i] if ramp_steps else position[i]
         for k in range(hold_steps):
             out["position"][ramp_steps + k, i] = end + v1 * (k + 1) * self.dt
             out["velocity"][ramp_steps + k, i] = v1
-        out["flags"] = SetpointFlag.IN_MOTION
         if v1 == 0.0 and len(out):
             out["flags"][-1] = 0
             out["velocity"][-1] = 0.0
@@ -140,22 +130,35 @@ class Homing:
 
     def _park(self, i: int, position: list[float], target: float) -> np.ndarray:
         """A jerk-limited move of axis i alone to `target` (the other axes may not be homed yet)."""
+        traj = self._solve(i, position[i], 0.0, target_position=target)
+        if traj is None:
+            raise HomingError(f"axis {self.config.axis_names[i].upper()}: no move to the park position {target:g} mm")
+        out = self._sample(traj, i, position, max(1, math.ceil(traj.duration / self.dt)))
+        out["position"][-1, i], out["velocity"][-1] = target, 0.0
+        out["flags"][-1] = 0
+        return out
+
+    def _solve(self, i: int, p0: float, v0: float, target_velocity: float | None = None, target_position: float | None = None):
+        """Ruckig's time-optimal trajectory for axis i alone (velocity target, or position target at rest); None if none."""
         a = self.config.axis[self.config.axis_names[i]]
         otg, inp, traj = Ruckig(1), InputParameter(1), Trajectory(1)
-        inp.current_position, inp.current_velocity, inp.current_acceleration = [position[i]], [0.0], [0.0]
-        inp.target_position, inp.target_velocity = [target], [0.0]
+        inp.current_position, inp.current_velocity, inp.current_acceleration = [p0], [v0], [0.0]
+        if target_position is None:
+            inp.control_interface = ControlInterface.Velocity
+            inp.target_velocity, inp.target_acceleration = [target_velocity], [0.0]
+        else:
+            inp.target_position, inp.target_velocity = [target_position], [0.0]
         inp.max_velocity, inp.max_acceleration, inp.max_jerk = [a.max_velocity_mm_s], [a.max_accel_mm_s2], [a.max_jerk_mm_s3]
-        if otg.calculate(inp, traj) not in (Result.Working, Result.Finished):
-            raise HomingError(f"axis {self.config.axis_names[i].upper()}: no move to the park position {target:g} mm")
-        steps = max(1, math.ceil(traj.duration / self.dt))
-        out = np.zeros(steps, dtype=setpoint_dtype(self.n))
+        return traj if otg.calculate(inp, traj) in (Result.Working, Result.Finished) else None
+
+    def _sample(self, traj, i: int, position: list[float], steps: int, extra: int = 0) -> np.ndarray:
+        """`steps` setpoints along `traj` for axis i (the others stay at `position`), room for `extra` more."""
+        out = np.zeros(steps + extra, dtype=setpoint_dtype(self.n))
         out["position"][:] = position
         for k in range(steps):
             p, vel, _ = traj.at_time(min((k + 1) * self.dt, traj.duration))
             out["position"][k, i], out["velocity"][k, i] = p[0], vel[0]
-        out["position"][-1, i], out["velocity"][-1] = target, 0.0
         out["flags"] = SetpointFlag.IN_MOTION
-        out["flags"][-1] = 0
         return out
 
     def _on_switch(self, i: int) -> bool:

@@ -134,35 +134,55 @@ def test_disabling_opens_the_loop_and_the_drives(virtual_controller):
     sup.wait_until(lambda: all(not a & AxisIn.DRIVE_ENABLED for a in sup.hw()["axis_inputs"]), 2.0, "drives off")
 
 
+class BareServo:
+    """A servo in its own shared memory, driven tick by tick by the test (no processes): healthy
+    inputs, drives ready, the loop enabled."""
+
+    def __init__(self, fifo_capacity: int = 16, encoder_counts: tuple[int, int] = (0, 0)) -> None:
+        self.area = SharedArea.create(unique_name("test", "servo"), controller_layouts(2))
+        self.fifo = SetpointFifo.create(unique_name("test", "sfifo"), fifo_capacity, 2)
+        self.hw = self.area.writer("hw")
+        self.hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
+        self.hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
+        self.hw.set("encoder_counts", list(encoder_counts))
+        self.command = self.area.writer("command")
+        self.command.set("servo_enable", 1)
+        self.command.publish()
+        self.servo: Servo | None = None
+
+    def __enter__(self) -> "BareServo":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.servo = None  # drop its views of the shared memory before closing it
+        self.fifo.close()
+        self.area.close()
+
+    def run(self, tick: int) -> dict:
+        """Publish hardware tick `tick`, run the servo on it, return its block."""
+        if self.servo is None:
+            self.servo = Servo(machine_config(), self.area, self.fifo, record_latency=False)
+        self.hw.set("tick", tick)
+        self.hw.publish()
+        self.servo.tick()
+        return self.area.reader("servo").read_dict()
+
+    def order(self, **fields) -> None:
+        for name, value in fields.items():
+            self.command.set(name, value)
+        self.command.publish()
+
+
 def test_servo_counts_overruns_and_consumes_the_skipped_ticks_setpoints():
     """QMotor 2.0's check: the hardware tick counter jumped past the servo's own count. The
     setpoints of the skipped ticks are consumed too, so the commanded path stays on time."""
-    cfg = machine_config()
-    area = SharedArea.create(unique_name("test", "overrun"), controller_layouts(2))
-    fifo = SetpointFifo.create(unique_name("test", "ofifo"), 64, 2)
-    try:
-        hw = area.writer("hw")
-        hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
-        hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
-        command = area.writer("command")
-        command.set("servo_enable", 1)
-        command.publish()
+    with BareServo(fifo_capacity=64) as bare:
         for k in range(20):
-            fifo.push_one((0.001 * k, 0.0), (1.0, 0.0), SetpointFlag.IN_MOTION, segment=k)
-        servo = Servo(cfg, area, fifo, record_latency=False)
-        seen = []
-        for tick in (1, 2, 3, 7, 8, 10):
-            hw.set("tick", tick)
-            hw.publish()
-            servo.tick()
-            seen.append(area.reader("servo").read_dict()["setpoint_segment"])
-        del servo  # drop its views of the shared memory before closing it
-        s = area.reader("servo").read_dict()
+            bare.fifo.push_one((0.001 * k, 0.0), (1.0, 0.0), SetpointFlag.IN_MOTION, segment=k)
+        seen = [bare.run(tick)["setpoint_segment"] for tick in (1, 2, 3, 7, 8, 10)]
+        s = bare.area.reader("servo").read_dict()
         assert s["overruns"] == 3 + 1 and s["ticks_processed"] == 6 and s["tick"] == 10
         assert seen == [0, 1, 2, 6, 7, 9], "one setpoint per elapsed tick"
-    finally:
-        fifo.close()
-        area.close()
 
 
 def test_setpoint_records_carry_position_velocity_flags_segment_and_line():
@@ -173,82 +193,34 @@ def test_setpoint_records_carry_position_velocity_flags_segment_and_line():
 
 def test_a_second_wake_up_for_a_tick_already_done_changes_nothing():
     """Regression: a late servo that already read tick k's image must not run tick k again."""
-    cfg = machine_config()
-    area = SharedArea.create(unique_name("test", "twice"), controller_layouts(2))
-    fifo = SetpointFifo.create(unique_name("test", "tfifo"), 16, 2)
-    try:
-        hw = area.writer("hw")
-        hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
-        hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
-        command = area.writer("command")
-        command.set("servo_enable", 1)
-        command.publish()
+    with BareServo() as bare:
         for k in range(6):
-            fifo.push_one((0.5 * k, 0.0), (500.0, 0.0), SetpointFlag.IN_MOTION, segment=k)
-        servo = Servo(cfg, area, fifo, record_latency=False)
+            bare.fifo.push_one((0.5 * k, 0.0), (500.0, 0.0), SetpointFlag.IN_MOTION, segment=k)
         for tick in (1, 2, 2, 3):  # tick 2's wake-up arrives after tick 2 was already done
-            hw.set("tick", tick)
-            hw.publish()
-            servo.tick()
-        s = area.reader("servo").read_dict()
+            s = bare.run(tick)
         assert s["ticks_processed"] == 3 and s["setpoint_segment"] == 2, "one setpoint per tick, none extra"
         assert s["overruns"] == 0
-        servo = None  # drop its views of the shared memory before closing it
-    finally:
-        fifo.close()
-        area.close()
 
 
 def test_a_position_reference_shifts_the_frame_without_moving_the_table():
     """Homing: `counts` is `position`; the commanded position follows so no speed command jumps."""
-    cfg = machine_config()
-    area = SharedArea.create(unique_name("test", "ref"), controller_layouts(2))
-    fifo = SetpointFifo.create(unique_name("test", "rfifo"), 16, 2)
-    try:
-        hw = area.writer("hw")
-        hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
-        hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
-        hw.set("encoder_counts", [100_000, 50_000])
-        command = area.writer("command")
-        command.set("servo_enable", 1)
-        command.publish()
-        servo = Servo(cfg, area, fifo, record_latency=False)
-        tick = 0
-
-        def step():
-            nonlocal tick
-            tick += 1
-            hw.set("tick", tick)
-            hw.publish()
-            servo.tick()
-            return area.reader("servo").read_dict()
-
-        s = step()
+    with BareServo(encoder_counts=(100_000, 50_000)) as bare:
+        s = bare.run(1)
         assert s["actual_mm"] == [100.0, 50.0] and s["homed_mask"] == 0
         assert s["state"] == ServoState.HOLDING, "enabled from the first tick: the loop closes where the table is"
-        command.set("position_ref_counts", [90_000, 0])
-        command.set("position_ref_mm", [810.0, 0.0])
-        command.set("position_ref_mask", 0b01)
-        command.set("position_ref_seq", 1)
-        command.publish()
-        s = step()
+        bare.order(position_ref_counts=[90_000, 0], position_ref_mm=[810.0, 0.0], position_ref_mask=0b01, position_ref_seq=1)
+        s = bare.run(2)
         assert s["actual_mm"][0] == pytest.approx(820.0) and s["actual_mm"][1] == 50.0
         assert s["commanded_mm"][0] == pytest.approx(820.0), "the command moved with the frame"
         assert s["position_offset_mm"][0] == pytest.approx(720.0) and s["homed_mask"] == 0b01
         assert s["position_ref_seq"] == 1 and abs(s["speed_cmd_v"][0]) < 1e-9
         # while following a motion a new reference waits
-        fifo.push_one((820.1, 50.0), (10.0, 0.0), SetpointFlag.IN_MOTION)
-        s = step()
+        bare.fifo.push_one((820.1, 50.0), (10.0, 0.0), SetpointFlag.IN_MOTION)
+        s = bare.run(3)
         assert s["state"] == ServoState.TRACKING
-        command.set("position_ref_mask", 0b10)
-        command.set("position_ref_seq", 2)
-        command.publish()
-        s = step()
+        bare.order(position_ref_mask=0b10, position_ref_seq=2)
+        s = bare.run(4)
         assert s["position_ref_seq"] == 1 and s["homed_mask"] == 0b01, "not while tracking"
-        servo = None  # drop its views of the shared memory before closing it
-    finally:
-        fifo.close()
-        area.close()
 
 
 def test_homing_against_the_index_pulse_puts_the_machine_frame_on_the_table():
