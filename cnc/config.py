@@ -202,11 +202,25 @@ class GcodeConfig:
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    """How the path planner shares the axes' limits."""
+    """How the path planner shares the axes' limits and keeps the setpoint FIFO fed."""
 
     arc_normal_share: float = opt(
-        0.5, "", "share of acceleration and jerk an arc may spend turning (the rest speeds up and slows down)", 0.05, 0.95
+        0.5, "", "largest share of an axis' acceleration the path may spend turning on curves", 0.05, 0.9
     )
+    fifo_low_ms: float = opt(20.0, "ms", "refill the setpoint FIFO when it holds less motion than this", 2.0, 2000.0)
+    fifo_high_ms: float = opt(40.0, "ms", "fill the setpoint FIFO up to this much motion (bounds the reaction to hold and override)", 4.0, 4000.0)
+    divisor: int = opt(5, "ticks", "the planner runs every Nth base tick", 1, 100)
+    jog_velocity_mm_s: float = opt(50.0, "mm/s", "default jog speed", 0.01, 10000.0)
+
+
+@dataclass(frozen=True)
+class JetConfig:
+    """The cutting jet: how long its valve takes, and what happens to it when motion holds."""
+
+    on_delay_s: float = opt(0.05, "s", "after the valve opens, before motion: the jet establishes itself", 0.0, 60.0)
+    pierce_dwell_s: float = opt(0.1, "s", "after the on delay, standing still to pierce the material", 0.0, 600.0)
+    off_delay_s: float = opt(0.02, "s", "after the valve closes, before motion: the jet dies away", 0.0, 60.0)
+    close_on_hold: bool = opt(True, doc="close the jet while motion is held or paused (it re-pierces on resume)")
 
 
 @dataclass(frozen=True)
@@ -247,6 +261,7 @@ class MachineConfig:
     gcode: GcodeConfig = field(default_factory=GcodeConfig)
     nozzle: list[NozzleConfig] = field(default_factory=list, metadata={"array_of": NozzleConfig})
     planner: PlannerConfig = field(default_factory=PlannerConfig)
+    jet: JetConfig = field(default_factory=JetConfig)
     gateway: GatewayConfig = field(default_factory=GatewayConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
@@ -408,6 +423,12 @@ def _cross_check(cfg: MachineConfig) -> None:
                 f"{s.hard_stop_overtravel_mm:g} must exceed limit_switch_overtravel_mm "
                 f"{s.limit_switch_overtravel_mm:g} so that the limit switch trips before the end stop",
             )
+    if cfg.planner.fifo_high_ms <= cfg.planner.fifo_low_ms + 1000.0 * cfg.planner.divisor * cfg.timing.period_s:
+        raise ConfigError(
+            src, "planner", "fifo_high_ms",
+            f"{cfg.planner.fifo_high_ms:g} ms must exceed fifo_low_ms {cfg.planner.fifo_low_ms:g} ms by more than "
+            f"the planner's period ({cfg.planner.divisor} ticks = {1000.0 * cfg.planner.divisor * cfg.timing.period_s:g} ms)",
+        )
     seen: dict[int, int] = {}
     for k, nz in enumerate(cfg.nozzle, start=1):
         if nz.number in seen:

@@ -1,14 +1,16 @@
-"""Element limits: axis limits projected on the direction, arcs turning within a share of them."""
+"""Section limits: axis limits projected on each element, curves within their jerk and deviation budgets."""
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from gcode.canon import ARC, LINE
 
-from cnc.planner.limits import LimitCalculator
+from cnc.planner.geometry import PathArrays
+from cnc.planner.limits import envelope, section_limits, smoothing_for
 from cnc.planner.path import Element
 
 from .conftest import machine_config
@@ -18,35 +20,64 @@ def element(kind, start, end, center=None, cw=False, feed=math.inf):
     return Element(kind, start, end, center, cw, 0, feed, 0.05, False, 0, 0, 0, 1)
 
 
-@pytest.fixture
-def limits():
-    return LimitCalculator(machine_config())
+def limits_of(elements, tolerance=0.05, blended=False, config=None):
+    path = PathArrays.of(elements)
+    feed = np.array([e.feed_mm_s for e in elements])
+    return section_limits(path, feed, np.zeros(len(elements), bool), tolerance, blended, config or machine_config())
 
 
-def test_a_move_along_one_axis_gets_that_axis_limits(limits):
-    lim = limits.of(element(LINE, (0, 0, 0), (100, 0, 0)))
-    assert (lim.velocity, lim.acceleration, lim.jerk) == (500.0, 5000.0, 200000.0)
+def test_a_move_along_one_axis_gets_that_axis_limits():
+    lim = limits_of([element(LINE, (0, 0, 0), (100, 0, 0))])
+    assert lim.v_hard[0] == 500.0 and lim.accel[0] == 5000.0
 
 
-def test_a_diagonal_may_go_faster_than_either_axis_alone(limits):
-    lim = limits.of(element(LINE, (0, 0, 0), (100, 100, 0)))
-    assert lim.velocity == pytest.approx(500.0 * math.sqrt(2)) and lim.acceleration == pytest.approx(5000.0 * math.sqrt(2))
+def test_a_diagonal_may_go_faster_than_either_axis_alone():
+    lim = limits_of([element(LINE, (0, 0, 0), (100, 100, 0))])
+    assert lim.v_hard[0] == pytest.approx(500.0 * math.sqrt(2))
 
 
-def test_the_programmed_feed_caps_the_velocity(limits):
-    assert limits.of(element(LINE, (0, 0, 0), (100, 0, 0), feed=40.0)).velocity == 40.0
+def test_the_programmed_feed_is_a_separate_cap():
+    lim = limits_of([element(LINE, (0, 0, 0), (100, 0, 0), feed=40.0)])
+    assert lim.v_feed[0] == 40.0 and lim.v_hard[0] == 500.0
 
 
-def test_small_arcs_are_slowed_by_centripetal_acceleration_and_its_jerk(limits):
-    big = limits.of(element(ARC, (10, 0, 0), (0, 10, 0), center=(0, 0)))  # R = 10 mm
-    assert big.velocity == pytest.approx(min(math.sqrt(0.5 * 5000 * 10), (0.5 * 200000 * 100) ** (1 / 3)))
-    assert big.acceleration == 2500.0 and big.jerk == 100000.0
-    small = limits.of(element(ARC, (1, 0, 0), (0, 1, 0), center=(0, 0)))  # R = 1 mm
-    assert small.velocity < big.velocity
-    huge = limits.of(element(ARC, (1000, 0, 0), (0, 1000, 0), center=(0, 0)))
-    assert huge.velocity == 500.0, "a gentle arc runs at the axis limit"
+def test_tighter_arcs_run_slower_and_accelerate_less_along_the_path():
+    caps = []
+    for r in (1.0, 10.0, 100.0):
+        lim = limits_of([element(LINE, (0, -50, 0), (0, 0, 0)), element(ARC, (0, 0, 0), (r, r, 0), center=(r, 0), cw=True),
+                         element(LINE, (r, r, 0), (r + 50, r, 0))])
+        caps.append((lim.v_hard[1], lim.accel[1]))
+        a_normal = caps[-1][0] ** 2 / r
+        assert a_normal <= 0.5 * 5000.0 + 1e-9, "never more than the arc's share of the acceleration for turning"
+    assert caps[0][0] < caps[1][0] < caps[2][0]
+    assert all(lim_a < 5000.0 for _, lim_a in caps)
 
 
-def test_a_move_along_an_axis_the_machine_lacks_is_refused_with_its_line(limits):
-    with pytest.raises(ValueError, match="line 1: the move runs along Z, an axis the machine lacks"):
-        limits.of(element(LINE, (0, 0, 0), (0, 0, 5)))
+def test_the_smoothing_follows_the_tolerance_and_an_exact_path_has_none():
+    cfg = machine_config()
+    exact = smoothing_for(cfg, 0.0, True, False, False)
+    loose = smoothing_for(cfg, 0.05, True, False, False)
+    tight = smoothing_for(cfg, 0.005, True, False, False)
+    assert exact.n_axis == 1 and exact.deviation_mm == 0.0
+    assert 1 < tight.n_axis < loose.n_axis
+    assert loose.n_path * cfg.timing.period_s == pytest.approx(5000.0 / 100000.0, abs=1e-3), "A / J_t samples along the path"
+    assert smoothing_for(cfg, 0.05, False, False, False).n_path == 25, "straight sections get the whole jerk"
+
+
+def test_a_blended_section_leaves_the_smoothing_half_the_tolerance():
+    cfg = machine_config()
+    assert smoothing_for(cfg, 0.05, True, False, True).deviation_mm == pytest.approx(0.025)
+    assert smoothing_for(cfg, 0.05, True, False, False).deviation_mm == pytest.approx(0.05)
+
+
+def test_a_near_tangent_kink_gets_a_speed_cap_and_a_smooth_join_none():
+    a = element(LINE, (0, 0, 0), (50, 0, 0))
+    b = element(LINE, (50, 0, 0), (100, 0.2, 0))  # 0.004 rad
+    c = element(LINE, (100, 0.2, 0), (150, 0.4, 0))  # straight on
+    lim = limits_of([a, b, c])
+    assert 0 < lim.v_kink[0] < 500.0 and lim.v_kink[1] == np.inf
+
+
+def test_an_envelope_is_the_lowest_cap_widened_to_where_it_reaches():
+    edges, values = envelope(np.array([0.0, 10.0]), np.array([10.0, 20.0]), np.array([100.0, 5.0]), np.array([1.0, 1.0]), 0.0, 20.0)
+    assert list(edges) == [0.0, 9.0, 20.0] and list(values) == [100.0, 5.0]

@@ -1,13 +1,41 @@
-"""Kinematic limits along the path: how fast, how hard and how jerky each element may be run.
+"""Kinematic limits of a section: how fast and how hard each element may be run, and why.
 
-The machine file limits each axis. Along a straight element of direction u, axis i sees
-the fraction |u_i| of the path's velocity, acceleration and jerk, so the path may go as far
-as the tightest axis allows: min_i limit_i / |u_i|. On an arc the direction turns through
-every angle it sweeps, so the tightest axis limit applies in full, and part of it is spent
-on turning: a share s of the acceleration holds the centripetal v^2/R (v <= sqrt(s a R)),
-and a share s of the jerk holds its rotation v^3/R^2 (v <= (s j R^2)^(1/3)); the rest,
-(1 - s), is left to speed up and slow down along the arc. The programmed feed caps
-everything but rapids.
+The planner makes motion in three stages (`trajectory.py`): an acceleration-limited
+(trapezoidal) speed profile s_raw(t) along the path; a moving average of N_j samples over
+s_raw, which makes the profile jerk-limited along the path (trapezoid * box = S-curve); and
+a moving average of N_f samples over the axis positions q = p(s), which smooths what the
+path itself does abruptly: steps of curvature where a line meets an arc, the ends of corner
+blends, and tiny kinks. This module sets the caps that make the result hold every limit.
+
+Per axis i, with u the tangent, n the normal, kappa the signed curvature, v = s':
+
+    a = s'' u + kappa v^2 n                         (|a_i| <= |s''| + |kappa| v^2)
+    output jerk = (a(t) - a(t - T_f)) / T_f         (the axis average turns steps into ramps)
+
+so within any window of T_f = N_f dt the acceleration may change by at most J T_f. The jerk
+is shared: J_t for the path profile (its average of N_j = A_t / (J_t dt) samples gives
+|s'''| <= J_t), the rest for geometry: for a curved element, over the stretch of path a
+window can span (l = v_max (N_f + 2) dt) with curvature up to kappa_max,
+
+    3 kappa_max v A_t T_f  +  v^2 V   <=  J_curv T_f,
+    V = min(sum of curvature steps in reach + kappa_max^2 l,  2 kappa_max)
+
+(3 kappa v s'' from d(kappa v^2 n)/dt and the turning of u; V bounds how far the vector
+kappa n can move across a window: by its steps, or at most from one side to the other).
+
+Deviation: the axis average of N_f points lying on the path, whose arc lengths have variance
+Var(s), stays within kappa_max Var(s) / 2 of the path (|T(s) - T(s_mean)| <= kappa |s - s_mean|),
+and Var(s) <= v^2 (N_f^2 - 1) dt^2 / 12, so
+
+    kappa v^2 <= 24 delta / ((N_f^2 - 1) dt^2)
+
+keeps it within delta. N_f comes from the tolerance P: T_f = (24 P / J)^(1/3) balances the
+jerk and deviation caps (the same a_n a clothoid transition of that deviation would allow).
+A corner blend takes half of P (`path.py`), the smoothing the other half; G61 (P = 0) gets
+no smoothing and an exact path. Kinks (tangent within KINK_MAX_RAD, e.g. an arc meeting a
+line a hair off tangent) pass at a speed whose direction jump v phi the axis average can
+absorb; a larger turn is an exact stop. Every cap on a stretch of path also holds for the
+T_ext before and after it (`envelope`), because the averages mix samples that far apart.
 """
 
 from __future__ import annotations
@@ -15,61 +43,219 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from gcode.canon import ARC, DWELL
+import numpy as np
 
 from ..config import MachineConfig
-from .path import Element
+from .geometry import PathArrays
+from .path import BLEND_SHARE, COLLINEAR_RAD
 
-AXES = ("x", "y", "z")
-
-
-@dataclass(frozen=True, slots=True)
-class Limits:
-    """Largest path velocity (mm/s), acceleration (mm/s^2) and jerk (mm/s^3) along an element."""
-
-    velocity: float
-    acceleration: float
-    jerk: float
+KINK_MAX_RAD = 0.01  # a larger turn between unblended elements is an exact stop
+GEOMETRY_JERK_SHARE = 0.5  # share of the jerk kept for curvature and kinks when a section has them
+KINK_SHARE = 0.25  # of the geometry budgets (jerk, deviation), when a section has kinks
+KINK_ACCEL_SHARE = 0.02  # of the acceleration, when a section has kinks
+MAX_SMOOTHING_SAMPLES = 64
+CURVE_SPEED_SHARE = 0.85  # a curve runs at this share of the speed its jerk budget allows when not speeding up
 
 
-class LimitCalculator:
-    """Element limits for one machine."""
+@dataclass(frozen=True)
+class Smoothing:
+    """The two moving averages of a section and the shares of the limits they leave."""
 
-    def __init__(self, config: MachineConfig) -> None:
-        self.share = config.planner.arc_normal_share
-        self.v = {a: c.max_velocity_mm_s for a, c in config.axis.items()}
-        self.a = {a: c.max_accel_mm_s2 for a, c in config.axis.items()}
-        self.j = {a: c.max_jerk_mm_s3 for a, c in config.axis.items()}
+    dt: float
+    n_path: int  # samples of the average over s (jerk along the path)
+    n_axis: int  # samples of the average over the axis positions (geometric smoothing)
+    accel_cap: float  # largest tangential acceleration, mm/s^2
+    jerk_path: float  # jerk along the path the profile may use, mm/s^3
+    deviation_mm: float  # how far the axis average may stray from the path
 
-    def of(self, e: Element) -> Limits:
-        if e.kind == DWELL:
-            return Limits(0.0, min(self.a.values()), min(self.j.values()))
-        if e.kind == ARC:
-            return self._arc(e)
-        return self._straight(e)
+    @property
+    def extension_s(self) -> float:
+        """How far in time a cap must reach beyond its stretch: the two averages' span, and a sample."""
+        return (self.n_path + self.n_axis + 3) * self.dt
 
-    def _straight(self, e: Element) -> Limits:
-        d = [e.end[i] - e.start[i] for i in range(3)]
-        n = math.sqrt(sum(c * c for c in d))
-        v = a = j = math.inf
-        for i, axis in enumerate(AXES):
-            u = abs(d[i]) / n
-            if u <= 1e-12:
-                continue
-            if axis not in self.v:
-                raise ValueError(f"line {e.line}: the move runs along {axis.upper()}, an axis the machine lacks")
-            v = min(v, self.v[axis] / u)
-            a = min(a, self.a[axis] / u)
-            j = min(j, self.j[axis] / u)
-        return Limits(min(v, e.feed_mm_s), a, j)
 
-    def _arc(self, e: Element) -> Limits:
-        cx, cy = e.center
-        radius = math.hypot(e.start[0] - cx, e.start[1] - cy)
-        v_axis = min(self.v["x"], self.v["y"])
-        a_axis = min(self.a["x"], self.a["y"])
-        j_axis = min(self.j["x"], self.j["y"])
-        v_turn = math.sqrt(self.share * a_axis * radius)
-        v_jerk = (self.share * j_axis * radius * radius) ** (1.0 / 3.0)
-        velocity = min(v_axis, v_turn, v_jerk, e.feed_mm_s)
-        return Limits(velocity, (1.0 - self.share) * a_axis, (1.0 - self.share) * j_axis)
+@dataclass(frozen=True)
+class SectionLimits:
+    """Per-element caps of one section (arrays over its elements; junction arrays over n - 1)."""
+
+    v_hard: np.ndarray  # mm/s: axis velocities, curvature, jerk and deviation caps
+    v_feed: np.ndarray  # mm/s: programmed feed (inf for rapids)
+    rapid: np.ndarray  # bool
+    accel: np.ndarray  # mm/s^2: tangential acceleration
+    v_kink: np.ndarray  # mm/s at each junction (inf where smooth)
+    smoothing: Smoothing
+
+    @property
+    def v_max(self) -> float:
+        return float(np.minimum(self.v_hard, self.v_feed).max())
+
+
+def smoothing_for(config: MachineConfig, tolerance_mm: float, has_curves: bool, has_kinks: bool, blended: bool) -> Smoothing:
+    """The averages of a section whose tightest corner tolerance is `tolerance_mm`."""
+    dt = config.timing.period_s
+    a_min, j_min = _axis_min(config, "max_accel_mm_s2"), _axis_min(config, "max_jerk_mm_s3")
+    geometry = has_curves or has_kinks
+    if tolerance_mm > 0.0 and geometry:  # a straight path has nothing to smooth
+        t_f = (24.0 * tolerance_mm / j_min) ** (1.0 / 3.0)
+        n_axis = int(min(max(round(t_f / dt), 1), MAX_SMOOTHING_SAMPLES))
+    else:
+        n_axis = 1
+    jerk_path = j_min * (1.0 - GEOMETRY_JERK_SHARE) if geometry else j_min
+    accel_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if has_kinks else a_min
+    n_path = max(1, math.ceil(accel_cap / (jerk_path * dt) - 1e-9))
+    deviation = tolerance_mm * (1.0 - BLEND_SHARE) if blended else tolerance_mm
+    return Smoothing(dt, n_path, n_axis, accel_cap, accel_cap / (n_path * dt), deviation if n_axis > 1 else 0.0)
+
+
+def section_limits(
+    path: PathArrays, feed_mm_s: np.ndarray, rapid: np.ndarray, tolerance_mm: float, blended: bool, config: MachineConfig
+) -> SectionLimits:
+    """Caps for every element and junction of one section."""
+    n = len(path)
+    kinks = path.kink_angles()
+    kink = (kinks > COLLINEAR_RAD) & (kinks <= KINK_MAX_RAD)
+    curved = path.arc
+    sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended)
+    v_axis, a_axis = _axis_caps(path, config, sm.accel_cap)
+    v_feed = np.where(rapid, np.inf, feed_mm_s)
+    v_upper = float(np.minimum(v_axis, v_feed).max()) if n else 0.0
+    j_min, a_min = _axis_min(config, "max_jerk_mm_s3"), _axis_min(config, "max_accel_mm_s2")
+    j_geometry = j_min - sm.jerk_path
+    share_kink = KINK_SHARE if kink.any() else 0.0
+    v_hard, accel = v_axis.copy(), a_axis.copy()
+    if curved.any():
+        v_curve, a_curve = _curvature_caps(path, kinks * kink, sm, v_upper, j_geometry * (1.0 - share_kink),
+                                           sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min)
+        v_hard = np.minimum(v_hard, v_curve)
+        accel = np.where(curved, np.minimum(accel, a_curve), accel)
+    v_kink = np.full(max(n - 1, 0), np.inf)
+    if kink.any():
+        v_kink[kink] = _kink_caps(path, kinks * kink, sm, v_upper, j_geometry * share_kink, sm.deviation_mm * share_kink, a_min)[kink]
+    return SectionLimits(v_hard, v_feed, rapid, accel, v_kink, sm)
+
+
+def _axis_min(config: MachineConfig, key: str) -> float:
+    """The tightest limit among the axes that carry the planar path (X and Y), or all axes."""
+    planar = [config.axis[a] for a in ("x", "y") if a in config.axis] or list(config.axes)
+    return min(getattr(a, key) for a in planar)
+
+
+def _axis_caps(path: PathArrays, config: MachineConfig, accel_cap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Path velocity and acceleration the axes allow: min_i limit_i / |u_i| on lines, the tightest axis on arcs."""
+    n = len(path)
+    v = np.full(n, np.inf)
+    a = np.full(n, accel_cap)
+    for i, name in enumerate(("x", "y", "z")):
+        u = np.abs(path.direction[:, i])
+        ax = config.axis.get(name)
+        if ax is None:
+            continue
+        with np.errstate(divide="ignore"):
+            v = np.minimum(v, np.where(u > 1e-12, ax.max_velocity_mm_s / u, np.inf))
+            a = np.minimum(a, np.where(u > 1e-12, ax.max_accel_mm_s2 / u, np.inf))
+    if path.arc.any():
+        planar = [config.axis[a] for a in ("x", "y") if a in config.axis]
+        v = np.where(path.arc, min(a.max_velocity_mm_s for a in planar), v)
+        a = np.where(path.arc, min(accel_cap, *(a.max_accel_mm_s2 for a in planar)), a)
+    return v, a
+
+
+def _reach(path: PathArrays, reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """First and last element index within `reach_mm` of each element."""
+    lo = path.index_at(path.s0[:-1] - reach_mm)
+    hi = np.searchsorted(path.s0, path.s0[1:] + reach_mm, side="left") - 1
+    return lo, np.clip(hi, 0, len(path) - 1)
+
+
+def _curvature_caps(
+    path: PathArrays, kink_angles: np.ndarray, sm: Smoothing, v_upper: float, j_curv: float, deviation_mm: float, a_normal_max: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Speed and tangential acceleration of each curved element that keep its turning within the
+    jerk, acceleration and deviation budgets.
+
+    The jerk budget 3 kappa_max v A_t T + v^2 V <= J_curv T binds speed and tangential
+    acceleration together: at A_t = 0 the speed could reach v0 = sqrt(J_curv T / V); the
+    element runs at CURVE_SPEED_SHARE of that (or less, for deviation and normal acceleration)
+    and the rest of the budget is its tangential acceleration.
+    """
+    kappa = np.abs(path.curvature)
+    reach = v_upper * (sm.n_axis + 2) * sm.dt
+    lo, hi = _reach(path, reach)
+    k_max = _range_max(kappa, lo, hi)
+    # curvature steps at the junctions (n - 1), plus the turn of the normal at a kink
+    steps = np.abs(np.diff(path.curvature)) + np.maximum(kappa[:-1], kappa[1:]) * kink_angles
+    cum = np.concatenate(([0.0], np.cumsum(steps)))
+    # junction b lies between elements b and b+1: within reach of element e when lo <= b < hi
+    step_sum = cum[hi] - cum[lo]
+    variation = np.minimum(step_sum + k_max * k_max * reach, 2.0 * k_max)
+    t_w = sm.n_axis * sm.dt
+    budget = j_curv * t_w
+    a_dev = 24.0 * deviation_mm / ((sm.n_axis**2 - 1) * sm.dt**2) if sm.n_axis > 1 else np.inf
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v0 = np.sqrt(budget / variation)
+        v_normal = np.sqrt(min(a_normal_max, a_dev) / kappa)
+        v = np.minimum(CURVE_SPEED_SHARE * v0, v_normal)
+        a_t = (budget - v * v * variation) / (3.0 * k_max * v * t_w)
+        a_t = np.minimum(a_t, sm.accel_cap - kappa * v * v)
+    v = np.where(path.arc, v, np.inf)
+    a_t = np.where(path.arc, np.maximum(a_t, 0.001 * sm.accel_cap), sm.accel_cap)
+    return v, a_t
+
+
+def _kink_caps(
+    path: PathArrays, kink_angles: np.ndarray, sm: Smoothing, v_upper: float, j_kink: float, deviation_mm: float, a_min: float
+) -> np.ndarray:
+    """Speed at each kink: the jump v phi of the velocity direction, spread over the axis average,
+    stays within the kinks' share of jerk, acceleration and deviation (two kinks may meet in a window)."""
+    n_axis, dt = sm.n_axis, sm.dt
+    reach = v_upper * (n_axis + 2) * dt
+    at = path.s0[1:-1]
+    cum = np.concatenate(([0.0], np.cumsum(kink_angles)))
+    lo = np.searchsorted(at, at - reach, side="left")
+    hi = np.searchsorted(at, at + reach, side="right")
+    phi = np.maximum(cum[hi] - cum[lo], kink_angles)
+    with np.errstate(divide="ignore"):
+        v = j_kink * n_axis * dt * dt / (2.0 * phi)
+        v = np.minimum(v, KINK_ACCEL_SHARE * a_min * n_axis * dt / (2.0 * phi))
+        if n_axis > 1:
+            v = np.minimum(v, 4.0 * deviation_mm / (phi * n_axis * dt))
+    return np.where(kink_angles > 0, v, np.inf)
+
+
+def _range_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """max(values[lo[i] : hi[i] + 1]) for every i, with a sparse table (O(n log n))."""
+    table = [values]
+    width = 1
+    while 2 * width <= len(values):
+        prev = table[-1]
+        table.append(np.maximum(prev[:-width], prev[width:]))
+        width *= 2
+    span = hi - lo + 1
+    level = np.floor(np.log2(np.maximum(span, 1))).astype(int)
+    out = np.empty(len(lo))
+    for lv in np.unique(level):
+        m = level == lv
+        t = table[lv]
+        out[m] = np.maximum(t[lo[m]], t[hi[m] - (1 << lv) + 1])
+    return out
+
+
+def envelope(
+    starts: np.ndarray, ends: np.ndarray, values: np.ndarray, widen_mm: np.ndarray, lo_mm: float, hi_mm: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lower envelope over [lo_mm, hi_mm] of values that each hold on [start - widen, end + widen].
+
+    Returns (breakpoints (m + 1,), the value of each of the m pieces; inf where nothing holds).
+    """
+    a = np.maximum(starts - widen_mm, lo_mm)
+    b = np.minimum(ends + widen_mm, hi_mm)
+    keep = b > a
+    a, b, c = a[keep], b[keep], values[keep]
+    edges = np.unique(np.concatenate(([lo_mm, hi_mm], a, b)))
+    out = np.full(len(edges) - 1, np.inf)
+    i0 = np.searchsorted(edges, a, side="left")
+    i1 = np.searchsorted(edges, b, side="left")
+    for k in np.argsort(-c, kind="stable"):  # paint high values first, lower ones over them
+        out[i0[k]:i1[k]] = c[k]
+    keep = np.concatenate(([True], out[1:] != out[:-1]))  # merge equal neighbours
+    return np.concatenate((edges[:-1][keep], edges[-1:])), out[keep]

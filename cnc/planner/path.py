@@ -8,8 +8,9 @@ lines, measured to their nearest point) by at most
 
     d = R * (1 - cos(phi / 2))              (at the arc's middle)
 
-and cuts back each line by R * tan(phi / 2). R is the largest radius with d <= P whose
-cut-backs fit in half of each neighbouring line, so that neighbouring blends never overlap.
+and cuts back each line by R * tan(phi / 2). R is the largest radius with d <= P / 2 (the
+other half of P belongs to the planner's smoothing, `limits.py`) whose cut-backs fit in half
+of each neighbouring line, so that neighbouring blends never overlap.
 A corner is an exact stop (no blend) under G61, where the jet or the outputs switch (they
 switch exactly at the segment boundary), around dwells, where an arc meets at an angle, and
 where the height changes. `deviation` measures how far a path strays from the programmed
@@ -27,6 +28,7 @@ from gcode.arcs import sweep
 from gcode.canon import ARC, DWELL, LINE, RAPID
 
 COLLINEAR_RAD = 1e-6  # turns smaller than this are straight on: no blend needed
+BLEND_SHARE = 0.5  # share of the tolerance P a blend may use; the planner's smoothing keeps the rest
 
 
 @dataclass(slots=True)
@@ -147,7 +149,7 @@ def _blend_radius(a: Element, b: Element) -> tuple[float, float]:
     """(radius, turn) of the blend at the corner a->b, radius 0 when the corner must be an exact stop."""
     if a.kind not in (LINE, RAPID) or b.kind not in (LINE, RAPID) or (a.kind == RAPID) != (b.kind == RAPID):
         return 0.0, 0.0
-    tol = min(a.tolerance_mm, b.tolerance_mm)
+    tol = min(a.tolerance_mm, b.tolerance_mm) * BLEND_SHARE
     if tol <= 0.0 or (a.jet, a.aux, a.outputs) != (b.jet, b.aux, b.outputs):
         return 0.0, 0.0
     if a.start[2] != a.end[2] or b.start[2] != b.end[2]:

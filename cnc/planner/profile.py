@@ -1,23 +1,22 @@
-"""Jerk-limited motion along one section of the path, between two stops.
+"""The raw speed profile along a stretch of path: acceleration-limited, time-optimal under caps.
 
-A section is a stretch of path the head runs without stopping; each element of it has its
-own velocity limit (`limits.py`), so the limit is a step function of the path length s.
-The motion s(t) is made one servo period at a time, as an online trajectory generator:
+The path ahead is cut into zones, each with a speed cap (mm/s) and an acceleration limit
+(mm/s^2). The profile is the classic look-ahead one: a forward pass (how fast one can be,
+accelerating from the current state) and a backward pass (how fast one may be and still
+meet every cap ahead and stop at the end); within a zone v^2 is linear in s between
+junctions, so each zone is at most an acceleration, a cruise and a deceleration piece.
 
-- towards the limit of the zone it is in (ruckig's velocity interface: jerk-limited, the
-  acceleration carried across element boundaries, so CAM polylines do not stop and go);
-- braking for a slower zone ahead when it can wait no longer: when one more period of the
-  hardest acceleration would leave less room than the braking distance from there;
-- and the end counts as one more zone, of limit 0: once braking for it has begun and the
-  speed is within every limit left, ruckig's position interface stops it exactly there.
+Two rules make the moving average that follows (N samples, `stream.py`) jerk-limited:
+the acceleration never flips from +A to -A (or back) without a cruise of `plateau_s` in
+between (a peak without one is lowered until it has one; a valley without one holds its
+low speed longer), so the average of the raw acceleration changes by at most A per N
+samples; and a plan that starts against the acceleration it was made under begins with
+such a cruise.
 
-The braking distance from (v0, a0) to v1 with the acceleration back at zero is taken from
-the closed form of the symmetric jerk-limited ramp,
-
-    dv = v0 - v1;  T = dv/A + A/J  if dv >= A^2/J,  else 2 sqrt(dv/J);   d = (v0 + v1) T / 2,
-
-after first letting a positive a0 fall to zero (which raises v0 by a0^2 / 2J): a bound,
-never short of the real distance, so braking starts early rather than late.
+Caps come in two kinds. Hard caps are physical (axis limits, curvature, jerk) and always
+hold. Soft caps are the programmed feed times the override: when the override drops below
+the current speed, the profile decelerates as hard as it may until it is under them,
+rather than jumping (it is allowed above a soft cap while doing so).
 """
 
 from __future__ import annotations
@@ -26,119 +25,275 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, RuckigError
 
-ZONE_EPS_MM = 1e-9
-
-
-@dataclass(frozen=True, slots=True)
-class Zone:
-    """Part of the section [start_mm, end_mm) where the path velocity may not exceed v_max_mm_s."""
-
-    start_mm: float
-    end_mm: float
-    v_max_mm_s: float
+EPS_MM = 1e-9
+EPS_V = 1e-9
 
 
-def braking_distance(v0: float, a0: float, v1: float, a_max: float, j_max: float) -> float:
-    """An upper bound of the distance a jerk-limited stop from (v0, a0) to v1 (a = 0 there) needs."""
-    extra = 0.0
-    if a0 > 0.0:  # the acceleration must first come down to zero: the speed still rises meanwhile
-        t = a0 / j_max
-        extra = v0 * t + a0 * t * t / 2.0
-        v0 += a0 * a0 / (2.0 * j_max)
-    dv = v0 - v1
-    if dv <= 0.0:
-        return extra
-    t = dv / a_max + a_max / j_max if dv * j_max >= a_max * a_max else 2.0 * math.sqrt(dv / j_max)
-    return extra + (v0 + v1) * t / 2.0
+@dataclass
+class Zones:
+    """A stretch of path cut into zones: edges (m + 1,), and per zone caps and acceleration."""
+
+    edges: np.ndarray
+    hard: np.ndarray
+    soft: np.ndarray
+    accel: np.ndarray
 
 
-def _update(otg: Ruckig, inp: InputParameter, out: OutputParameter) -> Result:
-    """One ruckig step; a state exactly at the acceleration limit can trip ruckig's numerics
-    (e.g. v 312.5000000000002, a 5000 towards 250 fails where v 312.5 works): nudge it in by 1e-9."""
-    try:
-        return otg.update(inp, out)
-    except RuckigError:
-        inp.current_acceleration = [inp.current_acceleration[0] * (1.0 - 1e-9)]
-        return otg.update(inp, out)
+@dataclass
+class Pieces:
+    """Raw motion as pieces of constant acceleration, in time order."""
+
+    t0: np.ndarray  # start time of each piece, s (from the section's start)
+    s0: np.ndarray  # arc length at its start, mm
+    v0: np.ndarray  # speed at its start, mm/s
+    a: np.ndarray  # acceleration, mm/s^2
+    duration: np.ndarray  # s
+
+    @classmethod
+    def empty(cls) -> "Pieces":
+        z = np.zeros(0)
+        return cls(z, z.copy(), z.copy(), z.copy(), z.copy())
+
+    @property
+    def t_end(self) -> float:
+        return float(self.t0[-1] + self.duration[-1]) if len(self.t0) else 0.0
+
+    def end_state(self) -> tuple[float, float, float]:
+        """(s, v, a) at the end of the last piece."""
+        d, a = self.duration[-1], self.a[-1]
+        return float(self.s0[-1] + self.v0[-1] * d + a * d * d / 2.0), float(self.v0[-1] + a * d), float(a)
+
+    def __len__(self) -> int:
+        return len(self.t0)
+
+    def append(self, other: "Pieces") -> "Pieces":
+        return Pieces(*(np.concatenate((getattr(self, f), getattr(other, f))) for f in ("t0", "s0", "v0", "a", "duration")))
+
+    def until(self, t: float) -> "Pieces":
+        """The pieces up to time t, the one running at t cut there."""
+        k = int(np.searchsorted(self.t0, t, side="left"))
+        out = Pieces(self.t0[:k].copy(), self.s0[:k].copy(), self.v0[:k].copy(), self.a[:k].copy(), self.duration[:k].copy())
+        if k and out.t0[-1] + out.duration[-1] > t:
+            out.duration[-1] = t - out.t0[-1]
+        return out
+
+    def state_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s, v, a) at times t (inside the pieces; beyond the end, held at the end)."""
+        k = np.clip(np.searchsorted(self.t0, t, side="right") - 1, 0, len(self.t0) - 1)
+        tau = np.minimum(t - self.t0[k], self.duration[k])
+        a = self.a[k]
+        return self.s0[k] + self.v0[k] * tau + a * tau * tau / 2.0, self.v0[k] + a * tau, a
 
 
-class SectionMotion:
-    """s(t) over one section: `run()` returns (s, v, a) at every servo period until at rest at the end."""
+def plan(
+    zones: Zones,
+    s_start: float,
+    v_start: float,
+    a_prev: float,
+    v_end: float,
+    plateau_s: float,
+    t_start: float = 0.0,
+    cruised_s: float = 0.0,
+) -> Pieces:
+    """Time-optimal pieces from (s_start, v_start) over the zones, ending at v_end at the last edge.
 
-    def __init__(self, zones: list[Zone], a_max: float, j_max: float, dt: float, v_start: float = 0.0) -> None:
-        if not zones:
-            raise ValueError("a section needs at least one zone")
-        self.zones = zones
-        self.length = zones[-1].end_mm
-        self.a_max, self.j_max, self.dt = a_max, j_max, dt
-        self.v_start = v_start
-        # the end is one more zone, of limit 0: braking for it is braking for any slower zone
-        self.starts = np.array([z.start_mm for z in zones] + [self.length])
-        self.vmax = np.array([z.v_max_mm_s for z in zones] + [0.0])
-        # the lowest limit from each zone to the end: the final approach may not exceed it
-        self.v_rest = np.minimum.accumulate(self.vmax[:-1][::-1])[::-1]
+    `a_prev` is the last non-zero acceleration before the start and `cruised_s` how long the
+    motion has cruised since; the plan does not turn against it before a full plateau.
+    """
+    given = zones
+    zones = _soft_after_braking(zones, v_start)
+    hard, soft = zones.hard.copy(), zones.soft.copy()
+    cruise_first = False
+    for _ in range(50):
+        caps = np.minimum(hard, soft)
+        w = _junction_speeds(zones.edges, caps, zones.accel, v_start, v_end)
+        pieces = _zone_pieces(zones.edges, caps, zones.accel, w)
+        fix = _short_peak(pieces, plateau_s) or _short_valley(pieces, plateau_s)
+        if fix is None:
+            break
+        if fix[0] <= s_start + EPS_MM:  # the plateau would have to start in the past: cruise now
+            cruise_first = True
+            break
+        zones, hard, soft = _with_cap(zones, hard, soft, *fix)
+    else:
+        raise RuntimeError("speed profile: peaks kept needing a plateau after 50 passes")
+    s0, v0, a, dur = pieces
+    remaining = max(plateau_s - cruised_s, 0.0) if a_prev else 0.0
+    if v_start > EPS_V and (cruise_first or _turns_against(a, dur, a_prev, remaining)):
+        cruise = remaining if remaining > 0.0 else plateau_s
+        sub = _clip_zones(given, s_start + v_start * cruise)
+        rest = plan(sub, s_start + v_start * cruise, v_start, 0.0, v_end, plateau_s, t_start + cruise)
+        first = Pieces(np.array([t_start]), np.array([s_start]), np.array([v_start]), np.zeros(1), np.array([cruise]))
+        return first.append(rest)
+    t0 = t_start + np.concatenate(([0.0], np.cumsum(dur)[:-1]))
+    return Pieces(t0, s0, v0, a, dur)
 
-    def run(self) -> np.ndarray:
-        # a bound no real run reaches: the whole length at the slowest limit, twice, plus a minute
-        slowest = max(float(self.vmax[:-1].min()), 1e-3)
-        max_steps = int((2.0 * self.length / slowest + 60.0) / self.dt)
-        otg = Ruckig(1, self.dt)
-        inp, out = InputParameter(1), OutputParameter(1)
-        inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [self.v_start], [0.0]
-        inp.max_acceleration, inp.max_jerk = [self.a_max], [self.j_max]
-        inp.control_interface = ControlInterface.Velocity
-        inp.target_acceleration = [0.0]
-        samples: list[tuple[float, float, float]] = []
-        final = False
-        for _ in range(max_steps):
-            s, v, a = inp.current_position[0], inp.current_velocity[0], inp.current_acceleration[0]
-            k = min(max(int(np.searchsorted(self.starts, s, side="right")) - 1, 0), len(self.zones) - 1)
-            if not final:
-                target = self._target(k, s, v, a)
-                if target == 0.0 and v <= self.v_rest[k] + 1e-9:
-                    # braking for the end, within every limit left: stop exactly there
-                    final = True
-                    inp.control_interface = ControlInterface.Position
-                    inp.target_position, inp.target_velocity = [self.length], [0.0]
-                else:
-                    inp.max_velocity = [float(self.vmax[k])]
-                    inp.target_velocity = [target]
-            if final:
-                inp.max_velocity = [max(float(self.v_rest[k]), v, 1e-9)]
-            result = _update(otg, inp, out)
-            if result not in (Result.Working, Result.Finished):
-                raise RuntimeError(f"motion along the section failed at s={s:.3f} mm: {result}")
-            samples.append((out.new_position[0], out.new_velocity[0], out.new_acceleration[0]))
-            out.pass_to_input(inp)
-            if final and result == Result.Finished:
-                break
-        else:
-            raise RuntimeError(f"the section of {self.length:.3f} mm did not end within {max_steps} periods")
-        return np.array(samples)
 
-    def _target(self, k: int, s: float, v: float, a: float) -> float:
-        """The zone's limit, or a slower zone's ahead when braking can wait no longer: if it does
-        not start now, one more period of the hardest acceleration could leave too little room."""
-        target = float(self.vmax[k])
-        ds, v_next, a_next = self._worst_next(v, a)
-        # Slowing to some v1 > 0 can take longer than stopping (faster on average for a similar
-        # time): (v0 + v1) <= 2 v0 and T(v0 - v1) <= T(v0) bound every such distance by twice the stop.
-        horizon = 2.0 * braking_distance(max(v_next, target), a_next, 0.0, self.a_max, self.j_max) + ds
-        for z in range(k + 1, len(self.starts)):
-            ahead = self.starts[z] - s
-            if ahead > horizon:
-                break  # beyond any braking distance: nothing further can matter yet
-            vz = float(self.vmax[z])
-            if vz < target and ahead - ds <= braking_distance(v_next, a_next, vz, self.a_max, self.j_max):
-                target = vz
-        return target
+def _turns_against(a: np.ndarray, dur: np.ndarray, a_prev: float, plateau_s: float) -> bool:
+    """Does the plan turn the acceleration it starts under over before `plateau_s` of cruise?"""
+    if a_prev == 0.0 or plateau_s <= 0.0:
+        return False
+    flat = 0.0
+    for acc, d in zip(a, dur):
+        if acc == 0.0:
+            flat += d
+            if flat >= plateau_s - 1e-12:
+                return False
+            continue
+        return acc * a_prev < 0.0
+    return False
 
-    def _worst_next(self, v: float, a: float) -> tuple[float, float, float]:
-        """Distance, velocity and acceleration after one more period of pushing the acceleration up at full jerk."""
-        dt, j = self.dt, self.j_max
-        a_next = min(a + j * dt, self.a_max)
-        v_next = v + (a + a_next) * dt / 2.0
-        ds = v * dt + a * dt * dt / 2.0 + j * dt**3 / 6.0
-        return ds, v_next, a_next
+
+def braking_distance(v: float, accel: float, plateau_s: float) -> float:
+    """Distance a stop from speed v may need: a plateau of cruise, then braking at `accel`."""
+    return v * plateau_s + v * v / (2.0 * accel)
+
+
+# ---------------------------------------------------------------------------------------
+
+
+def _soft_after_braking(zones: Zones, v_start: float) -> Zones:
+    """The zones with soft caps lifted where braking as hard as allowed from v_start has not yet
+    got under them (the zone where it does is split there)."""
+    edges, hard, soft, accel = zones.edges.copy(), zones.hard.copy(), zones.soft.copy(), zones.accel.copy()
+    v2 = v_start * v_start
+    for k in range(len(soft)):
+        if v2 <= soft[k] * soft[k] + EPS_V:
+            break
+        after = v2 - 2.0 * accel[k] * (edges[k + 1] - edges[k])
+        if after > soft[k] * soft[k]:
+            soft[k] = np.inf
+            v2 = max(after, 0.0)
+            continue
+        cut = edges[k] + (v2 - soft[k] * soft[k]) / (2.0 * accel[k])
+        if cut > edges[k] + EPS_MM:
+            edges = np.insert(edges, k + 1, cut)
+            hard, accel = np.insert(hard, k, hard[k]), np.insert(accel, k, accel[k])
+            soft = np.insert(soft, k, np.inf)
+        break
+    return Zones(edges, hard, soft, accel)
+
+
+def _junction_speeds(edges: np.ndarray, caps: np.ndarray, accel: np.ndarray, v_start: float, v_end: float) -> np.ndarray:
+    """Speed at every zone edge: forward (reachable) and backward (can still meet what follows) passes."""
+    m = len(caps)
+    length = np.diff(edges)
+    w = np.empty(m + 1)
+    w[0] = v_start
+    cap_at = np.minimum(np.concatenate((caps[:1], caps)), np.concatenate((caps, caps[-1:])))
+    cap_at[0] = max(v_start, 0.0)
+    for k in range(m):
+        w[k + 1] = min(cap_at[k + 1], math.sqrt(w[k] * w[k] + 2.0 * accel[k] * length[k]))
+    w[m] = min(w[m], v_end)
+    for k in range(m - 1, -1, -1):
+        back = math.sqrt(w[k + 1] * w[k + 1] + 2.0 * accel[k] * length[k])
+        if back < w[k]:
+            w[k] = back
+    if w[0] < v_start:
+        # Too fast to meet what follows (only rounding, or a window shorter than a stop):
+        # keep the speed continuous and brake as hard as allowed until the profile is met.
+        w[0] = v_start
+        for k in range(m):
+            w[k + 1] = max(w[k + 1], math.sqrt(max(w[k] * w[k] - 2.0 * accel[k] * length[k], 0.0)))
+    return w
+
+
+def _zone_pieces(edges, caps, accel, w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Accelerate / cruise / decelerate pieces of every zone, as (s0, v0, a, duration)."""
+    s0, v0, a, dur = [], [], [], []
+    for k in range(len(caps)):
+        x0, x1, c, acc, wa, wb = edges[k], edges[k + 1], caps[k], accel[k], w[k], w[k + 1]
+        length = x1 - x0
+        if length <= EPS_MM:
+            continue
+        peak2 = (wa * wa + wb * wb + 2.0 * acc * length) / 2.0
+        top = min(c, math.sqrt(peak2)) if np.isfinite(c) else math.sqrt(peak2)
+        top = max(top, wa, wb)
+        d_up = max((top * top - wa * wa) / (2.0 * acc), 0.0)
+        d_down = max((top * top - wb * wb) / (2.0 * acc), 0.0)
+        d_flat = length - d_up - d_down
+        if d_flat < 0.0:  # rounding: share the shortfall
+            d_up, d_down, d_flat = d_up + d_flat / 2.0, d_down + d_flat / 2.0, 0.0
+        x = x0
+        if d_up > EPS_MM and top > wa + EPS_V:
+            s0.append(x), v0.append(wa), a.append(acc), dur.append((top - wa) / acc)
+            x += d_up
+        if d_flat > EPS_MM and top > EPS_V:
+            s0.append(x), v0.append(top), a.append(0.0), dur.append(d_flat / top)
+            x += d_flat
+        if d_down > EPS_MM and top > wb + EPS_V:
+            s0.append(x), v0.append(top), a.append(-acc), dur.append((top - wb) / acc)
+    return np.array(s0), np.array(v0), np.array(a), np.array(dur)
+
+
+def _short_peak(pieces, plateau_s: float) -> tuple[float, float, float] | None:
+    """The first speed-up straight into a slow-down without `plateau_s` of cruise between them,
+    as a cap (from_mm, to_mm, speed) that gives it one; None when there is none."""
+    s0, v0, a, dur = pieces
+    n = len(a)
+    k = 0
+    while k < n:
+        if a[k] <= 0.0:
+            k += 1
+            continue
+        j = k
+        while j + 1 < n and a[j + 1] > 0.0:
+            j += 1  # the whole rise
+        c = j + 1
+        flat_mm = flat_s = 0.0
+        while c < n and a[c] == 0.0:
+            flat_mm += v0[c] * dur[c]
+            flat_s += dur[c]
+            c += 1
+        if c < n and a[c] < 0.0 and flat_s < plateau_s - 1e-12:
+            a_up, a_down = a[j], -a[c]
+            v_peak = v0[c]
+            s_flat0 = s0[j + 1] if j + 1 < n else s0[c]
+            kk = 1.0 / (2.0 * a_up) + 1.0 / (2.0 * a_down)
+            v_cap = (-plateau_s + math.sqrt(plateau_s**2 + 4.0 * kk * (flat_mm + kk * v_peak * v_peak))) / (2.0 * kk)
+            v_cap = min(v_cap, v_peak * (1.0 - 1e-9))
+            lo = s_flat0 - (v_peak * v_peak - v_cap * v_cap) / (2.0 * a_up)
+            hi = s_flat0 + flat_mm + (v_peak * v_peak - v_cap * v_cap) / (2.0 * a_down)
+            return lo, hi, v_cap
+        k = c
+    return None
+
+
+def _short_valley(pieces, plateau_s: float) -> tuple[float, float, float] | None:
+    """The first slow-down straight into a speed-up without `plateau_s` of cruise between them,
+    as a cap (from_mm, to_mm, speed) that holds the low speed long enough; None when there is none."""
+    s0, v0, a, dur = pieces
+    n = len(a)
+    for k in range(n):
+        if a[k] >= 0.0:
+            continue
+        c, flat_s = k + 1, 0.0
+        while c < n and a[c] == 0.0:
+            flat_s += dur[c]
+            c += 1
+        if c < n and a[c] > 0.0 and flat_s < plateau_s - 1e-12:
+            v_low = v0[c]
+            if v_low <= EPS_V:
+                return None  # a stop in the middle: the averages handle a rest
+            return s0[c], s0[c] + v_low * (plateau_s - flat_s) * (1.0 + 1e-9), v_low
+    return None
+
+
+def _with_cap(zones: Zones, hard: np.ndarray, soft: np.ndarray, lo: float, hi: float, cap: float):
+    """Zones with an extra hard cap on [lo, hi] (edges split there)."""
+    edges = zones.edges
+    new_edges = np.unique(np.concatenate((edges, [min(max(lo, edges[0]), edges[-1]), min(max(hi, edges[0]), edges[-1])])))
+    idx = np.clip(np.searchsorted(edges, new_edges[:-1], side="right") - 1, 0, len(hard) - 1)
+    mid = (new_edges[:-1] + new_edges[1:]) / 2.0
+    new_hard = np.where((mid >= lo) & (mid <= hi), np.minimum(hard[idx], cap), hard[idx])
+    out = Zones(new_edges, new_hard, zones.soft[idx], zones.accel[idx])
+    return out, new_hard.copy(), soft[idx]
+
+
+def _clip_zones(zones: Zones, s_from: float) -> Zones:
+    """The zones from s_from on (the one containing it cut there)."""
+    edges = zones.edges
+    k = int(np.clip(np.searchsorted(edges, s_from, side="right") - 1, 0, len(zones.hard) - 1))
+    new_edges = np.concatenate(([min(s_from, edges[-1])], edges[k + 1:]))
+    return Zones(new_edges, zones.hard[k:].copy(), zones.soft[k:].copy(), zones.accel[k:].copy())

@@ -1,0 +1,300 @@
+"""A program's setpoints, made on demand: sections and pauses in order, under the operator's controls.
+
+`take(n)` gives the next setpoint records for the FIFO (positions of the machine's axes,
+velocities, output flags, segment and source line) and the program position of each, for
+progress. The operator's controls act from the next record made:
+
+- feed override (0 to 2; rapids follow it up to 1) replans the motion under way;
+- hold decelerates along the path to a stop; resume continues from exactly there;
+- stop is a hold that ends the program once at rest;
+- a program stop (M0, M1, M60) waits at its point for `resume` (cycle start).
+
+Standing still with the jet open drills the material, so while held or paused the jet (and
+abrasive) close when the machine file says so, and on resume the jet re-pierces (on delay
+and pierce dwell) before motion continues. Velocities are central differences of the
+positions (exact at each sample for the servo's feed-forward), so records leave one sample
+late; the last record before the FIFO may run dry has IN_MOTION cleared.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+
+from gcode.program import Program
+
+from ..config import MachineConfig
+from ..fifo import SetpointFlag, setpoint_dtype
+from .sections import Section, Step, program_steps
+from .stream import SectionStream
+
+_IN_MOTION = int(SetpointFlag.IN_MOTION)
+_SEGMENT_START = int(SetpointFlag.SEGMENT_START)
+_JET_OFF_MASK = ~int(SetpointFlag.JET_ON | SetpointFlag.ABRASIVE)
+_AXES = ("x", "y", "z")
+
+
+class RunState(enum.IntEnum):
+    RUNNING = 0
+    HOLDING = 1  # decelerating to a hold
+    HELD = 2
+    PAUSED = 3  # at a program stop, waiting for cycle start
+    STOPPING = 4  # decelerating, then the program ends
+    DONE = 5  # the program ran to its end
+    ABORTED = 6  # stopped by the operator
+
+
+@dataclass
+class Event:
+    """Something the program reached: a message, a program stop."""
+
+    kind: str
+    text: str
+    line: int
+
+
+class ProgramRunner:
+    """Setpoints of one program from its first record to its last."""
+
+    def __init__(self, program: Program | None, config: MachineConfig, steps: list[Step] | None = None) -> None:
+        self.config = config
+        self.dt = config.timing.period_s
+        self.steps = steps if steps is not None else program_steps(program, config)
+        self.axes = [_AXES.index(a) for a in config.axis_names]
+        self.dtype = setpoint_dtype(len(self.axes))
+        self.close_on_hold = config.jet.close_on_hold
+        self.state = RunState.RUNNING
+        self.override = 1.0
+        self.events: list[Event] = []
+        self.index = -1  # step being run
+        self.stream: SectionStream | None = None
+        self.pause_left = 0
+        self.repierce = 0  # samples of re-pierce still to make before motion continues
+        self.flags_now = 0  # output bits of the last record made
+        self.segment_now = 0
+        self.line_now = 0
+        self.jet_closed = False
+        self._pending: tuple | None = None  # (position, flags, segment, line, s_program) of the last sample made
+        self._before: np.ndarray | None = None  # position of the record released before it
+        self._newest: np.ndarray | None = None  # position of the newest sample made
+        self._message_index = 0
+        self.s_program = 0.0
+        self.made = 0  # records released
+        self.total_mm = sum(s.length_mm for s in self.steps if isinstance(s, Section))
+        self._next_step()
+
+    # -- the operator's controls ------------------------------------------------------------
+    def set_override(self, ratio: float) -> None:
+        self.override = ratio
+        if self.stream is not None and self.state in (RunState.RUNNING,):
+            self.stream.set_override(ratio, min(ratio, 1.0))
+
+    def hold(self) -> None:
+        if self.state != RunState.RUNNING:
+            return
+        if self.stream is not None:
+            self.stream.hold()
+            self.state = RunState.HOLDING
+        else:
+            self.state = RunState.HELD
+            self._close_jet()
+
+    def resume(self) -> None:
+        if self.state not in (RunState.HOLDING, RunState.HELD, RunState.PAUSED):
+            return
+        was = self.state
+        self.state = RunState.RUNNING
+        if self.jet_closed and self._flags_ahead() & int(SetpointFlag.JET_ON):
+            jet = self.config.jet
+            self.repierce = self._ticks(jet.on_delay_s + jet.pierce_dwell_s)
+        self.jet_closed = False
+        if self.stream is not None and was in (RunState.HOLDING, RunState.HELD):
+            self.stream.set_override(self.override, min(self.override, 1.0))
+            self.stream.resume()
+        if was == RunState.PAUSED:
+            self._next_step()
+
+    def stop(self) -> None:
+        if self.state in (RunState.DONE, RunState.ABORTED):
+            return
+        if self.stream is not None and self.state in (RunState.RUNNING, RunState.HOLDING) and not self.stream.at_rest:
+            self.stream.hold()
+            self.state = RunState.STOPPING
+        else:
+            self.state = RunState.ABORTED
+            self._close_jet()
+
+    @property
+    def finished(self) -> bool:
+        return self.state in (RunState.DONE, RunState.ABORTED)
+
+    @property
+    def idle(self) -> bool:
+        """Nothing more will be made until the operator acts (held, paused, finished, override at 0)."""
+        stalled = self.stream is not None and self.stream.at_rest and not self.stream.holding
+        return stalled or self.state in (RunState.HELD, RunState.PAUSED, RunState.DONE, RunState.ABORTED)
+
+    # -- making records ---------------------------------------------------------------------
+    def take(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Up to n records and the program position (mm of path done) of each."""
+        pos, flags, seg, line, prog = [], [], [], [], []
+        made = 0
+        while made < n and not self.idle:
+            p, f, g, ln, s = self._make(n - made)
+            if not len(p):
+                continue
+            pos.append(p), flags.append(f), seg.append(g), line.append(ln), prog.append(s)
+            made += len(p)
+            self._newest = p[-1]
+        if made:
+            return self._release(np.concatenate(pos), np.concatenate(flags), np.concatenate(seg),
+                                 np.concatenate(line), np.concatenate(prog), final=self.idle)
+        if self.idle and self._pending is not None:
+            return self._release(np.zeros((0, len(self.axes))), *(np.zeros(0, dtype=t) for t in (np.uint32, np.int64, np.int64)),
+                                 np.zeros(0), final=True)
+        return np.zeros(0, dtype=self.dtype), np.zeros(0)
+
+    def _make(self, n: int):
+        """The next samples of whatever runs now (or a step change, returning nothing)."""
+        if self.repierce:
+            k = min(n, self.repierce)
+            self.repierce -= k
+            return self._still(k, self._flags_ahead())
+        if self.stream is not None:
+            return self._from_stream(n)
+        if self.pause_left:
+            k = min(n, self.pause_left)
+            self.pause_left -= k
+            step = self.steps[self.index]
+            self.segment_now, self.line_now = step.segment, step.line
+            return self._still(k, step.flags)
+        self._next_step()
+        return self._nothing()
+
+    def _from_stream(self, n: int):
+        stream, section = self.stream, self.steps[self.index]
+        y, s = stream.take(n)
+        if len(y):
+            k = section.path.index_at(s)
+            self._messages(section, s)
+            self.s_program = section.offset_mm + float(s[-1])
+            return (y[:, self.axes], section.flags[k], section.segment[k], section.line[k], section.offset_mm + s)
+        if stream.done:
+            self.stream = None
+            if self.state == RunState.STOPPING:
+                self.state = RunState.ABORTED
+                self._close_jet()
+            elif self.state == RunState.HOLDING:
+                self.state = RunState.HELD
+                self._close_jet()
+            else:
+                self._next_step()
+        elif stream.at_rest and stream.holding:
+            self.state = RunState.ABORTED if self.state == RunState.STOPPING else RunState.HELD
+            self._close_jet()
+        return self._nothing()
+
+    def _next_step(self) -> None:
+        """Start the step after the current one."""
+        self.index += 1
+        if self.index >= len(self.steps):
+            self.state = RunState.DONE
+            return
+        step = self.steps[self.index]
+        if isinstance(step, Section):
+            self.stream = SectionStream(step, self.override, min(self.override, 1.0))
+            self._message_index = 0
+        elif step.kind == "program_stop":
+            self.events.append(Event("program_stop", step.text, step.line))
+            self.state = RunState.PAUSED
+            self._close_jet()
+        else:
+            self.pause_left = self._ticks(step.seconds)
+            if step.kind == "dwell":
+                self.events.append(Event("dwell", step.text, step.line))
+
+    def _still(self, k: int, flags: int):
+        p = self._position_now()
+        return (np.repeat(p[None, :], k, axis=0), np.full(k, flags, dtype=np.uint32),
+                np.full(k, self.segment_now), np.full(k, self.line_now), np.full(k, self.s_program))
+
+    def _nothing(self):
+        return (np.zeros((0, len(self.axes))), np.zeros(0, dtype=np.uint32), np.zeros(0, dtype=np.int64),
+                np.zeros(0, dtype=np.int64), np.zeros(0))
+
+    def _release(self, pos, flags, seg, line, prog, final: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Records for every sample made but the newest (whose velocity needs the next one);
+        with `final`, that one too, at rest."""
+        if self._pending is not None:
+            p0, f0, g0, l0, s0 = self._pending
+            pos = np.concatenate((p0[None, :], pos))
+            flags, seg = np.concatenate(([f0], flags)), np.concatenate(([g0], seg))
+            line, prog = np.concatenate(([l0], line)), np.concatenate(([s0], prog))
+        if not len(pos):
+            return np.zeros(0, dtype=self.dtype), np.zeros(0)
+        before = self._before if self._before is not None else pos[0]
+        count = len(pos) if final else len(pos) - 1
+        ext = np.concatenate((before[None, :], pos, pos[-1:] if final else np.zeros((0, pos.shape[1]))))
+        out = np.zeros(count, dtype=self.dtype)
+        out["position"] = pos[:count]
+        out["velocity"] = (ext[2:count + 2] - ext[:count]) / (2.0 * self.dt)
+        f = flags[:count].astype(np.int64) | _IN_MOTION
+        starts = np.concatenate(([seg[0] != self.segment_now or self.made == 0], seg[1:count] != seg[: count - 1]))
+        f[starts] |= _SEGMENT_START
+        if final:
+            f[-1] &= ~_IN_MOTION
+            if self.jet_closed:
+                f[-1] &= _JET_OFF_MASK
+        out["flags"] = f
+        out["segment"], out["line"] = seg[:count], line[:count]
+        self.flags_now, self.segment_now, self.line_now = int(f[-1]), int(seg[count - 1]), int(line[count - 1])
+        self._before = pos[count - 1]
+        self._pending = None if final else (pos[-1], flags[-1], seg[-1], line[-1], prog[-1])
+        self.made += count
+        return out, prog[:count]
+
+    # -- helpers ----------------------------------------------------------------------------
+    def _close_jet(self) -> None:
+        if self.close_on_hold and self.flags_now & int(SetpointFlag.JET_ON | SetpointFlag.ABRASIVE):
+            self.jet_closed = True
+        if self.state == RunState.ABORTED and self.flags_now & int(SetpointFlag.JET_ON | SetpointFlag.ABRASIVE):
+            self.jet_closed = True  # an aborted program always leaves the jet closed
+
+    def _flags_ahead(self) -> int:
+        """Output bits of what runs next (the element under way, or the step after a pause)."""
+        if self.stream is not None:
+            section = self.stream.section
+            return int(section.flags[section.path.index_at(np.array([self.s_program - section.offset_mm]))[0]])
+        for step in self.steps[self.index + 1:]:
+            return int(step.flags[0]) if isinstance(step, Section) else int(step.flags)
+        return 0
+
+    def _position_now(self) -> np.ndarray:
+        if self._newest is not None:
+            return self._newest
+        for step in self.steps[max(self.index, 0):]:
+            where = step.start if isinstance(step, Section) else step.position
+            return np.array(where)[self.axes]
+        return np.zeros(len(self.axes))
+
+    def _messages(self, section: Section, s: np.ndarray) -> None:
+        msgs = section.messages
+        while self._message_index < len(msgs) and msgs[self._message_index][0] <= s[-1]:
+            _, text, line = msgs[self._message_index]
+            self.events.append(Event("message", text, line))
+            self._message_index += 1
+
+    def _ticks(self, seconds: float) -> int:
+        return int(round(seconds / self.dt))
+
+    def planned_ticks(self) -> int:
+        """Servo periods the whole program takes at 100 % override, from its first record to its last."""
+        total = 0
+        for step in self.steps:
+            if isinstance(step, Section):
+                total += SectionStream(step).planned_samples()
+            elif step.kind != "program_stop":
+                total += self._ticks(step.seconds)
+        return total

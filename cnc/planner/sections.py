@@ -1,0 +1,189 @@
+"""A program as the planner runs it: sections of motion and the zero-velocity pauses between them.
+
+A section is a stretch of path the head runs without stopping. It ends wherever the head
+must stand still: where the jet or the machine outputs switch (they switch at zero
+velocity, exactly at the segment boundary), at a dwell, at a program stop (M0, M1, M60), at
+a corner that is neither blended nor tangent, and at the end. Between two sections sits
+what happens at the stop: the jet opening (its delay and the pierce dwell), the jet closing
+(its delay), a dwell, a program stop waiting for cycle start. Numbered outputs (M62/M63)
+switch at their segment boundary without a stop where the path is tangent there.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gcode.canon import DWELL, LINE, RAPID
+from gcode.program import Program
+
+from ..config import MachineConfig
+from ..fifo import SetpointFlag
+from .geometry import PathArrays
+from .limits import KINK_MAX_RAD, SectionLimits, section_limits
+from .path import Element, blend_corners, elements_from_program
+
+STOP_KINDS = {"stop": "M0 program stop", "optional_stop": "M1 optional stop", "pallet": "M60 pallet change"}
+
+
+@dataclass
+class Section:
+    """One stretch of motion between two stops."""
+
+    elements: list[Element]
+    path: PathArrays
+    limits: SectionLimits
+    offset_mm: float  # program path length before this section
+    flags: np.ndarray  # per element: setpoint output bits
+    segment: np.ndarray  # per element: program segment index
+    line: np.ndarray  # per element: source line
+    messages: list[tuple[float, str, int]] = field(default_factory=list)  # (arc length, text, line)
+
+    @property
+    def start(self) -> tuple[float, float, float]:
+        return self.elements[0].start
+
+    @property
+    def end(self) -> tuple[float, float, float]:
+        return self.elements[-1].end
+
+    @property
+    def length_mm(self) -> float:
+        return self.path.total_mm
+
+
+@dataclass
+class Pause:
+    """Time spent standing still between sections."""
+
+    kind: str  # "pierce", "jet_off", "dwell", "program_stop"
+    seconds: float
+    flags: int  # output bits while it lasts
+    position: tuple[float, float, float]
+    segment: int
+    line: int
+    text: str = ""
+
+
+Step = Section | Pause
+
+
+def output_flags(jet: bool, aux: int, outputs: int) -> int:
+    """Setpoint output bits: the jet, the M-code map's outputs (abrasive, aux1..) and M62-M65 P0..P3."""
+    bits = int(SetpointFlag.JET_ON) if jet else 0
+    bits |= (int(aux) << 1) & 0x3E
+    bits |= (int(outputs) & 0xF) << 2
+    return bits
+
+
+def program_steps(program: Program, config: MachineConfig) -> list[Step]:
+    """The program's sections and pauses, in order."""
+    elements = elements_from_program(program.segments)
+    stops = {m.segment: m for m in program.messages if m.kind in STOP_KINDS}
+    notes = {}
+    for m in program.messages:
+        if m.kind in ("message", "tool"):
+            notes.setdefault(m.segment, []).append((m.text, m.line))
+    steps: list[Step] = []
+    offset = 0.0
+    run: list[Element] = []
+    jet = config.jet
+
+    def close_run() -> None:
+        nonlocal offset, run
+        if run:
+            for section in _split(blend_corners(run), config, offset, notes):
+                steps.append(section)
+                offset += section.length_mm
+        run = []
+
+    last = None
+    for e in elements:
+        if e.segment in stops and (run or steps):
+            close_run()
+            m = stops.pop(e.segment)
+            where = run[-1].end if run else _last_position(steps, e.start)
+            steps.append(Pause("program_stop", 0.0, _flags(last) if last else 0, where, e.segment, m.line, STOP_KINDS[m.kind]))
+        if e.kind == DWELL:
+            close_run()
+            steps.append(Pause("dwell", e.dwell_s, _flags(e), e.start, e.segment, e.line, f"G4 P{e.dwell_s:g}"))
+            last = e
+            continue
+        if last is not None and (last.jet, last.aux) != (e.jet, e.aux):
+            close_run()
+            where = e.start
+            if e.jet and not last.jet:
+                steps.append(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), where, e.segment, e.line, "jet on, pierce"))
+            elif last.jet and not e.jet:
+                steps.append(Pause("jet_off", jet.off_delay_s, _flags(e), where, e.segment, e.line, "jet off"))
+        elif last is None and e.jet:
+            steps.append(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), e.start, e.segment, e.line, "jet on, pierce"))
+        run.append(e)
+        last = e
+    close_run()
+    if last is not None and last.jet:
+        steps.append(Pause("jet_off", jet.off_delay_s, 0, _last_position(steps, last.end), last.segment, last.line, "jet off at the end"))
+    return steps
+
+
+def move_steps(
+    start: tuple[float, float, float], end: tuple[float, float, float], feed_mm_s: float, config: MachineConfig
+) -> list[Step]:
+    """A single straight move at rest at both ends (jog, go-to): feed_mm_s, or the axis limits when inf."""
+    kind = RAPID if feed_mm_s == math.inf else LINE
+    e = Element(kind, tuple(start), tuple(end), None, False, 0, feed_mm_s, 0.0, False, 0, 0, 0, 0)
+    return [_section([e], config, 0.0, {})] if e.length_mm > 0.0 else []
+
+
+def _flags(e: Element) -> int:
+    return output_flags(e.jet, e.aux, e.outputs)
+
+
+def _last_position(steps: list[Step], default):
+    for s in reversed(steps):
+        return s.end if isinstance(s, Section) else s.position
+    return default
+
+
+def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict) -> list[Section]:
+    """Cut a blended run of elements at every corner that is neither tangent nor a small kink."""
+    motion = [e for e in path if e.kind != DWELL and e.length_mm > 1e-9]  # blends may leave a line of length 0
+    out: list[Section] = []
+    start = 0
+    for i in range(1, len(motion) + 1):
+        if i == len(motion) or _stops_between(motion[i - 1], motion[i]):
+            out.append(_section(motion[start:i], config, offset, notes))
+            offset += out[-1].length_mm
+            start = i
+    return out
+
+
+def _stops_between(a: Element, b: Element) -> bool:
+    u, w = a.direction_at_end(), b.direction_at_start()
+    turn = math.atan2(u[0] * w[1] - u[1] * w[0], u[0] * w[0] + u[1] * w[1])
+    z_turn = (a.start[2] != a.end[2]) != (b.start[2] != b.end[2])
+    return abs(turn) > KINK_MAX_RAD or z_turn or (a.jet, a.aux) != (b.jet, b.aux)
+
+
+def _section(elements: list[Element], config: MachineConfig, offset: float, notes: dict) -> Section:
+    path = PathArrays.of(elements)
+    feed = np.array([e.feed_mm_s for e in elements])
+    rapid = np.array([e.kind == RAPID for e in elements])
+    tolerance = min(e.tolerance_mm for e in elements)
+    blended = any(e.blend for e in elements)
+    limits = section_limits(path, feed, rapid, tolerance, blended, config)
+    messages = []
+    seen = set()
+    for k, e in enumerate(elements):
+        if e.segment in notes and e.segment not in seen:
+            seen.add(e.segment)
+            messages += [(float(path.s0[k]), text, line) for text, line in notes[e.segment]]
+    return Section(
+        elements, path, limits, offset,
+        np.array([_flags(e) for e in elements], dtype=np.uint32),
+        np.array([e.segment for e in elements], dtype=np.int64),
+        np.array([e.line for e in elements], dtype=np.int64),
+        messages,
+    )

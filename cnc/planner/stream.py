@@ -1,0 +1,245 @@
+"""One section's motion, streamed one servo period at a time, with override, hold and resume.
+
+Planning looks ahead over a window of path long enough to stop from the fastest speed
+(several braking distances): the raw profile (`profile.py`) is planned over the window as
+if the motion had to stop at its end, and only its first part is committed, so what is
+committed never depends on that assumed stop. Samples are then taken from the committed
+pieces at the servo period and pass through the two moving averages (`limits.py` says why):
+over the arc length (jerk along the path) and over the axis positions (curvature steps).
+
+A change of feed override, or a hold, replans from the last sample made: the raw profile
+continues from that sample's position, speed and acceleration history, and the averages'
+memories carry on, so the setpoints stay continuous to the jerk. A hold is an override of
+zero that also takes in rapids; the head stops on the path and resumes from exactly there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .limits import envelope
+from .profile import Pieces, Zones, braking_distance, plan
+from .sections import Section
+from .smoothing import MovingAverage
+
+WINDOWS_PER_COMMIT = 2.0  # the window reaches this many commit lengths beyond what is committed
+REST_SAMPLES = 3  # a section ends with this many samples at rest: the next one's start and this one's
+# end then never meet in one third difference (the jerk the drives see)
+
+
+class SectionStream:
+    """Samples of one section's motion, from rest at its start to rest at its end."""
+
+    def __init__(self, section: Section, override: float = 1.0, rapid_override: float = 1.0) -> None:
+        self.section = section
+        lim = section.limits
+        sm = lim.smoothing
+        self.dt = sm.dt
+        self.plateau_s = (sm.n_path + 2) * self.dt
+        self.reach_s = sm.extension_s
+        self.length = section.length_mm
+        path = section.path
+        self.s0, self.s1 = path.s0[:-1], path.s0[1:]
+        self.kink_at = path.s0[1:-1][np.isfinite(lim.v_kink)]
+        self.kink_cap = lim.v_kink[np.isfinite(lim.v_kink)]
+        v_top = float(np.minimum(lim.v_hard, np.where(lim.rapid, np.inf, 2.0 * lim.v_feed)).max())
+        a_low = float(lim.accel.min())
+        self.brake_mm = braking_distance(v_top, a_low, self.plateau_s) + 2.0 * v_top * self.reach_s + 1.0
+        self.commit_mm = WINDOWS_PER_COMMIT * self.brake_mm
+        self.window_mm = self.commit_mm + 2.0 * self.brake_mm
+        self.widen_mm = v_top * self.reach_s
+        self.override, self.rapid_override = override, rapid_override
+        self.holding = False
+        self.pieces = Pieces.empty()
+        self.final = False  # the committed pieces reach the end of the section
+        self.k = 0  # samples made so far; sample k is at time k * dt
+        self.ma_path = MovingAverage(sm.n_path, 0.0)
+        start = path.points(np.zeros(1))[0]
+        self.ma_axis = MovingAverage(sm.n_axis, start)
+        self.centre_lag = (sm.n_axis - 1) // 2
+        self.s_recent = np.zeros(self.centre_lag)
+        self.k_end: int | None = None
+
+    # -- what the outside asks --------------------------------------------------------------
+    @property
+    def done(self) -> bool:
+        """Every sample of the section has been made (the last one at rest at its end)."""
+        return self.k_end is not None and self.k >= self.k_end
+
+    @property
+    def stopping(self) -> bool:
+        """Held, or the feed override at zero: the motion comes to rest and stays there."""
+        return self.holding or self.override <= 0.0
+
+    @property
+    def at_rest(self) -> bool:
+        """Stopping and come to rest: the raw motion stopped and both averages have caught up."""
+        if not self.stopping or not self.pieces_end_at_rest():
+            return False
+        s_stop = self.pieces.end_state()[0] if len(self.pieces) else 0.0
+        return self.k * self.dt >= self.pieces.t_end and self.ma_path.converged(s_stop) and self.ma_axis.converged(
+            self.section.path.points(np.array([s_stop]))[0], 1e-12
+        )
+
+    def pieces_end_at_rest(self) -> bool:
+        return len(self.pieces) == 0 or abs(self.pieces.end_state()[1]) < 1e-9
+
+    def set_override(self, feed: float, rapid: float) -> None:
+        """New feed and rapid override ratios (0..2 and 0..1), taking effect from the next sample."""
+        self.override, self.rapid_override = feed, rapid
+        if not self.holding:
+            self._replan()
+
+    def hold(self) -> None:
+        """Decelerate along the path to a stop, as hard as the limits allow."""
+        self.holding = True
+        self._replan()
+
+    def resume(self) -> None:
+        """Continue from where the hold stopped (or is stopping)."""
+        self.holding = False
+        self._replan()
+
+    def take(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The next n samples (fewer at the end, or while held at rest): positions (m, 3) and the
+        arc length of each (where the head is on the section, for flags and progress)."""
+        self._cover((self.k + n) * self.dt)
+        if self.k_end is not None:
+            n = min(n, self.k_end - self.k)
+        if n <= 0:
+            return np.zeros((0, 3)), np.zeros(0)
+        t = (self.k + 1 + np.arange(n)) * self.dt
+        if self.stopping and self.k * self.dt >= self.pieces.t_end and self.at_rest:
+            return np.zeros((0, 3)), np.zeros(0)
+        s_raw = self._raw(t)
+        s_path = self.ma_path.push(s_raw)
+        q = self.section.path.points(s_path)
+        y = self.ma_axis.push(q)
+        joined = np.concatenate((self.s_recent, s_path))
+        centre = joined[: len(s_path)] if self.centre_lag else s_path
+        self.s_recent = joined[len(joined) - self.centre_lag:] if self.centre_lag else self.s_recent
+        self.k += n
+        return y, centre
+
+    def planned_samples(self) -> int:
+        """Plan the whole section without sampling it; how many samples it takes (what `take` will give)."""
+        self._cover(math.inf)
+        return self.k_end
+
+    # -- planning ---------------------------------------------------------------------------
+    def _cover(self, t: float) -> None:
+        """Commit pieces until they reach time t or the end of the section."""
+        while not self.final and (not len(self.pieces) or self.pieces.t_end < t):
+            if self.stopping and len(self.pieces) and self.pieces_end_at_rest():
+                return  # held: the pieces end at rest, and stay there until resumed
+            s, v, a_prev, cruised, t0 = self._plan_start()
+            self._commit(s, v, a_prev, cruised, t0)
+
+    def _plan_start(self) -> tuple[float, float, float, float, float]:
+        if not len(self.pieces):
+            return 0.0, 0.0, 0.0, 0.0, 0.0
+        s, v, _ = self.pieces.end_state()
+        a_prev, cruised = self._history(self.pieces.t_end)
+        return s, v, a_prev, cruised, self.pieces.t_end
+
+    def _history(self, t: float) -> tuple[float, float]:
+        """The last non-zero acceleration before time t and how long the motion has cruised since."""
+        p = self.pieces
+        for i in range(len(p) - 1, -1, -1):
+            if p.t0[i] >= t:
+                continue
+            if p.a[i] != 0.0:
+                end = min(p.t0[i] + p.duration[i], t)
+                return float(p.a[i]), max(t - end, 0.0)
+        return 0.0, 0.0
+
+    def _commit(self, s: float, v: float, a_prev: float, cruised: float, t0: float) -> None:
+        end = min(s + self.window_mm, self.length)
+        zones = self._zones(s, end)
+        pieces = plan(zones, s, v, a_prev, 0.0, self.plateau_s, t0, cruised)
+        reaches_end = end >= self.length - 1e-9
+        if not reaches_end and not self.stopping:
+            pieces = pieces.until(_time_at(pieces, s + self.commit_mm))
+        if not len(pieces):
+            if self.stopping and v <= 1e-9:
+                return  # at rest, and to stay there
+            raise RuntimeError(f"section planning made no progress at s={s:.6f} mm (v={v:.6f} mm/s)")
+        self.pieces = self.pieces.append(pieces)
+        s_last, v_last, _ = self.pieces.end_state()
+        self.final = reaches_end and s_last >= self.length - 1e-9 and v_last <= 1e-9
+        if self.final:
+            self.k_end = int(math.ceil(self.pieces.t_end / self.dt - 1e-9)) + self.ma_path.n + self.ma_axis.n - 2 + REST_SAMPLES
+            self.k_end = max(self.k_end, self.k)
+
+    def _replan(self) -> None:
+        """Drop what is committed after the last sample made and plan again from there."""
+        t = self.k * self.dt
+        if self.done or (len(self.pieces) and t >= self.pieces.t_end and self.final):
+            return
+        if len(self.pieces):
+            s_arr, v_arr, _ = self.pieces.state_at(np.array([t]))
+            s, v = float(s_arr[0]), float(v_arr[0])
+            a_prev, cruised = self._history_at(t)
+            self.pieces = self.pieces.until(t)
+        else:
+            s = v = a_prev = cruised = 0.0
+        self.final, self.k_end = False, None
+        if self.stopping and v <= 1e-9:
+            return  # already at rest
+        self._commit(s, v, a_prev, cruised, t)
+
+    def _history_at(self, t: float) -> tuple[float, float]:
+        """Like `_history`, but the piece running at t counts as under way."""
+        p = self.pieces
+        k = int(np.clip(np.searchsorted(p.t0, t, side="right") - 1, 0, len(p) - 1))
+        if p.a[k] != 0.0 and p.t0[k] < t:
+            return float(p.a[k]), 0.0
+        return self._history(t)
+
+    def _zones(self, lo: float, hi: float) -> Zones:
+        """Caps and accelerations over [lo, hi], each widened to where the averages could mix it in."""
+        lim = self.section.limits
+        i0 = int(np.searchsorted(self.s1, lo - self.widen_mm, side="left"))
+        i1 = int(np.searchsorted(self.s0, hi + self.widen_mm, side="right"))
+        s0, s1 = self.s0[i0:i1], self.s1[i0:i1]
+        hard = lim.v_hard[i0:i1]
+        if self.holding:
+            soft = np.zeros(len(hard))  # a hold stops rapids too
+        else:
+            soft = np.where(lim.rapid[i0:i1], hard * self.rapid_override, lim.v_feed[i0:i1] * self.override)
+        k = (self.kink_at >= lo - self.widen_mm) & (self.kink_at <= hi + self.widen_mm)
+        r = self.reach_s
+        e_hard, v_hard = envelope(
+            np.concatenate((s0, self.kink_at[k])), np.concatenate((s1, self.kink_at[k])),
+            np.concatenate((hard, self.kink_cap[k])), np.concatenate((hard, self.kink_cap[k])) * r, lo, hi,
+        )
+        e_soft, v_soft = envelope(s0, s1, soft, np.minimum(soft, hard) * r, lo, hi)
+        e_acc, v_acc = envelope(s0, s1, lim.accel[i0:i1], hard * r, lo, hi)
+        edges = np.unique(np.concatenate((e_hard, e_soft, e_acc)))
+        mid = (edges[:-1] + edges[1:]) / 2.0
+        pick = lambda e, v: v[np.clip(np.searchsorted(e, mid, side="right") - 1, 0, len(v) - 1)]  # noqa: E731
+        return Zones(edges, pick(e_hard, v_hard), pick(e_soft, v_soft), pick(e_acc, v_acc))
+
+    def _raw(self, t: np.ndarray) -> np.ndarray:
+        """Raw arc length at times t (held at the end of the committed pieces beyond them)."""
+        if not len(self.pieces):
+            return np.zeros(len(t))
+        s, _, _ = self.pieces.state_at(t)
+        if self.final:
+            s = np.where(t >= self.pieces.t_end, self.length, s)
+        return np.minimum(s, self.length)
+
+
+def _time_at(pieces: Pieces, s: float) -> float:
+    """When the pieces reach arc length s (the end when they never do)."""
+    ends = pieces.s0 + pieces.v0 * pieces.duration + pieces.a * pieces.duration**2 / 2.0
+    k = int(np.searchsorted(ends, s, side="left"))
+    if k >= len(pieces):
+        return pieces.t_end
+    ds = s - pieces.s0[k]
+    v0, a = pieces.v0[k], pieces.a[k]
+    disc = max(v0 * v0 + 2.0 * a * ds, 0.0)
+    tau = 2.0 * ds / (v0 + math.sqrt(disc)) if v0 + math.sqrt(disc) > 0 else 0.0
+    return float(pieces.t0[k] + min(max(tau, 0.0), pieces.duration[k]))

@@ -1,0 +1,213 @@
+"""Motion from programs: limits per axis, tolerance, jet and outputs in step, and the operator's controls.
+
+Programs run through the real interpreter and the planner's runner; what comes out are the
+setpoint records the servo would get, measured here.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+import pytest
+
+from gcode.interp import interpret
+
+from cnc.fifo import SetpointFlag
+from cnc.machine_dialect import dialect_for
+from cnc.planner.measure import ProgrammedPath, peaks
+from cnc.planner.runner import ProgramRunner, RunState
+
+from .conftest import machine_config
+from .planner_programs import random_program
+
+DT = 0.001
+LIMITS = {"velocity": 500.0, "acceleration": 5000.0, "jerk": 200000.0}
+JET = int(SetpointFlag.JET_ON)
+IN_MOTION = int(SetpointFlag.IN_MOTION)
+
+
+def run(text: str, config=None, actions: dict[int, Callable[[ProgramRunner], None]] | None = None, chunk: int = 50):
+    """Run a program to its end; `actions[n]` is called once n records have been made, or as
+    soon as the runner waits for the operator (held, paused) with actions still to come."""
+    config = config or machine_config()
+    program = interpret(text, dialect_for(config))
+    runner = ProgramRunner(program, config)
+    planned = runner.planned_ticks()
+    out, pending = [], sorted((actions or {}).items())
+    made = 0
+    while True:
+        while pending and (pending[0][0] <= made or runner.idle):
+            pending.pop(0)[1](runner)
+        if runner.finished and not pending:
+            break
+        recs, _ = runner.take(chunk)
+        out.append(recs)
+        made += len(recs)
+        if not len(recs) and runner.idle and not pending:
+            break
+    records = np.concatenate(out) if out else np.zeros(0, dtype=runner.dtype)
+    return program, runner, records, planned
+
+
+def within_limits(records) -> None:
+    pk = peaks(records["position"], DT)
+    for name, limit in LIMITS.items():
+        assert (pk[name] <= limit * (1 + 1e-6)).all(), f"{name} {pk[name]} over {limit}"
+
+
+def deviation(program, records) -> np.ndarray:
+    return ProgrammedPath(program.segments).distance(records["position"], records["segment"])
+
+
+def speed(records) -> np.ndarray:
+    """Path speed from the positions (backward differences: exactly 0 while standing still)."""
+    p = records["position"]
+    return np.concatenate(([0.0], np.hypot(*np.diff(p, axis=0).T) / DT))
+
+
+@pytest.mark.parametrize("seed", range(16))
+def test_seeded_random_programs_keep_every_axis_limit_and_the_tolerance_and_end_at_the_end(seed):
+    program, runner, records, planned = run(random_program(seed, n=25), chunk=997)
+    assert not np.isnan(records["position"]).any() and not np.isnan(records["velocity"]).any()
+    within_limits(records)
+    assert records["position"][-1] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9)
+    seg = records["segment"].astype(int)
+    tol = program.segments["tolerance"]
+    near = np.maximum.reduce([tol[np.clip(seg + d, 0, len(tol) - 1)] for d in (-1, 0, 1)])
+    assert (deviation(program, records) <= near + 1e-9).all()
+    assert len(records) == planned, "the planned cycle time is the one run"
+    assert runner.state == RunState.DONE and not records["flags"][-1] & IN_MOTION
+
+
+@pytest.mark.parametrize("angle_deg", [15, 45, 90, 135])
+@pytest.mark.parametrize("tolerance", [0.005, 0.05, 0.2])
+def test_corners_pass_without_stopping_and_within_the_tolerance(angle_deg, tolerance):
+    a = math.radians(angle_deg)
+    x2, y2 = 300 + 100 * math.cos(a), 300 + 100 * math.sin(a)
+    text = f"G21 G90 G64 P{tolerance}\nG0 X100 Y300\nG1 X300 Y300 F12000\nG1 X{x2:.6f} Y{y2:.6f}\nM2\n"
+    program, _, records, _ = run(text, chunk=500)
+    within_limits(records)
+    dev = deviation(program, records)
+    assert dev.max() <= tolerance + 1e-9
+    corner = np.argmin(np.hypot(records["position"][:, 0] - 300, records["position"][:, 1] - 300))
+    assert speed(records)[corner] > 0.0, "blended: the head does not stop at the corner"
+
+
+def test_exact_stop_mode_stops_at_every_corner_and_stays_on_the_path():
+    text = "G21 G90 G61\nG0 X100 Y100\nG1 X200 F12000\nG1 Y200\nG1 X100\nM2\n"
+    program, _, records, _ = run(text, chunk=500)
+    assert deviation(program, records).max() < 1e-9
+    for corner in ((200, 100), (200, 200)):
+        k = np.argmin(np.hypot(*(records["position"] - corner).T))
+        assert np.hypot(*(records["position"][k] - corner)) < 1e-9 and speed(records)[k + 1] == 0.0, "at rest on the corner"
+
+
+def test_a_cam_polyline_of_short_segments_runs_at_speed_without_stop_and_go():
+    pts = [(800 + 100 * math.cos(t), 600 + 100 * math.sin(t)) for t in np.linspace(0, 2 * math.pi, 1257)]  # 0.5 mm chords
+    text = "G21 G90 G64 P0.05\nG0 X900 Y600\nG1 F6000\n" + "\n".join(f"X{x:.4f} Y{y:.4f}" for x, y in pts[1:]) + "\nM2\n"
+    program, _, records, _ = run(text, chunk=1000)
+    within_limits(records)
+    cutting = np.flatnonzero(records["line"] >= 4)
+    moving = speed(records)[cutting[200]:cutting[-200]]
+    assert moving.min() > 0.95 * 100.0, "the feed (100 mm/s) held all round, no stop at any of 1256 corners"
+    assert deviation(program, records).max() <= 0.05
+
+
+def test_the_jet_switches_at_rest_exactly_at_the_segment_boundary_after_its_delays():
+    config = machine_config(**{"jet.on_delay_s": 0.05, "jet.pierce_dwell_s": 0.2, "jet.off_delay_s": 0.03})
+    text = "G21 G90 G64 P0.05\nG0 X100 Y100\nM3\nG1 X200 F6000\nM5\nG0 X300\nM2\n"
+    _, _, records, _ = run(text, config, chunk=500)
+    jet = (records["flags"] & JET).astype(bool)
+    on, off = np.flatnonzero(np.diff(jet.astype(int)) == 1)[0] + 1, np.flatnonzero(np.diff(jet.astype(int)) == -1)[0] + 1
+    assert records["position"][on] == pytest.approx([100, 100]) and records["position"][off] == pytest.approx([200, 100])
+    v = speed(records)
+    assert (v[on:on + 250] == 0).all() and v[on + 251] > 0, "on delay and pierce dwell (250 ms) at rest, then motion"
+    assert (v[off:off + 30] == 0).all() and v[off + 31] > 0, "the off delay at rest before the rapid"
+    cutting = records["position"][jet]
+    assert cutting[:, 1] == pytest.approx(100.0) and cutting[:, 0].min() >= 100 - 1e-9 and cutting[:, 0].max() <= 200 + 1e-9
+
+
+def test_numbered_outputs_switch_at_their_segment_boundary_while_moving():
+    text = "G21 G90 G64 P0.05\nG0 X100 Y100\nG1 X150 F6000\nM62 P0\nG1 X200\nM2\n"
+    _, _, records, _ = run(text, chunk=500)
+    aux1 = (records["flags"] & int(SetpointFlag.AUX1)).astype(bool)
+    first = np.flatnonzero(aux1)[0]
+    assert records["position"][first][0] == pytest.approx(150.0, abs=0.2) and speed(records)[first] > 50.0
+
+
+def test_a_dwell_stands_still_for_its_time():
+    _, _, records, _ = run("G21 G90\nG0 X100 Y100\nG1 X120 F6000\nG4 P0.5\nG1 X140\nM2\n", chunk=500)
+    still = np.flatnonzero(np.all(np.abs(records["position"] - [120, 100]) < 1e-12, axis=1))
+    assert len(still) >= 500 and speed(records)[still[1:]].max() == 0.0
+
+
+def test_feed_hold_stops_on_the_path_within_the_limits_and_resume_continues_from_there():
+    text = "G21 G90 G64 P0.05\nG0 X100 Y100\nG1 X400 F30000\nG1 X400 Y400\nM2\n"
+    _, _, plain, _ = run(text, chunk=50)
+    held_at = []
+    program, runner, records, _ = run(text, chunk=10, actions={
+        700: lambda r: r.hold(),
+        1500: lambda r: (held_at.append(r.state), r.resume()),
+    })
+    assert held_at == [RunState.HELD]
+    within_limits(records)
+    assert deviation(program, records).max() <= 0.05
+    v = speed(records)
+    stops = np.flatnonzero(v[600:1500] < 1e-9) + 600
+    assert len(stops), "it came to rest"
+    assert records["position"][-1] == pytest.approx([400, 400], abs=1e-9)
+    assert len(records) > len(plain), "the hold took time"
+
+
+def test_feed_override_ramps_to_the_new_speed_smoothly_within_50_ms_and_200_percent_stops_at_the_axis_limit():
+    text = "G21 G90\nG0 X100 Y100\nG1 X1500 F12000\nM2\n"  # 200 mm/s
+    _, _, records, _ = run(text, chunk=5, actions={800: lambda r: r.set_override(0.5), 2500: lambda r: r.set_override(2.0)})
+    within_limits(records)
+    v = speed(records)
+    assert v[790:800].max() == pytest.approx(200.0, abs=1e-6)
+    assert v[806] < 200.0 - 1e-6, "the change starts within a few records"
+    assert v[850:2400].min() == pytest.approx(100.0, abs=1e-6), "50 % reached within 50 ms and held"
+    assert v[2600:-400].max() == pytest.approx(400.0, abs=1e-6), "200 % of 200 mm/s"
+    _, _, fast, _ = run("G21 G90\nG0 X100 Y100\nG1 X1500 F24000\nM2\n", chunk=5, actions={800: lambda r: r.set_override(2.0)})
+    on_line = fast["line"] == 3
+    assert speed(fast)[on_line].max() == pytest.approx(500.0, abs=1e-6), "capped by the axis limit, not the feed"
+
+
+def test_an_override_of_zero_stops_along_the_path_and_raising_it_moves_on():
+    text = "G21 G90\nG0 X100 Y100\nG1 X800 F12000\nM2\n"
+    seen = []
+    program, runner, records, _ = run(text, chunk=10, actions={
+        600: lambda r: r.set_override(0.0),
+        10**9: lambda r: (seen.append((r.idle, r.state, len(r.steps) and r.made)), r.set_override(1.0)),
+    })
+    assert seen[0][0] and seen[0][1] == RunState.RUNNING, "stalled at 0 %, not held"
+    stalled_at = seen[0][2]
+    assert not records["flags"][stalled_at - 1] & IN_MOTION, "the FIFO may run dry while stalled"
+    assert speed(records)[stalled_at - 1] == 0.0 and 100 < records["position"][stalled_at - 1][0] < 800
+    assert records["position"][-1] == pytest.approx([800, 100])
+    within_limits(records)
+
+
+def test_stop_decelerates_along_the_path_closes_the_jet_and_ends_the_program():
+    text = "G21 G90 G64 P0.05\nG0 X100 Y100\nM3\nG1 X800 F12000\nM5\nM2\n"
+    program, runner, records, _ = run(text, chunk=10, actions={800: lambda r: r.stop()})
+    assert runner.state == RunState.ABORTED
+    within_limits(records)
+    assert 100 < records["position"][-1][0] < 800
+    last = records["flags"][-1]
+    assert not last & JET and not last & IN_MOTION
+    assert speed(records)[-1] == 0.0
+
+
+def test_a_program_stop_waits_for_cycle_start_with_the_jet_closed_and_re_pierces():
+    config = machine_config(**{"jet.on_delay_s": 0.01, "jet.pierce_dwell_s": 0.1})
+    text = "G21 G90\nG0 X100 Y100\nM3\nG1 X150 F6000\nM0\nG1 X200\nM5\nM2\n"
+    states = []
+    program, runner, records, _ = run(text, config, chunk=10, actions={3000: lambda r: (states.append(r.state), r.resume())})
+    assert states == [RunState.PAUSED]
+    at_stop = np.flatnonzero(np.all(np.abs(records["position"] - [150, 100]) < 1e-12, axis=1))
+    flags = records["flags"][at_stop]
+    assert not (flags & JET).all() and (flags & JET).any(), "closed while paused, open again to pierce before moving on"
+    assert records["position"][-1] == pytest.approx([200, 100])
