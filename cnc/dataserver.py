@@ -38,8 +38,8 @@ SHM_PREFIX = "wjcnc"
 @dataclass(frozen=True)
 class FieldSpec:
     name: str
-    code: str  # struct code: d (float64), q (int64), Q (uint64), I (uint32), i (int32)
-    count: int = 1
+    code: str  # struct code: d (float64), q (int64), Q (uint64), I (uint32), i (int32), s (text)
+    count: int = 1  # values; for text, its size in bytes (UTF-8, cut to fit)
 
 
 class BlockLayout:
@@ -51,6 +51,14 @@ class BlockLayout:
         fmt, offsets, index, pos, flat = "<", [], {}, 8, 0
         np_fields = [("seq", "<u8")]
         for f in self.fields:
+            if f.code == "s":  # text: one bytes value of f.count bytes
+                offsets.append(pos)
+                fmt += f"{f.count}s"
+                np_fields.append((f.name, f"S{f.count}"))
+                index[f.name] = flat
+                pos += f.count
+                flat += 1
+                continue
             size = struct.calcsize("<" + f.code)
             if pos % size:
                 pad = size - pos % size
@@ -66,6 +74,7 @@ class BlockLayout:
         self.size = 8 + self.body.size
         self.index: dict[str, int | slice] = index
         self.n_values = flat
+        self.text_size = {f.name: f.count for f in self.fields if f.code == "s"}
         self.dtype = np.dtype(
             {
                 "names": [n[0] for n in np_fields],
@@ -78,6 +87,9 @@ class BlockLayout:
     def defaults(self) -> list[Any]:
         out: list[Any] = []
         for f in self.fields:
+            if f.code == "s":
+                out.append(b"")
+                continue
             zero = 0.0 if f.code == "d" else 0
             out.extend([zero] * f.count)
         return out
@@ -114,6 +126,8 @@ class BlockWriter:
         i = self.layout.index[name]
         if isinstance(i, slice):
             self.values[i] = list(value)
+        elif isinstance(value, str):
+            self.values[i] = _fit(value, self.layout.text_size[name])
         else:
             self.values[i] = value
 
@@ -162,11 +176,15 @@ class BlockReader:
                 os.sched_yield()
 
     def read_dict(self) -> dict[str, Any]:
-        """Consistent snapshot as {field: value or list}; for readers off the tick path."""
+        """Consistent snapshot as {field: value, list or str}; for readers off the tick path."""
         values, _ = self.read()
         out = {}
+        text = self.layout.text_size
         for name, i in self.layout.index.items():
-            out[name] = list(values[i]) if isinstance(i, slice) else values[i]
+            if name in text:
+                out[name] = values[i].rstrip(b"\0").decode("utf-8", "replace")
+            else:
+                out[name] = list(values[i]) if isinstance(i, slice) else values[i]
         return out
 
 
@@ -219,6 +237,14 @@ class SharedArea:
                 self.shm.unlink()
             except FileNotFoundError:
                 pass
+
+
+def _fit(text: str, size: int) -> bytes:
+    """UTF-8 of `text` cut to at most `size` bytes without splitting a character."""
+    raw = text.encode("utf-8")
+    if len(raw) <= size:
+        return raw
+    return raw[:size].decode("utf-8", "ignore").encode("utf-8")
 
 
 def unique_name(machine: str, what: str) -> str:

@@ -1,23 +1,26 @@
 """Gateway: the HMI's door. Publishes the cyclic status on Zenoh from the data server.
 
 It reads the shared-memory blocks as any reader does (never blocking their writers) and
-puts one typed `Status` message per period on `<root>/status`.
+puts one typed `Status` message per period on `<root>/status`: the servo and the board,
+and the planner's state and progress with the loaded program (segment, line, path done and
+remaining, ETA from the planned profile, feed commanded, actual and override).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 
 import zenoh
 
 from .bus.keys import Keys
-from .bus.messages import AxisStatus, Status, encode
+from .bus.messages import AxisStatus, ProgramProgress, Status, encode
 from .config import MachineConfig
 from .dataserver import SharedArea
 from .fifo import SetpointFifo
 from .hw.board import AxisIn, DigitalIn, DigitalOut
-from .layout import ClockKind, Proc, ServoFault, ServoState
+from .layout import ClockKind, PlannerState, Proc, RunResult, ServoFault, ServoState
 
 _CLOCK_NAMES = {ClockKind.VIRTUAL: "virtual", ClockKind.REALTIME: "realtime", ClockKind.REALTIME_FALLBACK: "realtime-fallback"}
 
@@ -28,7 +31,9 @@ class Gateway:
     def __init__(self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, session: zenoh.Session, clock: str):
         self.config, self.area, self.fifo = config, area, fifo
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
-        self.hw, self.servo = area.reader("hw"), area.reader("servo")
+        self.hw, self.servo, self.motion = area.reader("hw"), area.reader("servo"), area.reader("motion")
+        self._last_actual: list[float] | None = None
+        self._last_tick = 0
         self.shutdown = area.blocks["command"].array["shutdown"]
         hb = area.blocks["heartbeat"].array[0]
         self.beat = hb["beat"]
@@ -42,7 +47,7 @@ class Gateway:
 
     def status(self) -> Status:
         """Assemble one status message from consistent snapshots of the blocks."""
-        hw, sv = self.hw.read_dict(), self.servo.read_dict()
+        hw, sv, mo = self.hw.read_dict(), self.servo.read_dict(), self.motion.read_dict()
         names = self.config.axis_names
         fault = ServoFault(sv["fault"])
         axes = []
@@ -87,7 +92,34 @@ class Gateway:
             late_ticks=hw["late_ticks"],
             servo_missed_ticks=hw["servo_missed_total"],
             fifo_fill=self.fifo.fill(),
+            planner_state=PlannerState(mo["state"]).name,
+            feed_override=mo["override"],
+            feed_commanded_mm_s=math.hypot(*sv["commanded_velocity_mm_s"]),
+            feed_actual_mm_s=self._actual_speed(sv["actual_mm"], sv["tick"]),
+            homing_axis=names[mo["homing_axis"]] if 0 <= mo["homing_axis"] < len(names) else "",
+            program=self._program(mo),
+            event=mo["event"],
+            error=mo["error"],
         )
+
+    def _program(self, mo: dict) -> ProgramProgress | None:
+        if not mo["program_name"]:
+            return None
+        total = mo["total_mm"]
+        return ProgramProgress(
+            name=mo["program_name"], hash=mo["program_hash"], lines=mo["program_lines"], segment=mo["segment"],
+            line=mo["line"], done_mm=mo["done_mm"], remaining_mm=max(total - mo["done_mm"], 0.0),
+            progress=mo["done_mm"] / total if total > 0 else 0.0, eta_s=mo["eta_s"], planned_s=mo["planned_s"],
+            run=mo["run_seq"], result=RunResult(mo["run_result"]).name,
+        )
+
+    def _actual_speed(self, actual: list[float], tick: int) -> float:
+        """Path speed from the measured positions at two status messages, over the machine time between."""
+        speed = 0.0
+        if self._last_actual is not None and tick > self._last_tick:
+            speed = math.dist(actual, self._last_actual) / ((tick - self._last_tick) * self.config.timing.period_s)
+        self._last_actual, self._last_tick = list(actual), tick
+        return speed
 
     def run(self) -> None:
         next_t = time.monotonic()

@@ -10,15 +10,17 @@ homed before positions mean anything (and before soft limits or programs apply):
 4. set the position: that count is `home_index_position_mm` (the servo shifts its frame
    at a tick boundary without moving the table), then park at `home_final_position_mm`.
 
-Motion goes out as setpoints in short chunks through a `MotionPort`, so that a switch is
-seen within one chunk. The port is the commander's today (`SupervisorPort`) and the planner
-process's once it exists.
+Homing is a sequence of steps the FIFO's producer (the planner process) carries out between
+its refills: push these setpoints (short chunks, so that a switch is seen within one), or
+apply this position reference. The sequence checks the switches each time it is resumed,
+which is once its last chunk has nearly run.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Protocol
+from dataclasses import dataclass
+from typing import Callable, Iterator
 
 import numpy as np
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, Trajectory
@@ -35,80 +37,97 @@ class HomingError(RuntimeError):
     """Homing could not be completed; the message says which axis and why."""
 
 
-class MotionPort(Protocol):
-    """What homing needs from whoever feeds the servo."""
+@dataclass
+class Push:
+    """Stream these setpoints; resume the sequence when they have nearly run."""
 
-    def push(self, records: np.ndarray) -> None:
-        """Stream these setpoints; return once they have been taken (up to a few ticks)."""
+    records: np.ndarray
 
-    def hw(self) -> dict: ...
 
-    def servo(self) -> dict: ...
+@dataclass
+class Reference:
+    """Encoder count `counts` of `axis` is machine position `position_mm`; resume once the servo applied it."""
 
-    def set_reference(self, axis: int, counts: int, position_mm: float) -> None:
-        """Apply a position reference and return once the servo has."""
+    axis: int
+    counts: int
+    position_mm: float
+
+
+@dataclass
+class Settle:
+    """Resume once every setpoint pushed so far has run and the servo holds (positions are then current)."""
+
+
+HomingStep = Push | Reference | Settle
 
 
 class Homing:
-    """Homes the axes of one machine through a motion port."""
+    """Homes the axes of one machine; `hw()` and `servo()` read the hardware image and the servo block."""
 
-    def __init__(self, config: MachineConfig, port: MotionPort) -> None:
-        self.config, self.port = config, port
+    def __init__(self, config: MachineConfig, hw: Callable[[], dict], servo: Callable[[], dict]) -> None:
+        self.config, self.hw, self.servo = config, hw, servo
         self.n = len(config.axis_names)
         self.dt = config.timing.period_s
+        self.axis = -1  # the axis being homed
 
-    def home(self, axes: list[str] | None = None) -> None:
-        for name in axes or list(self.config.axis_names):
+    def steps(self, axes: list[str] | None = None) -> Iterator[HomingStep]:
+        """The whole homing, axis by axis in the order given (all axes by default)."""
+        names = axes or list(self.config.axis_names)
+        for name in names:
             if name not in self.config.axis:
                 raise HomingError(f"no axis {name!r} on this machine (axes: {', '.join(self.config.axis_names)})")
-            self.home_axis(self.config.axis_names.index(name))
+        for name in names:
+            self.axis = self.config.axis_names.index(name)
+            yield from self.home_axis(self.axis)
+        self.axis = -1
 
-    def home_axis(self, i: int) -> None:
+    def home_axis(self, i: int) -> Iterator[HomingStep]:
         name = self.config.axis_names[i].upper()
         a = self.config.axis[self.config.axis_names[i]]
+        yield Settle()  # the previous axis' park move has run: the commanded position is where it ends
         self._check_servo(name)
-        position = list(self.port.servo()["commanded_mm"])
+        position = list(self.servo()["commanded_mm"])
         # 1-2. search the switch (unless already on it), then stop
         search = a.home_search_velocity_mm_s
         limit_mm = (a.travel_max_mm - a.travel_min_mm) * 1.2 + 50.0
         if not self._on_switch(i):
-            position = self._run(i, position, search, until=lambda: self._on_switch(i), max_mm=limit_mm, what="the home switch")
+            position = yield from self._run(i, position, search, lambda: self._on_switch(i), limit_mm, "the home switch")
         # 3. back off the switch, then on to the next index pulse
         back = -math.copysign(a.home_latch_velocity_mm_s, search)
-        position = self._run(i, position, back, until=lambda: not self._on_switch(i), max_mm=limit_mm, what="the switch to release")
-        released = self.port.hw()["index_latch_seq"][i]
+        position = yield from self._run(i, position, back, lambda: not self._on_switch(i), limit_mm, "the switch to release")
+        released = self.hw()["index_latch_seq"][i]
         pitch_guard = 50.0  # mm: several index pitches
-        position = self._run(
-            i, position, back, until=lambda: self.port.hw()["index_latch_seq"][i] != released,
-            max_mm=pitch_guard, what="the encoder index pulse",
+        position = yield from self._run(
+            i, position, back, lambda: self.hw()["index_latch_seq"][i] != released, pitch_guard, "the encoder index pulse",
         )
-        counts = self.port.hw()["index_latch_counts"][i]
+        counts = self.hw()["index_latch_counts"][i]
         # 4. set the position, park
-        self.port.set_reference(i, counts, a.home_index_position_mm)
-        self.port.push(self._park(i, list(self.port.servo()["commanded_mm"]), a.home_final_position_mm))
+        yield Reference(i, counts, a.home_index_position_mm)
+        yield Push(self._park(i, list(self.servo()["commanded_mm"]), a.home_final_position_mm))
         self._check_servo(name)
 
     # -----------------------------------------------------------------------------------
-    def _run(self, i: int, position: list[float], velocity: float, until, max_mm: float, what: str) -> list[float]:
+    def _run(self, i: int, position: list[float], velocity: float, until, max_mm: float, what: str):
         """Accelerate to `velocity` along axis i, hold it until `until()`, stop; return where the stop ends."""
         name = self.config.axis_names[i].upper()
         travelled, v = 0.0, 0.0
         while True:
             chunk, v = self._ramp(i, position, v, velocity, CHUNK_S)
-            self.port.push(chunk)
+            yield Push(chunk)
             travelled += abs(chunk["position"][-1][i] - position[i])
             position = list(chunk["position"][-1])
             self._check_servo(name)
             if until():
                 break
             if travelled > max_mm:
-                self._stop(i, position, v)
+                yield from self._stop(i, position, v)
                 raise HomingError(f"axis {name}: {what} not found within {max_mm:.0f} mm")
-        return self._stop(i, position, v)
+        return (yield from self._stop(i, position, v))
 
-    def _stop(self, i: int, position: list[float], v: float) -> list[float]:
+    def _stop(self, i: int, position: list[float], v: float):
         chunk, _ = self._ramp(i, position, v, 0.0, None)
-        self.port.push(chunk)
+        if len(chunk):
+            yield Push(chunk)
         return list(chunk["position"][-1]) if len(chunk) else position
 
     def _ramp(self, i: int, position: list[float], v0: float, v1: float, hold_s: float | None):
@@ -162,56 +181,11 @@ class Homing:
         return out
 
     def _on_switch(self, i: int) -> bool:
-        return bool(self.port.hw()["axis_inputs"][i] & AxisIn.HOME)
+        return bool(self.hw()["axis_inputs"][i] & AxisIn.HOME)
 
     def _check_servo(self, name: str) -> None:
-        s = self.port.servo()
+        s = self.servo()
         if s["state"] == ServoState.FAULT:
             raise HomingError(f"axis {name}: homing stopped, the servo tripped ({ServoFault(s['fault']).name})")
         if s["state"] == ServoState.DISABLED:
             raise HomingError(f"axis {name}: the drives are off; enable them before homing")
-
-
-class SupervisorPort:
-    """The commander's motion port: lock-steps the virtual clock, or waits on the real-time one."""
-
-    def __init__(self, sup, low_watermark: int = 4) -> None:
-        self.sup, self.low = sup, low_watermark
-        self.virtual = sup.clock == "virtual"
-        if self.virtual:
-            sup.pause_virtual_clock()
-
-    def close(self) -> None:
-        if self.virtual:
-            self.sup.resume_virtual_clock()
-
-    def push(self, records: np.ndarray) -> None:
-        pushed = 0
-        while pushed < len(records):
-            n = self.sup.fifo.push(records[pushed:])
-            pushed += n
-            if self.virtual:
-                self.sup.run_ticks(max(n, 1))  # time stands still between chunks: no underrun
-            else:
-                self.sup.wait_until(lambda: self.sup.fifo.fill() <= self.low, 30.0, "the servo to take the setpoints")
-
-    def hw(self) -> dict:
-        return self.sup.hw()
-
-    def servo(self) -> dict:
-        return self.sup.servo()
-
-    def set_reference(self, axis: int, counts: int, position_mm: float) -> None:
-        seq = self.sup.set_position_reference(axis, counts, position_mm)
-        if self.virtual:
-            self.sup.run_ticks(2)
-        self.sup.wait_until(lambda: self.sup.servo()["position_ref_seq"] == seq, 5.0, "the position reference")
-
-
-def home_machine(sup, axes: list[str] | None = None) -> None:
-    """Home the machine a supervisor runs (the commander's side, until the planner process does it)."""
-    port = SupervisorPort(sup)
-    try:
-        Homing(sup.config, port).home(axes)
-    finally:
-        port.close()

@@ -5,13 +5,16 @@
 | hw          | hardware server    | hardware image: tick counter, encoders, digital in, read-backs, watchdog |
 | servo       | servo              | speed commands, drive enables, outputs, commanded/actual position, following error, faults, counters |
 | command     | commander          | what the servo and the board are asked to do: enable, reset, safe state, shutdown |
+| motion      | FIFO producer      | the planner's state and progress, and homing's position references for the servo |
 | sim         | commander          | simulated-board environment: e-stop, doors, mains, drive faults, friction |
 | hw_timing   | hardware server    | histogram of tick wake latency (1 us bins) |
 | servo_timing| servo              | histogram of tick-to-speed-command latency (1 us bins) |
 | heartbeat   | one slot each      | per-process heartbeat counter and pid |
 
 The commander is the process that holds the `Controller` handle (the supervisor's process
-until the control-logic process takes the role over).
+until the control-logic process takes the role over). The FIFO producer is the planner
+process; a controller started without it (tests of the servo alone) feeds the FIFO and
+writes `motion` from the supervisor's process instead.
 """
 
 from __future__ import annotations
@@ -47,6 +50,29 @@ class ServoState(enum.IntEnum):
     HOLDING = 1  # drives on, holding the last commanded position
     TRACKING = 2  # drives on, following setpoints from the FIFO
     FAULT = 3  # tripped: speed 0, drives off, jet off until reset
+
+
+class PlannerState(enum.IntEnum):
+    """What the planner is doing. Numbers are stable."""
+
+    IDLE = 0
+    RUNNING = 1  # a program
+    HOLDING = 2  # decelerating to a feed hold
+    HELD = 3
+    PAUSED = 4  # at a program stop (M0, M1, M60), waiting for cycle start
+    STOPPING = 5  # decelerating, then the program ends
+    HOMING = 6
+    JOGGING = 7
+    MOVING = 8  # go-to-position
+
+
+class RunResult(enum.IntEnum):
+    """How the last program run ended."""
+
+    NONE = 0
+    DONE = 1
+    ABORTED = 2  # stopped by the operator
+    FAULT = 3  # the servo tripped, or the planner failed
 
 
 class ServoFault(enum.IntEnum):
@@ -131,10 +157,42 @@ def command_layout(n: int) -> BlockLayout:
             F("safe_state", "I"),  # hold the board in the safe state
             F("shutdown", "I"),  # bit per process (Proc): stop it
             F("virtual_run_until", "Q"),  # virtual clock: do not tick past this tick (0: run freely)
-            F("position_ref_seq", "Q"),  # +1 = apply the position reference below
+            F("trace_enable", "I"),  # the servo writes every tick into the trace ring
+        ],
+    )
+
+
+def motion_layout(n: int) -> BlockLayout:
+    return BlockLayout(
+        "motion",
+        [
+            F("position_ref_seq", "Q"),  # +1 = apply the position reference below (homing)
             F("position_ref_mask", "I"),  # axes it applies to
             F("position_ref_counts", "q", n),  # this encoder count ...
             F("position_ref_mm", "d", n),  # ... is this machine position
+            F("state", "I"),  # PlannerState
+            F("homing_axis", "i"),  # axis being homed, -1
+            F("program_seq", "Q"),  # +1 at every program loaded
+            F("program_name", "s", 128),
+            F("program_hash", "s", 64),  # sha256 of the program text, hex
+            F("program_lines", "Q"),
+            F("planned_s", "d"),  # cycle time of the loaded program at 100 % override
+            F("total_mm", "d"),  # path length of the loaded program
+            F("run_seq", "Q"),  # +1 at every start
+            F("run_result", "I"),  # RunResult of the last run
+            F("run_start_tick", "Q"),
+            F("run_end_tick", "Q"),
+            F("segment", "q"),  # program segment the servo is on (-1 when none)
+            F("line", "q"),  # its source line
+            F("done_mm", "d"),  # path done by the servo
+            F("eta_s", "d"),  # time left, from the planned profile
+            F("override", "d"),  # feed override ratio in force (0..2)
+            F("fifo_min_fill", "q"),  # lowest FIFO fill seen at a refill during the run (-1: none yet)
+            F("records_pushed", "Q"),
+            F("event_seq", "Q"),  # +1 at every program event (message, program stop)
+            F("event", "s", 160),  # "kind: text (line N)"
+            F("error_seq", "Q"),  # +1 at every failure the planner reports
+            F("error", "s", 240),
         ],
     )
 
@@ -166,6 +224,7 @@ def controller_layouts(n_axes: int) -> list[BlockLayout]:
         hw_layout(n_axes),
         servo_layout(n_axes),
         command_layout(n_axes),
+        motion_layout(n_axes),
         sim_layout(n_axes),
         timing_layout("hw_timing"),
         timing_layout("servo_timing"),

@@ -8,6 +8,8 @@ from gcode.dialect import Dialect, read_tool_table
 
 from .config import MachineConfig
 
+NUMBERED_OUTPUTS = 4  # M62-M65 P0..P3 drive the board's AUX1..AUX4 (cnc.planner.sections.output_flags)
+
 
 def dialect_for(config: MachineConfig, tool_table: str | Path | None = None) -> Dialect:
     """Build the interpreter's dialect; `tool_table` (LinuxCNC format) overrides the machine's nozzles."""
@@ -31,4 +33,5 @@ def dialect_for(config: MachineConfig, tool_table: str | Path | None = None) -> 
         tool_diameters_mm=tools,
         default_tolerance_mm=config.gcode.default_tolerance_mm,
         block_delete=config.gcode.block_delete,
+        outputs=NUMBERED_OUTPUTS,
     )

@@ -17,6 +17,7 @@ from .fifo import SetpointFifo
 from .layout import ClockKind, Proc, controller_layouts
 from .rt import enter_realtime, keep_gc_out
 from .runtime import Runtime, child_setup, set_ready
+from .trace import TraceRing
 
 log = logging.getLogger(__name__)
 
@@ -63,8 +64,9 @@ def run_servo(rt: Runtime, ready) -> None:
     child_setup(rt, "servo")
     area = _attach(rt)
     fifo = SetpointFifo.attach(rt.fifo_name)
+    trace = TraceRing.attach(rt.trace_name) if rt.trace_name else None
     session, token = _token(rt, "servo")
-    servo = Servo(rt.config, area, fifo, record_latency=rt.clock == "realtime")
+    servo = Servo(rt.config, area, fifo, record_latency=rt.clock == "realtime", trace=trace)
     timer = rt.timer_clients["servo"]
     shutdown = area.blocks["command"].array["shutdown"]
     my_bit = 1 << Proc.SERVO
@@ -82,7 +84,36 @@ def run_servo(rt: Runtime, ready) -> None:
     finally:
         token.undeclare()
         session.close()
+        servo.close()
         del servo, shutdown
+        if trace is not None:
+            trace.close()
+        fifo.close()
+        area.close()
+
+
+def run_planner(rt: Runtime, ready) -> None:
+    import gc
+
+    from .planner.process import Planner
+
+    child_setup(rt, "planner")
+    area = _attach(rt)
+    fifo = SetpointFifo.attach(rt.fifo_name)
+    session = open_client(rt.zenoh_connect)
+    planner = Planner(rt.config, area, fifo, session, rt.timer_clients["planner"])
+    if rt.clock == "realtime":
+        # below the servo, above the rest: setpoints must be there when the servo needs them
+        enter_realtime(max(1, rt.config.timing.realtime_priority - 2), "planner")
+    gc.collect()
+    gc.freeze()  # the planner allocates freely (numpy); collections stay short, the FIFO covers them
+    set_ready(ready)
+    try:
+        planner.run()
+    finally:
+        planner.close()
+        session.close()
+        del planner
         fifo.close()
         area.close()
 
@@ -106,4 +137,4 @@ def run_gateway(rt: Runtime, ready) -> None:
         area.close()
 
 
-PROCESS_MAINS = {"hardware": run_hardware, "servo": run_servo, "gateway": run_gateway}
+PROCESS_MAINS = {"hardware": run_hardware, "servo": run_servo, "planner": run_planner, "gateway": run_gateway}

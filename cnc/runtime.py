@@ -21,6 +21,7 @@ class Runtime:
     data_name: str
     fifo_name: str
     zenoh_connect: list[str]
+    trace_name: str = ""
     timer_clients: dict[str, TimerClient] = field(default_factory=dict)
     log_level: int = logging.INFO
 

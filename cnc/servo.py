@@ -12,7 +12,8 @@ which is what keeps the following error small on curves rather than only on stra
 
 Each tick: read the hardware image, take the next setpoint (hold position when none is
 commanded; count an underrun when the FIFO runs dry in the middle of a motion), check
-interlocks, soft limits (on homed axes) and the following error, compute and publish. Any trip sets the
+interlocks, soft limits (on homed axes) and the following error, compute and publish (and,
+while tracing is on, append the tick to the trace ring). Any trip sets the
 speed commands to 0, disables the drives, closes the jet and records why; it is latched
 until a reset. The servo counts its own ticks against the hardware tick counter
 (QMotor 2.0's sequence counter) to detect overruns.
@@ -29,6 +30,7 @@ from .dataserver import SharedArea
 from .fifo import OUTPUT_MASK, SetpointFifo, SetpointFlag
 from .hw.board import AxisIn, DigitalIn
 from .layout import HIST_BINS, Proc, ServoFault, ServoState
+from .trace import TraceRing
 
 log = logging.getLogger(__name__)
 
@@ -38,8 +40,10 @@ _IN_MOTION = int(SetpointFlag.IN_MOTION)
 class Servo:
     """One instance per controller; `tick()` is the whole control step."""
 
-    def __init__(self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, record_latency: bool) -> None:
-        self.config, self.fifo = config, fifo
+    def __init__(
+        self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, record_latency: bool, trace: TraceRing | None = None
+    ) -> None:
+        self.config, self.fifo, self.trace = config, fifo, trace
         self.axes = config.axes
         self.n = n = len(self.axes)
         self.dt = config.timing.period_s
@@ -48,6 +52,7 @@ class Servo:
         self.out.load_current()
         self.hw = area.reader("hw")
         self.command = area.reader("command")
+        self.motion = area.reader("motion")
         t = area.blocks["servo_timing"].array
         self.timing, self.hist = t, t[0]["hist"]
         hb = area.blocks["heartbeat"].array[0]
@@ -79,7 +84,13 @@ class Servo:
         self._h_trip, self._h_safe, self._h_reset = hx["watchdog_tripped"], hx["safe_state"], hx["reset_seq"]
         cx = self.command.layout.index
         self._c_enable, self._c_reset, self._c_safe = cx["servo_enable"], cx["reset_seq"], cx["safe_state"]
-        self._c_ref = (cx["position_ref_seq"], cx["position_ref_mask"], cx["position_ref_counts"], cx["position_ref_mm"])
+        self._c_trace = cx["trace_enable"]
+        mx = self.motion.layout.index
+        self._m_ref = (mx["position_ref_seq"], mx["position_ref_mask"], mx["position_ref_counts"], mx["position_ref_mm"])
+        # one 8-byte read per tick tells whether a reference waits; the block is read only then
+        block = area.blocks["motion"]
+        at = block.offset + block.layout.dtype.fields["position_ref_seq"][1]
+        self._ref_seq_cell = block.buf[at:at + 8].cast("Q")
         v = self.out.values
         if v[self._i["ticks_processed"]]:
             # a restarted servo: the position it held is not known to be the one the planner expects
@@ -109,8 +120,8 @@ class Servo:
         offset = v[I["position_offset_mm"]]
         actual = [enc[i] * self.res[i] + offset[i] for i in range(n)]
         state = v[I["state"]]
-        if cmd[self._c_ref[0]] != v[I["position_ref_seq"]] and state != ServoState.TRACKING:
-            actual = self._apply_reference(cmd, enc, actual)
+        if self._ref_seq_cell[0] != v[I["position_ref_seq"]] and state != ServoState.TRACKING:
+            actual = self._apply_reference(self.motion.read()[0], enc, actual)
 
         # A reset is acted on once the hardware server, upstream in the tick, has acted on it:
         # the image then shows the watchdog and safe state as they are after the reset.
@@ -142,6 +153,11 @@ class Servo:
         v[I["ticks_processed"]] += 1
         v[I["loop_ns"]] = time.monotonic_ns() - t0
         self.out.publish()
+        if cmd[self._c_trace] and self.trace is not None:
+            self.trace.write(
+                tick, v[I["commanded_mm"]], actual, v[I["commanded_velocity_mm_s"]], v[I["speed_cmd_v"]],
+                v[I["setpoint_flags"]], v[I["setpoint_segment"]], v[I["setpoint_line"]], self.fifo.fill(),
+            )
         if self.record_latency:
             self._record_latency(time.monotonic_ns() - hw[self._h_ttime])
         self.beat[Proc.SERVO] = tick
@@ -208,12 +224,12 @@ class Servo:
         v[I["digital_out"]] = flags & OUTPUT_MASK
         return ServoState.TRACKING if flags & _IN_MOTION else ServoState.HOLDING
 
-    def _apply_reference(self, cmd: tuple, enc: tuple, actual: list[float]) -> list[float]:
+    def _apply_reference(self, ref: tuple, enc: tuple, actual: list[float]) -> list[float]:
         """Homing: `position_ref_counts` of the masked axes is `position_ref_mm`. Applied only while
         not following a motion; the commanded position becomes the new actual one, so nothing jumps."""
         v, I = self.out.values, self._i
-        i_seq, i_mask, i_counts, i_mm = self._c_ref
-        mask, counts, mm = cmd[i_mask], cmd[i_counts], cmd[i_mm]
+        i_seq, i_mask, i_counts, i_mm = self._m_ref
+        mask, counts, mm = ref[i_mask], ref[i_counts], ref[i_mm]
         offset = v[I["position_offset_mm"]]
         commanded = v[I["commanded_mm"]]
         for i in range(self.n):
@@ -226,8 +242,12 @@ class Servo:
         v[I["position_offset_mm"]] = offset
         v[I["commanded_mm"]] = commanded
         v[I["homed_mask"]] |= mask
-        v[I["position_ref_seq"]] = cmd[i_seq]
+        v[I["position_ref_seq"]] = ref[i_seq]
         return actual
+
+    def close(self) -> None:
+        """Let go of the views into shared memory (before the segment is closed)."""
+        self._ref_seq_cell.release()
 
     def _interlock(self, hw: tuple, cmd: tuple) -> tuple[ServoFault, int] | None:
         """Conditions that trip the servo whatever it is doing."""

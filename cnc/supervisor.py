@@ -6,9 +6,12 @@ Processes start in dependency order (servo waits for ticks, then the hardware se
 ticks, then the gateway publishes) and are watched by exit and by heartbeat. When a
 critical process dies the board is forced into the safe state; what may be restarted is
 restarted: the gateway freely, the servo into a latched fault that a reset clears; the
-hardware server owns the board, so its loss stops the controller. Until the control-logic
-process exists the supervisor's process is also the commander: the only writer of the
-`command` and `sim` blocks, through the methods below.
+hardware server owns the board, so its loss stops the controller; losing the planner in
+mid-motion forces the safe state too. Until the control-logic process exists the
+supervisor's process is also the commander: the only writer of the `command` and `sim`
+blocks, through the methods below, and it asks the planner through `self.planner`. Started
+without the planner process (`DIRECT_FEED`, for tests of the servo alone) it feeds the FIFO
+and writes the `motion` block itself.
 """
 
 from __future__ import annotations
@@ -27,8 +30,10 @@ from .dataserver import BlockWriter, SharedArea, unique_name
 from .fifo import SetpointFifo
 from .hw.timers import TimerClient
 from .layout import Proc, ServoFault, ServoState, controller_layouts
+from .planner.client import PlannerClient
 from .procs import PROCESS_MAINS
 from .runtime import Runtime
+from .trace import TraceRing
 
 log = logging.getLogger(__name__)
 
@@ -48,9 +53,12 @@ class ProcessPolicy:
 POLICIES = {
     "servo": ProcessPolicy(Proc.SERVO, "faulted"),
     "hardware": ProcessPolicy(Proc.HARDWARE, "never"),
+    "planner": ProcessPolicy(Proc.PLANNER, "always"),
     "gateway": ProcessPolicy(Proc.GATEWAY, "always"),
 }
-START_ORDER = ("servo", "hardware", "gateway")
+START_ORDER = ("servo", "hardware", "planner", "gateway")
+DIRECT_FEED = ("servo", "hardware", "gateway")  # no planner: the supervisor's process feeds the FIFO (servo tests)
+TRACE_CAPACITY = 1 << 16  # ticks the trace ring holds between two drains
 MAX_RESTARTS_PER_MINUTE = 5
 
 
@@ -88,6 +96,7 @@ class Supervisor:
         self.failed: str | None = None
         self.area: SharedArea | None = None
         self.fifo: SetpointFifo | None = None
+        self.trace: TraceRing | None = None
         self.router = None
         self._token = None
         self._watchdog_seen = False
@@ -105,8 +114,11 @@ class Supervisor:
         n = len(cfg.axis_names)
         self.area = SharedArea.create(unique_name(cfg.machine.name, "data"), controller_layouts(n))
         self.fifo = SetpointFifo.create(unique_name(cfg.machine.name, "fifo"), FIFO_CAPACITY, n)
+        self.trace = TraceRing.create(unique_name(cfg.machine.name, "trace"), TRACE_CAPACITY, n)
         self.command: BlockWriter = self.area.writer("command")
         self.command.publish()
+        # without a planner process the supervisor feeds the FIFO, and so writes `motion`
+        self.motion_writer: BlockWriter | None = None if "planner" in self.process_names else self.area.writer("motion")
         self.sim: BlockWriter = self.area.writer("sim")
         self.sim.set("friction_scale", [1.0] * n)
         self.sim.publish()
@@ -116,16 +128,22 @@ class Supervisor:
         try:
             self.router = open_router(cfg.zenoh.listen)
             self._token = self.router.liveliness().declare_token(self.keys.alive("supervisor"))
-            clients = {"servo": TimerClient.new(self.ctx, "servo", 1)} if "servo" in self.process_names else {}
+            clients = {}
+            if "servo" in self.process_names:
+                clients["servo"] = TimerClient.new(self.ctx, "servo", 1)
+            if "planner" in self.process_names:
+                clients["planner"] = TimerClient.new(self.ctx, "planner", cfg.planner.divisor)
             self.runtime = Runtime(
                 config=cfg,
                 clock=self.clock,
                 data_name=self.area.shm.name,
                 fifo_name=self.fifo.shm.name,
                 zenoh_connect=connect_endpoints(cfg.zenoh.listen),
+                trace_name=self.trace.shm.name,
                 timer_clients=clients,
                 log_level=self.log_level,
             )
+            self.planner = PlannerClient(self.router, self.keys)
             for name in self.process_names:
                 self._spawn(name)
         except BaseException:
@@ -183,6 +201,9 @@ class Supervisor:
         if self.fifo is not None:
             self.fifo.close()
             self.fifo = None
+        if self.trace is not None:
+            self.trace.close()
+            self.trace = None
         if self.area is not None:
             self._beats = None  # drop the numpy view so the segment can be unmapped
             self.area.close()
@@ -212,7 +233,9 @@ class Supervisor:
     def _on_death(self, name: str, why: str) -> None:
         policy = POLICIES[name]
         self._note(f"{name} process {why}")
-        if policy.slot in (Proc.SERVO, Proc.HARDWARE):
+        moving = policy.slot == Proc.PLANNER and self.servo()["state"] == ServoState.TRACKING
+        if policy.slot in (Proc.SERVO, Proc.HARDWARE) or moving:
+            # without the servo, the board or (mid-motion) the planner nothing may move: jet off, drives off
             self.command.set("safe_state", 1)
             self.command.publish()
         child = self.children.pop(name)
@@ -258,21 +281,28 @@ class Supervisor:
         self.command.publish()
 
     def set_position_reference(self, axis: int, counts: int, position_mm: float) -> int:
-        """Homing: encoder count `counts` of `axis` is machine position `position_mm`; returns the request's number."""
+        """Encoder count `counts` of `axis` is machine position `position_mm` (without a planner
+        process only: otherwise homing through the planner sets it); returns the request's number."""
+        if self.motion_writer is None:
+            raise RuntimeError("the planner process owns the position references: home through it")
         if not 0 <= axis < len(self.config.axis_names):
             raise ValueError(f"axis {axis} is not one of 0..{len(self.config.axis_names) - 1}")
-        counts_l = list(self.command.get("position_ref_counts"))
-        mm_l = list(self.command.get("position_ref_mm"))
+        m = self.motion_writer
+        counts_l, mm_l = list(m.get("position_ref_counts")), list(m.get("position_ref_mm"))
         counts_l[axis], mm_l[axis] = int(counts), float(position_mm)
-        self.command.set("position_ref_counts", counts_l)
-        self.command.set("position_ref_mm", mm_l)
-        pending = self.servo()["position_ref_seq"] != self.command.get("position_ref_seq")
-        mask = (self.command.get("position_ref_mask") if pending else 0) | 1 << axis  # keep an unapplied one
-        self.command.set("position_ref_mask", mask)
-        seq = self.command.get("position_ref_seq") + 1
-        self.command.set("position_ref_seq", seq)
-        self.command.publish()
+        m.set("position_ref_counts", counts_l)
+        m.set("position_ref_mm", mm_l)
+        pending = self.servo()["position_ref_seq"] != m.get("position_ref_seq")
+        m.set("position_ref_mask", (m.get("position_ref_mask") if pending else 0) | 1 << axis)  # keep an unapplied one
+        seq = m.get("position_ref_seq") + 1
+        m.set("position_ref_seq", seq)
+        m.publish()
         return seq
+
+    def set_tracing(self, on: bool) -> None:
+        """Have the servo write every tick into the trace ring (`self.trace`)."""
+        self.command.set("trace_enable", int(on))
+        self.command.publish()
 
     def set_safe_state(self, on: bool = True) -> None:
         self.command.set("safe_state", int(on))
@@ -317,6 +347,10 @@ class Supervisor:
 
     def servo(self) -> dict[str, Any]:
         return self.area.reader("servo").read_dict()
+
+    def motion(self) -> dict[str, Any]:
+        """The planner's state and progress (the `motion` block)."""
+        return self.area.reader("motion").read_dict()
 
     def timing(self, which: str) -> dict[str, Any]:
         """Copy of a timing histogram block (`hw_timing` or `servo_timing`)."""

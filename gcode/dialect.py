@@ -37,6 +37,7 @@ class Dialect:
     block_delete: bool = False  # the block-delete switch: skip lines starting with '/' when on
     max_blocks: int = 20_000_000  # executed blocks before the program is judged to loop forever
     max_call_depth: int = 10
+    outputs: int = 32  # numbered outputs M62-M65 may switch: P0 .. P(outputs - 1)
 
     def __post_init__(self) -> None:
         for code, actions in self.mcodes.items():

@@ -551,8 +551,8 @@ class Interpreter:
         if "p" not in w:
             raise self._err(f"M{code} needs a P word: the output number", "words")
         p = w["p"]
-        if p != int(p) or not 0 <= p < 32:
-            raise self._err(f"M{code} output number P{p:g} must be a whole number 0 to 31", "words", "p")
+        if p != int(p) or not 0 <= p < self.d.outputs:
+            raise self._err(f"M{code} output number P{p:g} must be a whole number 0 to {self.d.outputs - 1}", "words", "p")
         bit = 1 << int(p)
         on = code in (62, 64)
         self.outputs = (self.outputs | bit) if on else (self.outputs & ~bit)

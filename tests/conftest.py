@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cnc.config import MachineConfig, load_machine
-from cnc.supervisor import Supervisor
+from cnc.supervisor import DIRECT_FEED, Supervisor
 
 REPO = Path(__file__).resolve().parent.parent
 MACHINE_FILE = REPO / "machines" / "waterjet.toml"
@@ -22,9 +22,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+MID_TRAVEL = {"sim.axes.x.start_position_mm": 800.0, "sim.axes.y.start_position_mm": 600.0}
+
+
 def machine_config(**overrides) -> MachineConfig:
-    """The shipped machine on its own loopback port, with optional dotted-key overrides."""
-    return load_machine(MACHINE_FILE, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **overrides})
+    """The shipped machine on its own loopback port, the table switched on in the middle of its
+    travel (tests have room to move either way), with optional dotted-key overrides."""
+    return load_machine(MACHINE_FILE, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **overrides})
 
 
 @pytest.fixture
@@ -34,7 +38,15 @@ def machine() -> MachineConfig:
 
 @pytest.fixture
 def virtual_controller(machine):
+    """The whole controller (the planner feeds the FIFO) on the virtual clock."""
     with Supervisor(machine, clock="virtual") as sup:
+        yield sup
+
+
+@pytest.fixture
+def direct_controller(machine):
+    """The controller without a planner: the test feeds the FIFO itself (servo tests)."""
+    with Supervisor(machine, clock="virtual", processes=DIRECT_FEED) as sup:
         yield sup
 
 
@@ -45,7 +57,9 @@ def realtime_controller(machine):
 
 
 def feed(sup: Supervisor, setpoints: np.ndarray, timeout_s: float = 60.0) -> None:
-    """Push all setpoints into the FIFO as space frees up, supervising meanwhile."""
+    """Push all setpoints into the FIFO as space frees up, supervising meanwhile (no planner process:
+    the FIFO has one producer)."""
+    assert "planner" not in sup.process_names, "the planner process feeds this FIFO: start the controller with DIRECT_FEED"
     pushed, deadline = 0, time.monotonic() + timeout_s
     while pushed < len(setpoints):
         pushed += sup.fifo.push(setpoints[pushed:])
@@ -62,3 +76,27 @@ def enable_and_hold(sup: Supervisor) -> list[float]:
     sup.enable()
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the servo to hold position")
     return list(sup.servo()["commanded_mm"])
+
+
+def ask(sup: Supervisor, command) -> None:
+    """Send a command to the planner and insist it is accepted."""
+    reply = sup.planner.request(command)
+    assert reply.ok, reply.reason
+
+
+def wait_planner_idle(sup: Supervisor, timeout_s: float = 120.0) -> dict:
+    """Until the planner is idle again (homing, a program, a jog done); returns the motion block."""
+    from cnc.layout import PlannerState
+
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE, timeout_s, "the planner to be idle")
+    return sup.motion()
+
+
+def home(sup: Supervisor, axes: list[str] | None = None) -> None:
+    """Home through the planner and wait until it is done; fails with the planner's error."""
+    from cnc.bus.messages import Home
+
+    errors = sup.motion()["error_seq"]
+    ask(sup, Home(axes or []))
+    m = wait_planner_idle(sup)
+    assert m["error_seq"] == errors, m["error"]

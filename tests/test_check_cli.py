@@ -125,3 +125,12 @@ def test_a_progress_bar_is_drawn_on_a_terminal_for_long_programs(tmp_path):
     assert proc.returncode == 0, out
     assert b"[#" in seen and b"% line" in seen, seen[:200]
     assert "lines            300002" in out
+
+
+
+def test_a_numbered_output_the_machine_lacks_is_an_error_at_its_line(tmp_path):
+    prog = tmp_path / "out.ngc"
+    prog.write_text("G0 X10 Y10\nM62 P1\nM62 P7\nG1 X20 F100\nM2\n")
+    res = check(str(prog))
+    assert res.returncode == 1
+    assert f"{prog}:3:" in res.stderr and "output number P7 must be a whole number 0 to 3" in res.stderr

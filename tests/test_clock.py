@@ -11,7 +11,7 @@ import pytest
 
 from cnc.hw.clock import RealtimeClock, VirtualClock, make_clock
 from cnc.ptp import move_setpoints
-from cnc.supervisor import Supervisor
+from cnc.supervisor import DIRECT_FEED, Supervisor
 
 from .conftest import REPO, enable_and_hold, feed, machine_config
 
@@ -58,7 +58,7 @@ def test_refused_realtime_scheduling_warns_and_falls_back_cleanly():
 
 def _run_move(ticks: int) -> tuple:
     config = machine_config()
-    with Supervisor(config, clock="virtual") as sup:
+    with Supervisor(config, clock="virtual", processes=DIRECT_FEED) as sup:
         start = enable_and_hold(sup)
         sup.pause_virtual_clock()
         paused_at = sup.hw()["tick"]

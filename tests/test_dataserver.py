@@ -56,3 +56,18 @@ def test_block_fields_are_visible_by_name_and_as_numpy():
         assert arr["b"] == 7 and list(arr["v"]) == d["v"] and arr["seq"] % 2 == 0
     finally:
         area.close()
+
+
+def test_text_fields_hold_utf8_cut_to_their_size_without_splitting_a_character():
+    layout = BlockLayout("t", [FieldSpec("n", "I"), FieldSpec("name", "s", 8), FieldSpec("x", "d")])
+    area = SharedArea.create(unique_name("test", "text"), [layout])
+    try:
+        w = area.writer("t")
+        w.set("n", 3)
+        w.set("name", "Düsseldorf")  # 11 bytes in UTF-8
+        w.set("x", 1.5)
+        w.publish()
+        got = area.reader("t").read_dict()
+        assert got == {"n": 3, "name": "Düsseld", "x": 1.5}
+    finally:
+        area.close()

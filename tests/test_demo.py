@@ -9,7 +9,7 @@ import sys
 from .conftest import REPO
 
 
-def test_demo_moves_the_table_shows_status_over_zenoh_and_exits_0():
+def test_demo_homes_cuts_a_nest_through_the_planner_shows_status_over_zenoh_and_exits_0():
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     res = subprocess.run(
         [sys.executable, "-m", "cnc.cli", "demo", "--clock", "virtual"],
@@ -17,6 +17,6 @@ def test_demo_moves_the_table_shows_status_over_zenoh_and_exits_0():
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     out = res.stdout
-    assert out.count("demo: reached") == 5
-    assert "[subscriber] status #" in out
-    assert "demo: OK: all points reached, status seen over Zenoh, shared memory freed" in out
+    assert "demo: homed" in out and "demo: program ended (DONE)" in out
+    assert "RUNNING" in out and "jet ON" in out, "the subscriber saw the cut under way"
+    assert "demo: OK: homed, the nest cut to its end, status seen over Zenoh, shared memory freed" in out

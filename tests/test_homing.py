@@ -1,15 +1,15 @@
-"""Homing on the simulated board: search the switch, latch the index pulse, set the position, park."""
+"""Homing through the planner on the simulated board: search the switch, latch the index pulse, set the position, park."""
 
 from __future__ import annotations
 
 import pytest
 
-from cnc.homing import Homing, HomingError, SupervisorPort, home_machine
+from cnc.bus.messages import Home, Stop
 from cnc.hw.board import AxisIn
-from cnc.layout import ServoFault, ServoState
+from cnc.layout import PlannerState, ServoFault, ServoState
 from cnc.supervisor import Supervisor
 
-from .conftest import enable_and_hold, machine_config
+from .conftest import ask, enable_and_hold, home, machine_config, wait_planner_idle
 
 # The simulated encoders count from power-up: X's counter reads 0 at machine X123, Y's at Y-7.
 SIM = {
@@ -23,16 +23,19 @@ def test_homing_puts_every_axis_in_machine_coordinates_and_parks_it():
     with Supervisor(config, clock="virtual") as sup:
         unhomed = enable_and_hold(sup)
         assert unhomed == pytest.approx([31.0 - 123.0, 44.0 + 7.0]), "before homing: the counters' frames"
-        home_machine(sup)
+        home(sup)
+        sup.pause_virtual_clock()  # read the servo and the board at the same tick
         s, hw = sup.servo(), sup.hw()
-        assert s["homed_mask"] == 0b11 and s["state"] == ServoState.HOLDING and s["fault"] == ServoFault.NONE
+        assert s["homed_mask"] == 0b11 and s["fault"] == ServoFault.NONE
         # the table is where the servo says, in machine coordinates: counter frame + its power-up zero
         true_position = [hw["encoder_counts"][0] * 0.001 + 123.0, hw["encoder_counts"][1] * 0.001 - 7.0]
         assert s["actual_mm"] == pytest.approx(true_position, abs=1e-9)
         assert s["underruns"] == 0
+        sup.resume_virtual_clock()
         sup.wait_until(
             lambda: all(abs(p - 5.0) < 0.005 for p in sup.servo()["actual_mm"]), 5.0, "the axes to settle at the park position"
         )
+        assert sup.servo()["state"] == ServoState.HOLDING
 
 
 def test_homing_starts_by_backing_off_when_the_axis_is_already_on_its_switch():
@@ -40,26 +43,44 @@ def test_homing_starts_by_backing_off_when_the_axis_is_already_on_its_switch():
     with Supervisor(config, clock="virtual") as sup:
         enable_and_hold(sup)
         assert sup.hw()["axis_inputs"][0] & AxisIn.HOME
-        home_machine(sup, ["x"])
+        home(sup, ["x"])
+        sup.pause_virtual_clock()
         s, hw = sup.servo(), sup.hw()
         assert s["homed_mask"] == 0b01
         assert s["actual_mm"][0] == pytest.approx(hw["encoder_counts"][0] * 0.001 + 123.0, abs=1e-9)
 
 
-def test_a_missing_home_switch_is_an_error_naming_the_axis():
+def test_a_missing_home_switch_is_reported_naming_the_axis_and_nothing_is_homed():
     config = machine_config(**{**SIM, "axis.x.home_search_velocity_mm_s": 40.0})  # searching the wrong way
     with Supervisor(config, clock="virtual") as sup:
         enable_and_hold(sup)
-        port = SupervisorPort(sup)
-        try:
-            with pytest.raises(HomingError, match="axis X: homing stopped, the servo tripped .HARD_LIMIT.|axis X: the home switch not found"):
-                Homing(config, port).home(["x"])
-        finally:
-            port.close()
+        errors = sup.motion()["error_seq"]
+        ask(sup, Home(["x"]))
+        m = wait_planner_idle(sup)
+        assert m["error_seq"] == errors + 1
+        assert "axis X" in m["error"] and ("HARD_LIMIT" in m["error"] or "home switch not found" in m["error"])
         assert not sup.servo()["homed_mask"] & 1
 
 
-def test_homing_needs_the_drives_on():
+def test_homing_is_refused_with_the_drives_off_or_an_unknown_axis():
     with Supervisor(machine_config(**SIM), clock="virtual") as sup:
-        with pytest.raises(HomingError, match="the drives are off"):
-            home_machine(sup)
+        reply = sup.planner.request(Home())
+        assert not reply.ok and "the drives are not enabled" in reply.reason
+        enable_and_hold(sup)
+        reply = sup.planner.request(Home(["q"]))
+        assert not reply.ok and "no axis 'q'" in reply.reason
+
+
+def test_stopping_a_homing_brings_the_axis_to_rest_and_reports_it():
+    with Supervisor(machine_config(**SIM), clock="virtual") as sup:
+        enable_and_hold(sup)
+        sup.pause_virtual_clock()
+        ask(sup, Home(["x"]))
+        sup.run_ticks(400)  # searching at 20 mm/s
+        assert sup.motion()["state"] == PlannerState.HOMING and abs(sup.servo()["commanded_velocity_mm_s"][0]) > 10.0
+        ask(sup, Stop())
+        sup.run_ticks(600)
+        s = sup.servo()
+        assert s["state"] == ServoState.HOLDING and s["commanded_velocity_mm_s"][0] == 0.0 and s["underruns"] == 0
+        m = sup.motion()
+        assert m["state"] == PlannerState.IDLE and "stopped by the operator" in m["error"] and not s["homed_mask"]

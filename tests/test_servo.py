@@ -21,8 +21,8 @@ def _settled(sup, target, tol=0.005):
     return all(abs(a - t) <= tol for a, t in zip(sup.servo()["actual_mm"], target))
 
 
-def test_servo_follows_a_ramp_in_virtual_time_with_following_error_below_bound(virtual_controller):
-    sup = virtual_controller
+def test_servo_follows_a_ramp_in_virtual_time_with_following_error_below_bound(direct_controller):
+    sup = direct_controller
     start = enable_and_hold(sup)
     target = [start[0] + 600.0, start[1] - 300.0]
     setpoints = move_setpoints(sup.config, start, target)
@@ -36,8 +36,8 @@ def test_servo_follows_a_ramp_in_virtual_time_with_following_error_below_bound(v
     sup.wait_until(lambda: _settled(sup, target), 5.0, "the table to settle on the target")
 
 
-def test_following_error_beyond_limit_trips_servo_drives_off_and_jet_closed(virtual_controller):
-    sup = virtual_controller
+def test_following_error_beyond_limit_trips_servo_drives_off_and_jet_closed(direct_controller):
+    sup = direct_controller
     start = enable_and_hold(sup)
     sup.set_sim(friction_scale=[300.0, 1.0])  # a seized X axis
     feed(sup, move_setpoints(sup.config, start, [start[0] + 200.0, start[1]], flags=SetpointFlag.JET_ON))
@@ -52,8 +52,8 @@ def test_following_error_beyond_limit_trips_servo_drives_off_and_jet_closed(virt
     assert hw["tick"] > 0
 
 
-def test_setpoint_outside_travel_trips_soft_limit_and_nothing_moves(virtual_controller):
-    sup = virtual_controller
+def test_setpoint_outside_travel_trips_soft_limit_and_nothing_moves(direct_controller):
+    sup = direct_controller
     start = enable_and_hold(sup)
     counts = sup.hw()["encoder_counts"][0]
     seq = sup.set_position_reference(0, counts, counts * 0.001)  # home X where it stands
@@ -65,8 +65,8 @@ def test_setpoint_outside_travel_trips_soft_limit_and_nothing_moves(virtual_cont
     assert all(abs(a - b) < 0.002 for a, b in zip(s["actual_mm"], start))
 
 
-def test_estop_trips_the_servo_and_reset_recovers_only_once_released(virtual_controller):
-    sup = virtual_controller
+def test_estop_trips_the_servo_and_reset_recovers_only_once_released(direct_controller):
+    sup = direct_controller
     enable_and_hold(sup)
     sup.fifo.push_one(sup.servo()["commanded_mm"], (0.0, 0.0), SetpointFlag.JET_ON)
     sup.wait_until(lambda: sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 2.0, "the jet to open")
@@ -84,8 +84,8 @@ def test_estop_trips_the_servo_and_reset_recovers_only_once_released(virtual_con
     assert sup.servo()["fault"] == ServoFault.NONE
 
 
-def test_fifo_running_dry_mid_motion_counts_underruns_and_holds_position(virtual_controller):
-    sup = virtual_controller
+def test_fifo_running_dry_mid_motion_counts_underruns_and_holds_position(direct_controller):
+    sup = direct_controller
     start = enable_and_hold(sup)
     slow = move_setpoints(sup.config, start, [start[0] + 20.0, start[1]], velocity_scale=0.05)
     half = slow[: len(slow) // 2]
@@ -97,8 +97,8 @@ def test_fifo_running_dry_mid_motion_counts_underruns_and_holds_position(virtual
     assert s["commanded_mm"][0] == pytest.approx(float(half["position"][-1][0]))
 
 
-def test_setpoint_output_flags_drive_the_jet_valve(virtual_controller):
-    sup = virtual_controller
+def test_setpoint_output_flags_drive_the_jet_valve(direct_controller):
+    sup = direct_controller
     start = enable_and_hold(sup)
     feed(sup, move_setpoints(sup.config, start, [start[0] + 5.0, start[1]], flags=SetpointFlag.JET_ON | SetpointFlag.AUX1))
     sup.wait_until(lambda: sup.hw()["digital_out"] == DigitalOut.JET_VALVE | DigitalOut.AUX1, 5.0, "jet and aux on")
@@ -109,9 +109,9 @@ def test_setpoint_output_flags_drive_the_jet_valve(virtual_controller):
 
 
 def test_an_unhomed_axis_has_no_soft_limits_but_its_hard_limit_switch_trips():
-    from cnc.supervisor import Supervisor
+    from cnc.supervisor import DIRECT_FEED, Supervisor
 
-    with Supervisor(machine_config(**{"sim.axes.x.start_position_mm": 3.0}), clock="virtual") as sup:
+    with Supervisor(machine_config(**{"sim.axes.x.start_position_mm": 3.0}), clock="virtual", processes=DIRECT_FEED) as sup:
         start = enable_and_hold(sup)
         # walk X down at 10 mm/s towards -9 mm, past the travel end (0) and the limit switch (-5)
         walk = np.zeros(4000, dtype=setpoint_dtype(2))
@@ -126,8 +126,8 @@ def test_an_unhomed_axis_has_no_soft_limits_but_its_hard_limit_switch_trips():
         assert s["actual_mm"][0] < 0.0, "it went below the travel end: no soft limit before homing"
 
 
-def test_disabling_opens_the_loop_and_the_drives(virtual_controller):
-    sup = virtual_controller
+def test_disabling_opens_the_loop_and_the_drives(direct_controller):
+    sup = direct_controller
     enable_and_hold(sup)
     sup.enable(False)
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.DISABLED, 2.0, "the servo to disable")
@@ -148,12 +148,15 @@ class BareServo:
         self.command = self.area.writer("command")
         self.command.set("servo_enable", 1)
         self.command.publish()
+        self.motion = self.area.writer("motion")
         self.servo: Servo | None = None
 
     def __enter__(self) -> "BareServo":
         return self
 
     def __exit__(self, *exc: object) -> None:
+        if self.servo is not None:
+            self.servo.close()
         self.servo = None  # drop its views of the shared memory before closing it
         self.fifo.close()
         self.area.close()
@@ -168,9 +171,11 @@ class BareServo:
         return self.area.reader("servo").read_dict()
 
     def order(self, **fields) -> None:
+        """Write fields of the block that holds them (command, or motion for position references)."""
         for name, value in fields.items():
-            self.command.set(name, value)
-        self.command.publish()
+            block = self.motion if name.startswith("position_ref") else self.command
+            block.set(name, value)
+            block.publish()
 
 
 def test_servo_counts_overruns_and_consumes_the_skipped_ticks_setpoints():
@@ -226,10 +231,10 @@ def test_a_position_reference_shifts_the_frame_without_moving_the_table():
 def test_homing_against_the_index_pulse_puts_the_machine_frame_on_the_table():
     """The simulated encoder counts from power-up (encoder_zero_mm); a reference on the latched
     index pulse (every 10 mm of machine position) gives positions in machine coordinates."""
-    from cnc.supervisor import Supervisor
+    from cnc.supervisor import DIRECT_FEED, Supervisor
 
     config = machine_config(**{"sim.axes.x.encoder_zero_mm": 123.0})
-    with Supervisor(config, clock="virtual") as sup:
+    with Supervisor(config, clock="virtual", processes=DIRECT_FEED) as sup:
         start = enable_and_hold(sup)
         assert start[0] == pytest.approx(800.0 - 123.0), "unhomed: the counter's frame"
         latch_seq = sup.hw()["index_latch_seq"][0]

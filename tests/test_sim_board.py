@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 import random
 
 import pytest
@@ -77,12 +78,16 @@ def coast_mm_s(v0: float, t: float) -> float:
 # -- drive -----------------------------------------------------------------------------------
 
 
-def test_board_starts_at_rest_in_the_middle_of_travel():
+def test_board_starts_at_rest_where_the_machine_file_parks_it_or_mid_travel():
     board = SimBoard(load_machine("machines/waterjet.toml"))
     inputs = BoardInputs(board.n_axes)
     board.read_inputs(inputs)
-    assert (board.position_mm(X), board.position_mm(Y)) == (800.0, 600.0)
-    assert inputs.encoder_counts == [800000, 600000]
+    assert (board.position_mm(X), board.position_mm(Y)) == (30.0, 30.0)
+    assert inputs.encoder_counts == [30000, 30000]
+    assert (board.velocity_mm_s(X), board.velocity_mm_s(Y)) == (0.0, 0.0)
+    text = Path("machines/waterjet.toml").read_text().replace("start_position_mm = 30.0", "")
+    board = SimBoard(loads_machine(text, "unparked.toml"))
+    assert (board.position_mm(X), board.position_mm(Y)) == (800.0, 600.0), "without a start position: mid-travel"
     assert (board.velocity_mm_s(X), board.velocity_mm_s(Y)) == (0.0, 0.0)
 
 

@@ -25,7 +25,7 @@ def _ours() -> set[str]:
 def test_stop_frees_every_shared_memory_segment(machine):
     before = _ours()
     sup = Supervisor(machine, clock="virtual").start()
-    names = {sup.area.shm.name, sup.fifo.shm.name}
+    names = {sup.area.shm.name, sup.fifo.shm.name, sup.trace.shm.name}
     assert names <= _ours()
     sup.stop()
     assert not names & _ours() and _ours() <= before
@@ -44,7 +44,7 @@ def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig):
         line = proc.stdout.readline()
         assert "running on the virtual clock" in line, line + proc.stderr.read()
         created = _ours() - before
-        assert len(created) == 2, created  # the data area and the setpoint FIFO
+        assert len(created) == 3, created  # the data area, the setpoint FIFO and the trace ring
         proc.send_signal(sig)
         assert proc.wait(30) == 0
     finally:

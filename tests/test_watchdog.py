@@ -10,7 +10,7 @@ import pytest
 from cnc.fifo import SetpointFlag
 from cnc.hw.board import AxisIn, DigitalOut
 from cnc.layout import ServoFault, ServoState
-from cnc.supervisor import Supervisor
+from cnc.supervisor import DIRECT_FEED, Supervisor
 
 from .conftest import enable_and_hold, machine_config
 
@@ -19,7 +19,7 @@ from .conftest import enable_and_hold, machine_config
 def test_killing_the_servo_trips_the_watchdog_within_the_configured_ticks(clock):
     # a short virtual-clock wait per missed tick, so the trip comes before the supervisor restarts the servo
     config = machine_config(**{"timing.watchdog_missed_ticks": 4, "timing.virtual_client_timeout_s": 0.02})
-    with Supervisor(config, clock=clock) as sup:
+    with Supervisor(config, clock=clock, processes=DIRECT_FEED) as sup:
         held = enable_and_hold(sup)
         sup.fifo.push_one(held, (0.0, 0.0), SetpointFlag.JET_ON)
         sup.wait_until(lambda: sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 5.0, "the jet to open")

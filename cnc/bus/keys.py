@@ -24,6 +24,10 @@ class Keys:
     def position(self) -> str:
         return f"{self.root}/position"
 
+    def planner(self, verb: str) -> str:
+        """The planner's command queryable for one verb (controller-internal: the commander asks)."""
+        return f"{self.root}/internal/planner/{verb}"
+
     def alive(self, process: str) -> str:
         """Liveliness token of one controller process (or HMI station)."""
         return f"{self.root}/alive/{process}"

@@ -31,6 +31,23 @@ class AxisStatus(msgspec.Struct, frozen=True):
     homed: bool = False
 
 
+class ProgramProgress(msgspec.Struct, frozen=True):
+    """Where the planner is with the loaded program (in Status)."""
+
+    name: str  # file name of the loaded program ("" when none)
+    hash: str  # sha256 of its text
+    lines: int
+    segment: int  # segment the head is on (-1 before the first)
+    line: int  # its source line
+    done_mm: float
+    remaining_mm: float
+    progress: float  # 0..1 of the path
+    eta_s: float  # time left from the planned profile (-1 at 0 % override)
+    planned_s: float  # cycle time at 100 % override
+    run: int  # runs started since the controller came up
+    result: str  # RunResult name of the last run
+
+
 class Status(msgspec.Struct, frozen=True):
     """Cyclic controller status (`<root>/status`)."""
 
@@ -53,7 +70,101 @@ class Status(msgspec.Struct, frozen=True):
     late_ticks: int
     servo_missed_ticks: int
     fifo_fill: int
+    planner_state: str = "IDLE"  # PlannerState name
+    feed_override: float = 1.0  # ratio, 0..2
+    feed_commanded_mm_s: float = 0.0  # path speed of the setpoints
+    feed_actual_mm_s: float = 0.0  # path speed the encoders measure
+    homing_axis: str = ""
+    program: ProgramProgress | None = None
+    event: str = ""  # last program event (message, program stop)
+    error: str = ""  # last failure the planner reported
     version: int = SCHEMA_VERSION
+
+
+# -- commands to the planner (answered with a Reply) ------------------------------------------
+
+
+class LoadProgram(msgspec.Struct, frozen=True):
+    """Interpret and check a program file; it becomes the program `Start` runs."""
+
+    path: str
+    version: int = SCHEMA_VERSION
+
+
+class Start(msgspec.Struct, frozen=True):
+    """Run the loaded program from its beginning (cycle start)."""
+
+    version: int = SCHEMA_VERSION
+
+
+class Hold(msgspec.Struct, frozen=True):
+    """Feed hold: decelerate along the path and stay there."""
+
+    version: int = SCHEMA_VERSION
+
+
+class Resume(msgspec.Struct, frozen=True):
+    """Continue after a hold or a program stop."""
+
+    version: int = SCHEMA_VERSION
+
+
+class Stop(msgspec.Struct, frozen=True):
+    """Decelerate to rest and end the program (or the manual motion)."""
+
+    version: int = SCHEMA_VERSION
+
+
+class Override(msgspec.Struct, frozen=True):
+    """Feed override in percent, 0 to 200 (rapids follow it up to 100)."""
+
+    percent: float
+    version: int = SCHEMA_VERSION
+
+
+class Jog(msgspec.Struct, frozen=True):
+    """Jog one axis: continuously (until JogStop) when distance_mm is None, else by that distance.
+    The sign of velocity_mm_s gives the direction of a continuous jog; 0 means the default speed."""
+
+    axis: str
+    velocity_mm_s: float = 0.0
+    distance_mm: float | None = None
+    version: int = SCHEMA_VERSION
+
+
+class JogStop(msgspec.Struct, frozen=True):
+    """End a continuous jog: decelerate to rest."""
+
+    version: int = SCHEMA_VERSION
+
+
+class GoTo(msgspec.Struct, frozen=True):
+    """Move in a straight line to a position (axes left out stay); at feed_mm_s, or the axis limits when None."""
+
+    position_mm: dict[str, float]
+    feed_mm_s: float | None = None
+    version: int = SCHEMA_VERSION
+
+
+class Home(msgspec.Struct, frozen=True):
+    """Home these axes in this order (all axes, in machine order, when empty)."""
+
+    axes: list[str] = msgspec.field(default_factory=list)
+    version: int = SCHEMA_VERSION
+
+
+class Reply(msgspec.Struct, frozen=True):
+    """A command's answer: ok, or refused with the reason."""
+
+    ok: bool
+    reason: str = ""
+    version: int = SCHEMA_VERSION
+
+
+PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
+    "load": LoadProgram, "start": Start, "hold": Hold, "resume": Resume, "stop": Stop, "override": Override,
+    "jog": Jog, "jog_stop": JogStop, "goto": GoTo, "home": Home,
+}
 
 
 _encoder = msgspec.json.Encoder()

@@ -125,6 +125,9 @@ class ProgramRunner:
         else:
             self.state = RunState.ABORTED
             self._close_jet()
+            if self.flags_now & ~_JET_OFF_MASK and self._pending is None:
+                # standing with the jet open (left open on hold): one more record, at rest, to close it
+                self._pending = (self._position_now(), self.flags_now & _JET_OFF_MASK, self.segment_now, self.line_now, self.s_program)
 
     @property
     def finished(self) -> bool:
@@ -290,11 +293,28 @@ class ProgramRunner:
         return int(round(seconds / self.dt))
 
     def planned_ticks(self) -> int:
-        """Servo periods the whole program takes at 100 % override, from its first record to its last."""
-        total = 0
+        """Servo periods the whole program takes at 100 % override, from its first record to its last
+        (program stops not counted). Remembered per step for `remaining_s`."""
+        self.step_ticks = []
         for step in self.steps:
             if isinstance(step, Section):
-                total += SectionStream(step).planned_samples()
-            elif step.kind != "program_stop":
-                total += self._ticks(step.seconds)
-        return total
+                self.step_ticks.append(SectionStream(step).planned_samples())
+            else:
+                self.step_ticks.append(0 if step.kind == "program_stop" else self._ticks(step.seconds))
+        return sum(self.step_ticks)
+
+    def remaining_s(self) -> float:
+        """Time the records still to be made take, from the planned profile: exact at 100 % override;
+        below it, the time stretched by 1 / override (feeds and rapids slow alike); above it, unchanged
+        (the axis limits, not the feed, then decide where the time goes). Infinite at 0 %."""
+        if self.finished:
+            return 0.0
+        if not hasattr(self, "step_ticks"):
+            self.planned_ticks()
+        i = max(self.index, 0)
+        now = self.step_ticks[i] - (self.stream.k if self.stream is not None else self.step_ticks[i] - self.pause_left)
+        ticks = max(now, 0) + sum(self.step_ticks[i + 1:]) + self.repierce
+        seconds = ticks * self.dt
+        if self.override <= 0.0:
+            return float("inf")
+        return seconds / self.override if self.override < 1.0 else seconds

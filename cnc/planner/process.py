@@ -1,0 +1,468 @@
+"""The path planner process: commands in, setpoints out to the FIFO in bursts, state and progress out.
+
+A timer client of the hardware server (every `[planner] divisor` base ticks). At each wake
+it tops the setpoint FIFO up: when the FIFO holds less than `fifo_low_ms` of motion it
+pushes a burst that fills it to `fifo_high_ms` (the paper's burst scheme), so a hold or an
+override takes effect within `fifo_high_ms` plus one planner period. Between wakes it
+answers commands on `<root>/internal/planner/<verb>`: each is checked against the planner's
+state, the servo's and the machine's, and answered ok or refused with the reason.
+
+What moves goes through one `ProgramRunner`: a loaded program, a jog or a go-to (a program
+of one straight move), so every motion keeps the same limits. Homing runs as a sequence of
+steps (`homing.py`) between refills. The planner is the only writer of the `motion` block:
+its state, the loaded program, progress (segment, line, path done, ETA from the planned
+profile), the lowest FIFO fill seen during the run, program events and failures, and the
+position references homing gives the servo.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import logging
+import math
+import os
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import zenoh
+
+from gcode.errors import GCodeError
+from gcode.interp import Interpreter
+from gcode.program import Program
+
+from ..bus.keys import Keys
+from ..bus.messages import PLANNER_COMMANDS, GoTo, Home, Jog, LoadProgram, Override, Reply, SchemaVersionError, decode, encode
+from ..config import MachineConfig
+from ..dataserver import SharedArea
+from ..fifo import SetpointFifo
+from ..homing import Homing, HomingError, Push, Reference
+from ..layout import PlannerState, Proc, RunResult, ServoFault, ServoState
+from ..machine_dialect import dialect_for
+from .preflight import PreflightRefusal, preflight
+from .runner import ProgramRunner, RunState
+from .sections import move_steps, program_steps
+
+log = logging.getLogger(__name__)
+
+_RUN_STATES = {
+    RunState.RUNNING: PlannerState.RUNNING, RunState.HOLDING: PlannerState.HOLDING, RunState.HELD: PlannerState.HELD,
+    RunState.PAUSED: PlannerState.PAUSED, RunState.STOPPING: PlannerState.STOPPING,
+}
+
+
+class Refused(Exception):
+    """A command that may not be carried out now; the message says why."""
+
+
+class LoadedProgram:
+    """A program checked and planned, ready to start."""
+
+    def __init__(self, path: str, text: bytes, program: Program, config: MachineConfig, start: tuple) -> None:
+        self.path, self.text, self.program, self.start = path, text, program, start
+        self.name = Path(path).name
+        self.hash = hashlib.sha256(text).hexdigest()
+        self.steps = program_steps(program, config)
+        runner = ProgramRunner(None, config, steps=self.steps)
+        self.planned_ticks = runner.planned_ticks()
+        self.step_ticks = runner.step_ticks
+
+
+class Planner:
+    """The planner's state and work; `run()` is its loop."""
+
+    def __init__(self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, session: zenoh.Session, timer) -> None:
+        self.config, self.fifo, self.timer = config, fifo, timer
+        self.dt = config.timing.period_s
+        self.n = len(config.axis_names)
+        self.low = max(1, round(config.planner.fifo_low_ms / 1000.0 / self.dt))
+        self.high = min(fifo.capacity, max(self.low + 1, round(config.planner.fifo_high_ms / 1000.0 / self.dt)))
+        self.out = area.writer("motion")
+        self.out.load_current()
+        self.hw_r, self.servo_r = area.reader("hw"), area.reader("servo")
+        self.shutdown = area.blocks["command"].array["shutdown"]
+        hb = area.blocks["heartbeat"].array[0]
+        self.beat = hb["beat"]
+        hb["pid"][Proc.PLANNER] = os.getpid()
+        self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
+        self.queryables = {verb: session.declare_queryable(self.keys.planner(verb)) for verb in PLANNER_COMMANDS}
+        self.token = session.liveliness().declare_token(self.keys.alive("planner"))
+        self.loaded: LoadedProgram | None = None
+        self.runner: ProgramRunner | None = None
+        self.runner_kind = PlannerState.IDLE  # RUNNING (a program), JOGGING or MOVING
+        self.homing = None
+        self.homing_obj: Homing | None = None
+        self.waiting_for: tuple | None = None  # homing: ("drain",) or ("reference", seq)
+        self.override = 1.0
+        cap = fifo.capacity
+        self.ring_done = np.zeros(cap)
+        self.ring_segment = np.full(cap, -1, dtype=np.int64)
+        self.ring_line = np.zeros(cap, dtype=np.int64)
+        self.run_first = 0  # FIFO head counter at the run's first record
+        self.track_fill = False
+        self.last_pushed: np.ndarray | None = None
+        self._set(state=int(PlannerState.IDLE), homing_axis=-1, override=1.0, fifo_min_fill=-1, segment=-1)
+
+    # -- the loop ---------------------------------------------------------------------------
+    def run(self) -> None:
+        my_bit = 1 << Proc.PLANNER
+        while not self.shutdown[0] & my_bit:
+            woke = self.timer.wait_tick(0.005)
+            if woke:
+                while self.timer.wake.acquire(False):
+                    pass
+            self.handle_commands()
+            if woke:
+                try:
+                    self.on_tick()
+                finally:
+                    self.timer.tick_done()
+            self.beat[Proc.PLANNER] += 1
+
+    def close(self) -> None:
+        for q in self.queryables.values():
+            q.undeclare()
+        self.token.undeclare()
+
+    # -- commands ---------------------------------------------------------------------------
+    def handle_commands(self) -> None:
+        for verb, queryable in self.queryables.items():
+            while (query := queryable.try_recv()) is not None:
+                reply = self._answer(verb, query)
+                query.reply(query.key_expr, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
+                query.drop()
+
+    def _answer(self, verb: str, query) -> Reply:
+        kind = PLANNER_COMMANDS[verb]
+        try:
+            msg = decode(query.payload.to_bytes() if query.payload is not None else b"{}", kind)
+        except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
+            return Reply(False, f"{verb}: malformed command: {exc}")
+        try:
+            getattr(self, f"_cmd_{verb}")(msg)
+        except Refused as exc:
+            return Reply(False, f"{verb}: {exc}")
+        except Exception as exc:  # a bug: the planner stays up, the motion stops, the reason is reported
+            log.exception("planner: %s failed", verb)
+            self._fail(f"{verb} failed: {exc!r}")
+            return Reply(False, f"{verb}: internal error: {exc!r}")
+        return Reply(True)
+
+    def _state(self) -> PlannerState:
+        return PlannerState(self.out.get("state"))
+
+    def _require_idle(self, what: str) -> None:
+        state = self._state()
+        if state != PlannerState.IDLE:
+            raise Refused(f"cannot {what} while {state.name}")
+
+    def _require_servo(self, what: str) -> dict:
+        s = self.servo_r.read_dict()
+        if s["state"] == ServoState.FAULT:
+            raise Refused(f"cannot {what}: the servo is tripped ({ServoFault(s['fault']).name}); reset first")
+        if s["state"] != ServoState.HOLDING:
+            raise Refused(f"cannot {what}: the drives are not enabled")
+        return s
+
+    def _cmd_load(self, msg: LoadProgram) -> None:
+        self._require_idle("load a program")
+        path = msg.path
+        try:
+            data = Path(path).read_bytes()
+        except OSError as exc:
+            raise Refused(f"{path}: cannot read the program: {exc.strerror}") from None
+        if len(data) > self.config.gcode.max_program_bytes:
+            raise Refused(f"{path}: the program is {len(data)} bytes; this machine accepts at most {self.config.gcode.max_program_bytes}")
+        start = tuple(self.servo_r.read_dict()["commanded_mm"])
+        program = self._interpret(path, data, start)
+        self.loaded = LoadedProgram(path, data, program, self.config, start)
+        self._set(
+            program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
+            program_lines=program.stats.lines, planned_s=self.loaded.planned_ticks * self.dt,
+            total_mm=sum(s.length_mm for s in self.loaded.steps if hasattr(s, "path")),
+            done_mm=0.0, segment=-1, line=0, eta_s=self.loaded.planned_ticks * self.dt, run_result=int(RunResult.NONE),
+        )
+
+    def _interpret(self, path: str, data: bytes, start: tuple) -> Program:
+        xyz = [0.0, 0.0, 0.0]
+        for name, value in zip(self.config.axis_names, start):
+            xyz["xyz".index(name)] = float(value)
+        dialect = dataclasses.replace(dialect_for(self.config), start_position_mm=tuple(xyz))
+        try:
+            return Interpreter(dialect, path).run(data)
+        except GCodeError as exc:
+            raise Refused(exc.render()) from None
+
+    def _cmd_start(self, _msg) -> None:
+        if self.loaded is None:
+            raise Refused("no program is loaded")
+        self._require_idle("start")
+        servo = self._require_servo("start")
+        start = tuple(servo["commanded_mm"])
+        if any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start)):
+            # the head moved since loading: the program's first move starts where it now is
+            program = self._interpret(self.loaded.path, self.loaded.text, start)
+            self.loaded = LoadedProgram(self.loaded.path, self.loaded.text, program, self.config, start)
+        homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
+        try:
+            preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
+        except PreflightRefusal as exc:
+            raise Refused(str(exc)) from None
+        runner = ProgramRunner(None, self.config, steps=self.loaded.steps)
+        runner.step_ticks = self.loaded.step_ticks
+        self._begin(runner, PlannerState.RUNNING)
+        self._set(run_seq=self.out.get("run_seq") + 1, run_result=int(RunResult.NONE),
+                  run_start_tick=self.hw_r.read_dict()["tick"], planned_s=self.loaded.planned_ticks * self.dt)
+
+    def _cmd_hold(self, _msg) -> None:
+        if self.runner is None or self.runner.state != RunState.RUNNING:
+            raise Refused(f"nothing to hold ({self._state().name})")
+        self.runner.hold()
+        self._publish_state()
+
+    def _cmd_resume(self, _msg) -> None:
+        if self.runner is None or self.runner.state not in (RunState.HOLDING, RunState.HELD, RunState.PAUSED):
+            raise Refused(f"nothing to resume ({self._state().name})")
+        self._require_servo("resume")
+        self.runner.resume()
+        self.track_fill = False  # the refill after a standstill starts from an empty FIFO
+        self._publish_state()
+
+    def _cmd_stop(self, _msg) -> None:
+        if self.homing is not None:
+            self._abort_homing("stopped by the operator")
+            return
+        if self.runner is None:
+            raise Refused("nothing is moving")
+        self.runner.stop()
+        self._publish_state()
+
+    def _cmd_override(self, msg: Override) -> None:
+        if not (math.isfinite(msg.percent) and 0.0 <= msg.percent <= 200.0):
+            raise Refused(f"override {msg.percent:g} % is out of range: 0 to 200 %")
+        self.override = msg.percent / 100.0
+        if self.runner is not None and self.runner_kind == PlannerState.RUNNING:
+            self.runner.set_override(self.override)
+        self._set(override=self.override)
+
+    def _cmd_jog(self, msg: Jog) -> None:
+        axis = msg.axis.lower()
+        if axis not in self.config.axis:
+            raise Refused(f"no axis {msg.axis!r} on this machine (axes: {', '.join(self.config.axis_names)})")
+        self._require_idle("jog")
+        servo = self._require_servo("jog")
+        a = self.config.axis[axis]
+        i = self.config.axis_names.index(axis)
+        speed = abs(msg.velocity_mm_s) or self.config.planner.jog_velocity_mm_s
+        if not math.isfinite(speed) or speed > a.max_velocity_mm_s:
+            raise Refused(f"jog speed {speed:g} mm/s is out of range: up to {a.max_velocity_mm_s:g} mm/s for {axis.upper()}")
+        here = list(servo["commanded_mm"])
+        homed = bool(servo["homed_mask"] >> i & 1)
+        if msg.distance_mm is not None:
+            if not math.isfinite(msg.distance_mm) or msg.distance_mm == 0.0:
+                raise Refused(f"jog distance {msg.distance_mm!r} must be a non-zero number of mm")
+            target = here[i] + msg.distance_mm
+            if homed and not a.travel_min_mm <= target <= a.travel_max_mm:
+                raise Refused(f"{axis.upper()} would reach {target:.3f} mm, outside the travel {a.travel_min_mm:g} to {a.travel_max_mm:g} mm")
+        else:
+            direction = math.copysign(1.0, msg.velocity_mm_s) if msg.velocity_mm_s else 1.0
+            if homed:
+                target = a.travel_max_mm if direction > 0 else a.travel_min_mm
+            else:  # no soft limits before homing: the hard limit switch is what stops it
+                target = here[i] + direction * 2.0 * (a.travel_max_mm - a.travel_min_mm)
+        end = list(here)
+        end[i] = target
+        self._manual(here, end, speed, PlannerState.JOGGING)
+
+    def _cmd_jog_stop(self, _msg) -> None:
+        if self.runner is None or self.runner_kind != PlannerState.JOGGING:
+            raise Refused(f"not jogging ({self._state().name})")
+        self.runner.stop()
+
+    def _cmd_goto(self, msg: GoTo) -> None:
+        self._require_idle("go to a position")
+        servo = self._require_servo("go to a position")
+        here = list(servo["commanded_mm"])
+        end = list(here)
+        for name, value in msg.position_mm.items():
+            axis = name.lower()
+            if axis not in self.config.axis:
+                raise Refused(f"no axis {name!r} on this machine (axes: {', '.join(self.config.axis_names)})")
+            i = self.config.axis_names.index(axis)
+            a = self.config.axis[axis]
+            if not servo["homed_mask"] >> i & 1:
+                raise Refused(f"axis {axis.upper()} is not homed: home it before moving to a position")
+            if not math.isfinite(value) or not a.travel_min_mm <= value <= a.travel_max_mm:
+                raise Refused(f"{axis.upper()}{value:g} is outside the travel {a.travel_min_mm:g} to {a.travel_max_mm:g} mm")
+            end[i] = float(value)
+        feed = math.inf if msg.feed_mm_s is None else msg.feed_mm_s
+        if not feed > 0.0:
+            raise Refused(f"feed {msg.feed_mm_s!r} mm/s must be positive")
+        self._manual(here, end, feed, PlannerState.MOVING)
+
+    def _cmd_home(self, msg: Home) -> None:
+        self._require_idle("home")
+        self._require_servo("home")
+        axes = [a.lower() for a in msg.axes] or list(self.config.axis_names)
+        for a in axes:
+            if a not in self.config.axis:
+                raise Refused(f"no axis {a!r} on this machine (axes: {', '.join(self.config.axis_names)})")
+        self.homing_obj = Homing(self.config, self.hw_r.read_dict, self.servo_r.read_dict)
+        self.homing = self.homing_obj.steps(axes)
+        self.waiting_for = None
+        self._set(state=int(PlannerState.HOMING))
+
+    # -- starting and ending motion ------------------------------------------------------------
+    def _manual(self, here: list[float], end: list[float], feed: float, kind: PlannerState) -> None:
+        xyz = lambda p: tuple(float(p[self.config.axis_names.index(a)]) if a in self.config.axis else 0.0 for a in "xyz")  # noqa: E731
+        steps = move_steps(xyz(here), xyz(end), feed, self.config)
+        if not steps:
+            return
+        self._begin(ProgramRunner(None, self.config, steps=steps), kind)
+
+    def _begin(self, runner: ProgramRunner, kind: PlannerState) -> None:
+        if kind == PlannerState.RUNNING:
+            runner.set_override(self.override)
+        self.runner, self.runner_kind = runner, kind
+        self.run_first = self.fifo.head()
+        self.track_fill = False
+        self._set(state=int(kind), fifo_min_fill=-1, segment=-1, line=0, done_mm=0.0)
+
+    def _end_run(self, result: RunResult) -> None:
+        self._progress(self.servo_r.read_dict())
+        if self.runner_kind == PlannerState.RUNNING:
+            self._set(run_result=int(result), run_end_tick=self.hw_r.read_dict()["tick"], eta_s=0.0)
+        self.runner, self.runner_kind = None, PlannerState.IDLE
+        self._set(state=int(PlannerState.IDLE))
+
+    def _fail(self, why: str) -> None:
+        """Stop what runs (the servo has dropped the setpoints when it tripped) and report why."""
+        self.homing = self.homing_obj = None
+        self._set(homing_axis=-1)
+        if self.runner is not None:
+            self._end_run(RunResult.FAULT)
+        self._set(state=int(PlannerState.IDLE), error_seq=self.out.get("error_seq") + 1, error=why)
+        log.error("planner: %s", why)
+
+    # -- each wake --------------------------------------------------------------------------
+    def on_tick(self) -> None:
+        servo = self.servo_r.read_dict()
+        busy = self.runner is not None or self.homing is not None
+        if busy and servo["state"] in (ServoState.FAULT, ServoState.DISABLED):
+            names = self.config.axis_names
+            axis = f" on axis {names[servo['fault_axis']].upper()}" if 0 <= servo["fault_axis"] < len(names) else ""
+            why = (f"the servo tripped ({ServoFault(servo['fault']).name}{axis})" if servo["state"] == ServoState.FAULT
+                   else "the drives were disabled")
+            self._fail(f"motion stopped: {why}")
+        elif self.homing is not None:
+            self._step_homing(servo)
+        elif self.runner is not None:
+            self._feed(servo)
+        self._progress(servo)
+
+    def _feed(self, servo: dict) -> None:
+        runner = self.runner
+        fill = self.fifo.fill()
+        producing = not runner.idle
+        if producing and self.track_fill:
+            low = self.out.get("fifo_min_fill")
+            self._set(fifo_min_fill=fill if low < 0 else min(low, fill))
+        if fill < self.low and producing:
+            records, done = runner.take(self.high - fill)
+            self._push(records, done)
+            self.track_fill = len(records) > 0 and not runner.idle
+        elif runner.idle:
+            records, done = runner.take(0)  # the record that leaves the servo at rest, if one is due
+            self._push(records, done)
+        for event in runner.events:
+            self._set(event_seq=self.out.get("event_seq") + 1, event=f"{event.kind}: {event.text} (line {event.line})")
+        runner.events.clear()
+        self._publish_state()
+        if runner.finished and self.fifo.fill() == 0 and servo["state"] != ServoState.TRACKING:
+            self._end_run(RunResult.DONE if runner.state == RunState.DONE else RunResult.ABORTED)
+
+    def _push(self, records: np.ndarray, done: np.ndarray) -> None:
+        if not len(records):
+            return
+        head = self.fifo.head()
+        taken = self.fifo.push(records)
+        if taken != len(records):  # cannot happen: bursts never exceed the room left
+            raise RuntimeError(f"the FIFO took {taken} of {len(records)} records")
+        idx = (head + np.arange(taken)) % self.fifo.capacity
+        self.ring_done[idx], self.ring_segment[idx], self.ring_line[idx] = done, records["segment"], records["line"]
+        self.last_pushed = records[-1]
+        self._set(records_pushed=self.out.get("records_pushed") + taken)
+
+    def _publish_state(self) -> None:
+        if self.runner is None:
+            return
+        state = self.runner_kind
+        if self.runner_kind == PlannerState.RUNNING and self.runner.state in _RUN_STATES:
+            state = _RUN_STATES[self.runner.state]
+        self._set(state=int(state))
+
+    def _progress(self, servo: dict) -> None:
+        if self.runner is None or self.runner_kind != PlannerState.RUNNING:
+            return
+        consumed = self.fifo.tail()
+        if consumed > self.run_first:
+            k = (consumed - 1) % self.fifo.capacity
+            self._set(done_mm=float(self.ring_done[k]), segment=int(self.ring_segment[k]), line=int(self.ring_line[k]))
+        eta = self.runner.remaining_s() + self.fifo.fill() * self.dt
+        self._set(eta_s=eta if math.isfinite(eta) else -1.0)
+
+    # -- homing -----------------------------------------------------------------------------
+    def _step_homing(self, servo: dict) -> None:
+        if self.waiting_for is not None:
+            kind = self.waiting_for[0]
+            if kind == "drain" and self.fifo.fill() > self.low:
+                return
+            if kind == "reference" and (servo["position_ref_seq"] != self.waiting_for[1] or self.fifo.fill()):
+                return
+            if kind == "settle" and (self.fifo.fill() or servo["state"] == ServoState.TRACKING):
+                return
+            self.waiting_for = None
+        try:
+            step = next(self.homing)
+        except StopIteration:
+            self.homing = self.homing_obj = None
+            self._set(state=int(PlannerState.IDLE), homing_axis=-1)
+            return
+        except HomingError as exc:
+            self.homing = self.homing_obj = None
+            self._fail(str(exc))
+            return
+        self._set(homing_axis=self.homing_obj.axis)
+        if isinstance(step, Push):
+            self._push(step.records, np.zeros(len(step.records)))
+            self.waiting_for = ("drain",)
+        elif isinstance(step, Reference):
+            self.waiting_for = ("reference", self._reference(step))
+        else:
+            self.waiting_for = ("settle",)
+
+    def _reference(self, step: Reference) -> int:
+        counts = list(self.out.get("position_ref_counts"))
+        mm = list(self.out.get("position_ref_mm"))
+        counts[step.axis], mm[step.axis] = int(step.counts), float(step.position_mm)
+        seq = self.out.get("position_ref_seq") + 1
+        self._set(position_ref_counts=counts, position_ref_mm=mm, position_ref_mask=1 << step.axis, position_ref_seq=seq)
+        return seq
+
+    def _abort_homing(self, why: str) -> None:
+        """Stop homing: bring the moving axis to rest (jerk-limited) and report why."""
+        last, homing = self.last_pushed, self.homing_obj
+        self.homing = self.homing_obj = None
+        if last is not None and homing is not None and homing.axis >= 0:
+            i = homing.axis
+            chunk, _ = homing._ramp(i, list(last["position"]), float(last["velocity"][i]), 0.0, None)
+            self._push(chunk, np.zeros(len(chunk)))
+        self._set(state=int(PlannerState.IDLE), homing_axis=-1, error_seq=self.out.get("error_seq") + 1, error=f"homing {why}")
+
+    # -----------------------------------------------------------------------------------
+    def _set(self, **values) -> None:
+        for key, value in values.items():
+            self.out.set(key, value)
+        self.out.publish()
+
