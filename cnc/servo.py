@@ -142,6 +142,7 @@ class Servo:
         elif not cmd[self._c_enable]:
             state = ServoState.DISABLED
             self._open_loop(actual)
+            self.fifo.flush()  # setpoints made for a closed loop must not run when the drives come back
         else:
             if state == ServoState.DISABLED:
                 self._open_loop(actual)  # close the loop where the table is, whatever was commanded before

@@ -252,3 +252,14 @@ def test_homing_against_the_index_pulse_puts_the_machine_frame_on_the_table():
         assert s["homed_mask"] & 1 and s["state"] == ServoState.HOLDING and s["fault"] == ServoFault.NONE
         assert s["actual_mm"][0] == pytest.approx(hw["encoder_counts"][0] * 0.001 + 123.0, abs=1e-9), "machine frame"
         assert abs(s["actual_mm"][0] - 815.0) < 0.05, "where the move ended, in machine coordinates"
+
+
+def test_setpoints_left_in_the_fifo_are_dropped_while_the_drives_are_off(direct_controller):
+    sup = direct_controller
+    start = enable_and_hold(sup)
+    sup.enable(False)
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.DISABLED, 5.0, "the drives to go off")
+    sup.fifo.push(move_setpoints(sup.config, start, [start[0] + 50.0, start[1]]))
+    sup.wait_until(lambda: sup.fifo.fill() == 0, 5.0, "the servo to drop them")
+    held = enable_and_hold(sup)
+    assert held == pytest.approx(start, abs=0.01), "nothing stale ran when the drives came back"
