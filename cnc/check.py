@@ -1,4 +1,4 @@
-"""`waterjet check`: validate a program completely and summarise it, or show the first error."""
+"""`waterjet check`: validate a program completely and summarise it (planned cycle time included), or show the first error."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from gcode.program import Program
 
 from .config import MachineConfig
 from .machine_dialect import dialect_for
+from .planner.runner import ProgramRunner
 
 
 class ProgressBar:
@@ -63,7 +64,14 @@ def check_program(
         with open(segments_out, "w", encoding="utf-8") as f:
             program.write_segments_jsonl(f)
     print(summary(program, config), file=out)
+    print(f"  cycle time       {planned_cycle_time_s(program, config):.2f} s planned at 100 % override"
+          f" (from X0 Y0; pauses at program stops not counted)", file=out)
     return 0
+
+
+def planned_cycle_time_s(program: Program, config: MachineConfig) -> float:
+    """The program's cycle time from the planner's profile (acceleration, jerk, corners, dwells, jet delays)."""
+    return ProgramRunner(program, config).planned_ticks() * config.timing.period_s
 
 
 def summary(program: Program, config: MachineConfig) -> str:

@@ -62,6 +62,13 @@ def _cmd_check(args: argparse.Namespace) -> int:
     return check_program(args.program, config, args.tool_table, args.segments, sys.stdout, sys.stderr)
 
 
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .simulate import run_cli
+
+    logging.getLogger("cnc").setLevel(logging.WARNING)  # the figures are the output
+    return run_cli(args.program, args.machine, args.json, args.plot, sys.stdout, sys.stderr)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="waterjet", description="Waterjet CNC controller")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -79,6 +86,15 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--tool-table", metavar="FILE.tbl", help="LinuxCNC-format tool table; overrides the machine's nozzle table")
     check.add_argument("--segments", metavar="OUT.jsonl", help="write every motion and dwell as one JSON object per line")
     check.set_defaults(func=_cmd_check)
+
+    simulate = sub.add_parser(
+        "simulate", help="run a program on the controller processes on the virtual clock; report cycle time, deviation, tracking"
+    )
+    simulate.add_argument("program", help="G-code file")
+    _machine_arg(simulate)
+    simulate.add_argument("--json", metavar="OUT", help="write the figures as JSON")
+    simulate.add_argument("--plot", metavar="OUT.png", help="draw the XY contour and per-axis tracking (the paper's Figs. 10-12)")
+    simulate.set_defaults(func=_cmd_simulate)
 
     demo = sub.add_parser("demo", help="run the simulated machine end to end and exit 0 when it behaved")
     _machine_arg(demo)

@@ -98,7 +98,7 @@ class AxisConfig:
     ki_1_s2: float = opt(1000.0, "1/s^2", "position-loop integral gain", 0.0, 1.0e7)
     velocity_ff: float = opt(1.0, "", "velocity feed-forward gain (1 = full setpoint velocity)", 0.0, 2.0)
     accel_ff_s: float = opt(
-        0.0045, "s", "acceleration feed-forward: drive lag plus output delay compensated", 0.0, 1.0
+        0.003, "s", "acceleration feed-forward: about the drive's lag (less overshoots at stops)", 0.0, 1.0
     )
     integral_limit_mm_s: float = opt(
         50.0, "mm/s", "clamp of the integral term's contribution to the speed command", 0.0, 10000.0

@@ -79,6 +79,7 @@ class Homing:
         for name in names:
             self.axis = self.config.axis_names.index(name)
             yield from self.home_axis(self.axis)
+        yield Settle()  # done once the last park move has run
         self.axis = -1
 
     def home_axis(self, i: int) -> Iterator[HomingStep]:

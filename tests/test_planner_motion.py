@@ -18,6 +18,7 @@ from cnc.fifo import SetpointFlag
 from cnc.machine_dialect import dialect_for
 from cnc.planner.measure import ProgrammedPath, peaks
 from cnc.planner.runner import ProgramRunner, RunState
+from cnc.planner.sections import move_steps
 
 from .conftest import machine_config
 from .planner_programs import random_program
@@ -211,3 +212,23 @@ def test_a_program_stop_waits_for_cycle_start_with_the_jet_closed_and_re_pierces
     flags = records["flags"][at_stop]
     assert not (flags & JET).all() and (flags & JET).any(), "closed while paused, open again to pierce before moving on"
     assert records["position"][-1] == pytest.approx([200, 100])
+
+
+def test_a_stop_from_a_cruise_comes_to_rest_and_ends_without_creeping():
+    config = machine_config()
+    runner = ProgramRunner(None, config, steps=move_steps((400.0, 300.0, 0.0), (0.0, 300.0, 0.0), 40.0, config))
+    out, made = [], 0
+    while made < 1000:
+        recs, _ = runner.take(5)
+        out.append(recs)
+        made += len(recs)
+    runner.stop()
+    for _ in range(100):
+        recs, _ = runner.take(5)
+        out.append(recs)
+        if runner.finished:
+            break
+    assert runner.state == RunState.ABORTED, "at rest within half a second of the stop"
+    records = np.concatenate(out)
+    assert speed(records)[-1] == 0.0 and not records["flags"][-1] & IN_MOTION
+    within_limits(records)

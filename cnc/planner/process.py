@@ -161,6 +161,8 @@ class Planner:
         s = self.servo_r.read_dict()
         if s["state"] == ServoState.FAULT:
             raise Refused(f"cannot {what}: the servo is tripped ({ServoFault(s['fault']).name}); reset first")
+        if s["state"] == ServoState.TRACKING:
+            raise Refused(f"cannot {what}: the axes are still moving")
         if s["state"] != ServoState.HOLDING:
             raise Refused(f"cannot {what}: the drives are not enabled")
         return s

@@ -28,6 +28,11 @@ import numpy as np
 
 EPS_MM = 1e-9
 EPS_V = 1e-9
+STILL_MM_S = 1e-6  # a speed this low is standing still: never cruise at it
+# Plateaus are checked to within this share of their length (positions kilometres along a
+# section carry rounding of 1e-9 mm) and made this much longer; the plateau already has two
+# samples of margin (`stream.py`), so the jerk bound does not notice.
+PLATEAU_SLACK = 1e-6
 
 
 @dataclass
@@ -109,13 +114,14 @@ def plan(
         caps = np.minimum(hard, soft)
         w = _junction_speeds(zones.edges, caps, zones.accel, v_start, v_end)
         pieces = _zone_pieces(zones.edges, caps, zones.accel, w)
-        fix = _short_peak(pieces, plateau_s) or _short_valley(pieces, plateau_s)
-        if fix is None:
+        fixes = _short_peaks(pieces, plateau_s) or _short_valleys(pieces, plateau_s)
+        if not fixes:
             break
-        if fix[0] <= s_start + EPS_MM:  # the plateau would have to start in the past: cruise now
+        if fixes[0][0] <= s_start + EPS_MM:  # the plateau would have to start in the past: cruise now
             cruise_first = True
             break
-        zones, hard, soft = _with_cap(zones, hard, soft, *fix)
+        for fix in fixes:
+            zones, hard, soft = _with_cap(zones, hard, soft, *fix)
     else:
         raise RuntimeError("speed profile: peaks kept needing a plateau after 50 passes")
     s0, v0, a, dur = pieces
@@ -126,6 +132,8 @@ def plan(
         rest = plan(sub, s_start + v_start * cruise, v_start, 0.0, v_end, plateau_s, t_start + cruise)
         first = Pieces(np.array([t_start]), np.array([s_start]), np.array([v_start]), np.zeros(1), np.array([cruise]))
         return first.append(rest)
+    if not len(dur):
+        return Pieces.empty()
     t0 = t_start + np.concatenate(([0.0], np.cumsum(dur)[:-1]))
     return Pieces(t0, s0, v0, a, dur)
 
@@ -138,7 +146,7 @@ def _turns_against(a: np.ndarray, dur: np.ndarray, a_prev: float, plateau_s: flo
     for acc, d in zip(a, dur):
         if acc == 0.0:
             flat += d
-            if flat >= plateau_s - 1e-12:
+            if flat >= plateau_s * (1.0 - PLATEAU_SLACK):
                 return False
             continue
         return acc * a_prev < 0.0
@@ -190,12 +198,13 @@ def _junction_speeds(edges: np.ndarray, caps: np.ndarray, accel: np.ndarray, v_s
         back = math.sqrt(w[k + 1] * w[k + 1] + 2.0 * accel[k] * length[k])
         if back < w[k]:
             w[k] = back
-    if w[0] < v_start:
-        # Too fast to meet what follows (only rounding, or a window shorter than a stop):
-        # keep the speed continuous and brake as hard as allowed until the profile is met.
+    if w[0] < v_start - 1e-6 * max(1.0, v_start):
+        # Too fast to meet what follows (a window shorter than a stop): keep the speed
+        # continuous and brake as hard as allowed until the profile is met.
         w[0] = v_start
         for k in range(m):
             w[k + 1] = max(w[k + 1], math.sqrt(max(w[k] * w[k] - 2.0 * accel[k] * length[k], 0.0)))
+    w[0] = v_start  # (rounding alone)
     return w
 
 
@@ -219,7 +228,7 @@ def _zone_pieces(edges, caps, accel, w) -> tuple[np.ndarray, np.ndarray, np.ndar
         if d_up > EPS_MM and top > wa + EPS_V:
             s0.append(x), v0.append(wa), a.append(acc), dur.append((top - wa) / acc)
             x += d_up
-        if d_flat > EPS_MM and top > EPS_V:
+        if d_flat > EPS_MM and top > STILL_MM_S:
             s0.append(x), v0.append(top), a.append(0.0), dur.append(d_flat / top)
             x += d_flat
         if d_down > EPS_MM and top > wb + EPS_V:
@@ -227,11 +236,12 @@ def _zone_pieces(edges, caps, accel, w) -> tuple[np.ndarray, np.ndarray, np.ndar
     return np.array(s0), np.array(v0), np.array(a), np.array(dur)
 
 
-def _short_peak(pieces, plateau_s: float) -> tuple[float, float, float] | None:
-    """The first speed-up straight into a slow-down without `plateau_s` of cruise between them,
-    as a cap (from_mm, to_mm, speed) that gives it one; None when there is none."""
+def _short_peaks(pieces, plateau_s: float) -> list[tuple[float, float, float]]:
+    """Every speed-up straight into a slow-down without `plateau_s` of cruise between them,
+    each as a cap (from_mm, to_mm, speed) that gives it one."""
     s0, v0, a, dur = pieces
     n = len(a)
+    out = []
     k = 0
     while k < n:
         if a[k] <= 0.0:
@@ -246,25 +256,27 @@ def _short_peak(pieces, plateau_s: float) -> tuple[float, float, float] | None:
             flat_mm += v0[c] * dur[c]
             flat_s += dur[c]
             c += 1
-        if c < n and a[c] < 0.0 and flat_s < plateau_s - 1e-12:
+        if c < n and a[c] < 0.0 and flat_s < plateau_s * (1.0 - PLATEAU_SLACK):
             a_up, a_down = a[j], -a[c]
             v_peak = v0[c]
             s_flat0 = s0[j + 1] if j + 1 < n else s0[c]
             kk = 1.0 / (2.0 * a_up) + 1.0 / (2.0 * a_down)
-            v_cap = (-plateau_s + math.sqrt(plateau_s**2 + 4.0 * kk * (flat_mm + kk * v_peak * v_peak))) / (2.0 * kk)
+            want = plateau_s * (1.0 + PLATEAU_SLACK)
+            v_cap = (-want + math.sqrt(want**2 + 4.0 * kk * (flat_mm + kk * v_peak * v_peak))) / (2.0 * kk)
             v_cap = min(v_cap, v_peak * (1.0 - 1e-9))
             lo = s_flat0 - (v_peak * v_peak - v_cap * v_cap) / (2.0 * a_up)
             hi = s_flat0 + flat_mm + (v_peak * v_peak - v_cap * v_cap) / (2.0 * a_down)
-            return lo, hi, v_cap
+            out.append((lo, hi, v_cap))
         k = c
-    return None
+    return out
 
 
-def _short_valley(pieces, plateau_s: float) -> tuple[float, float, float] | None:
-    """The first slow-down straight into a speed-up without `plateau_s` of cruise between them,
-    as a cap (from_mm, to_mm, speed) that holds the low speed long enough; None when there is none."""
+def _short_valleys(pieces, plateau_s: float) -> list[tuple[float, float, float]]:
+    """Every slow-down straight into a speed-up without `plateau_s` of cruise between them,
+    each as a cap (from_mm, to_mm, speed) that holds the low speed long enough."""
     s0, v0, a, dur = pieces
     n = len(a)
+    out = []
     for k in range(n):
         if a[k] >= 0.0:
             continue
@@ -272,12 +284,11 @@ def _short_valley(pieces, plateau_s: float) -> tuple[float, float, float] | None
         while c < n and a[c] == 0.0:
             flat_s += dur[c]
             c += 1
-        if c < n and a[c] > 0.0 and flat_s < plateau_s - 1e-12:
+        if c < n and a[c] > 0.0 and flat_s < plateau_s * (1.0 - PLATEAU_SLACK):
             v_low = v0[c]
-            if v_low <= EPS_V:
-                return None  # a stop in the middle: the averages handle a rest
-            return s0[c], s0[c] + v_low * (plateau_s - flat_s) * (1.0 + 1e-9), v_low
-    return None
+            if v_low > EPS_V:  # (a stop in the middle is left to the averages: they handle a rest)
+                out.append((s0[c], s0[c] + v_low * (plateau_s * (1.0 + PLATEAU_SLACK) - flat_s), v_low))
+    return out
 
 
 def _with_cap(zones: Zones, hard: np.ndarray, soft: np.ndarray, lo: float, hi: float, cap: float):

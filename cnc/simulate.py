@@ -1,0 +1,212 @@
+"""`waterjet simulate`: run a program on the real controller processes on the virtual clock and measure it.
+
+The hardware server (simulated board), servo and planner run as in production; the virtual
+clock runs them as fast as the CPU allows, tick by tick, deterministically. The machine is
+homed first (through the planner), then the program is loaded and started, and the clock is
+stepped in chunks that the servo's trace ring holds whole, so every tick is recorded. From
+the trace:
+
+- cycle_time_s: the program's records, one per servo period, from its first to its last;
+- path_deviation_max_mm: commanded setpoints against the programmed geometry;
+- tracking_error_max_mm / _rms_mm: actual position against the setpoint, normal to the path;
+- contour_error_max_mm: actual position against the programmed geometry, on the feed moves
+  (what the cut shows; rapids separately, as contour_error_rapid_max_mm);
+- following_error_max_mm, peak_velocity_mm_s, peak_accel_mm_s2, peak_jerk_mm_s3: per axis;
+- fifo_min_fill (the lowest fill the planner saw at a refill), underruns, overruns.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from gcode.canon import RAPID
+from gcode.interp import Interpreter
+from gcode.program import Program
+
+from .bus.messages import Home, LoadProgram, Start
+from .config import MachineConfig, load_machine
+from .demo import free_port
+from .fifo import SetpointFlag
+from .layout import PlannerState, RunResult, ServoState
+from .machine_dialect import dialect_for
+from .planner.measure import ProgrammedPath, peaks
+from .planner.path import elements_from_program, sample
+from .supervisor import Supervisor, SupervisorError
+
+CHUNK_TICKS = 20_000  # ticks per step of the clock: well within the trace ring
+SETTLE_S = 0.2  # recorded after the last setpoint: the table comes to rest
+
+
+class SimulationError(RuntimeError):
+    """The simulation could not run the program; the message says why."""
+
+
+@dataclass
+class SimulationResult:
+    """Figures of one simulated run, and its trace for plots."""
+
+    program: str
+    metrics: dict
+    trace: np.ndarray = field(repr=False)
+    programmed_xy: np.ndarray = field(repr=False)
+    dt: float = 0.001
+
+
+def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
+    """Home, load, run; return the figures. Raises SimulationError with the planner's reason on refusal.
+    `config` should listen on a port of its own (see `run_cli`)."""
+    dt = config.timing.period_s
+    with Supervisor(config, clock="virtual") as sup:
+        _prepare(sup, program_path)
+        m0, s0 = sup.motion(), sup.servo()
+        sup.pause_virtual_clock()
+        sup.set_tracing(True)
+        sup.trace.drain()
+        _ask(sup, Start(), "start")
+        records = _run_to_end(sup, m0["run_seq"] + 1)
+        m, s = sup.motion(), sup.servo()
+    program = _as_run(program_path, config, s0["commanded_mm"])
+    metrics = _metrics(records, program, config, dt)
+    metrics.update(
+        cycle_time_s=(m["records_pushed"] - m0["records_pushed"]) * dt,  # one record per servo period
+        planned_cycle_time_s=m0["planned_s"],
+        fifo_min_fill=int(m["fifo_min_fill"]),
+        underruns=int(s["underruns"] - s0["underruns"]),
+        overruns=int(s["overruns"] - s0["overruns"]),
+        result=RunResult(m["run_result"]).name,
+    )
+    xy = sample(elements_from_program(program.segments), step_mm=0.05)
+    return SimulationResult(Path(program_path).name, metrics, records, xy, dt)
+
+
+def _as_run(program_path: str, config: MachineConfig, start_mm: list[float]) -> Program:
+    """The program as the planner ran it: interpreted from where the head stood at the start."""
+    start = [0.0, 0.0, 0.0]
+    for name, value in zip(config.axis_names, start_mm):
+        start["xyz".index(name)] = value
+    dialect = dataclasses.replace(dialect_for(config), start_position_mm=tuple(start))
+    return Interpreter(dialect, program_path).run(Path(program_path).read_bytes())
+
+
+def _ask(sup: Supervisor, command, what: str) -> None:
+    reply = sup.planner.request(command)
+    if not reply.ok:
+        raise SimulationError(f"{what} refused: {reply.reason}")
+
+
+def _prepare(sup: Supervisor, program_path: str) -> None:
+    sup.enable()
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the servo to close the loop")
+    _ask(sup, Home(), "homing")
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE, 300.0, "homing")
+    if sup.motion()["error"]:
+        raise SimulationError(f"homing failed: {sup.motion()['error']}")
+    sup.wait_until(lambda: abs(max(sup.servo()["following_error_mm"], key=abs)) < 0.002, 10.0, "the axes to settle")
+    _ask(sup, LoadProgram(str(Path(program_path).resolve())), "loading the program")
+
+
+def _run_to_end(sup: Supervisor, run: int) -> np.ndarray:
+    """Step the clock until the run has ended and the table settled; every tick's trace record."""
+    chunks = []
+    settle_ticks = int(SETTLE_S / sup.config.timing.period_s)
+    ended_at = None
+    while True:
+        sup.run_ticks(CHUNK_TICKS if ended_at is None else settle_ticks)
+        chunks.append(sup.trace.drain())
+        m = sup.motion()
+        if ended_at is not None:
+            break
+        if m["run_seq"] == run and m["state"] == PlannerState.IDLE:
+            ended_at = m["run_end_tick"]
+        if sup.servo()["state"] == ServoState.FAULT:
+            raise SimulationError(f"the servo tripped: {sup.servo_fault().name} ({m['error']})")
+    if sup.trace.dropped():
+        raise SimulationError(f"the trace ring dropped {sup.trace.dropped()} ticks")
+    records = np.concatenate(chunks)
+    records = records[records["tick"] <= ended_at + settle_ticks]
+    first = np.flatnonzero(records["flags"] & int(SetpointFlag.IN_MOTION))  # the program's first record
+    return records[first[0]:] if len(first) else records
+
+
+def _metrics(records: np.ndarray, program, config: MachineConfig, dt: float) -> dict:
+    names = config.axis_names
+    cmd, act, vel = records["commanded"], records["actual"], records["velocity"]
+    path = ProgrammedPath(program.segments)
+    seg = records["segment"].astype(np.int64)
+    deviation = path.distance(cmd, seg)
+    contour = path.distance(act, seg)
+    rapid = program.segments["kind"][np.clip(seg, 0, len(program.segments) - 1)] == RAPID
+    err = act - cmd
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    moving = speed > 1e-6
+    ux = np.where(moving, vel[:, 0] / np.where(moving, speed, 1.0), 0.0)
+    uy = np.where(moving, vel[:, 1] / np.where(moving, speed, 1.0), 0.0)
+    normal = np.where(moving, np.abs(ux * err[:, 1] - uy * err[:, 0]), np.hypot(err[:, 0], err[:, 1]))
+    pk = peaks(cmd, dt)
+    per_axis = lambda arr: {a: float(arr[i]) for i, a in enumerate(names)}  # noqa: E731
+    return {
+        "path_deviation_max_mm": float(deviation.max()),
+        "tracking_error_max_mm": float(normal.max()),
+        "tracking_error_rms_mm": float(math.sqrt(np.mean(normal**2))),
+        "contour_error_max_mm": float(contour[~rapid].max()) if (~rapid).any() else 0.0,
+        "contour_error_rapid_max_mm": float(contour[rapid].max()) if rapid.any() else 0.0,
+        "following_error_max_mm": per_axis(np.abs(err).max(axis=0)),
+        "peak_velocity_mm_s": per_axis(pk["velocity"]),
+        "peak_accel_mm_s2": per_axis(pk["acceleration"]),
+        "peak_jerk_mm_s3": per_axis(pk["jerk"]),
+        "ticks_recorded": int(len(records)),
+    }
+
+
+def report(result: SimulationResult, out: IO[str]) -> None:
+    """The figures as a short table."""
+    m = result.metrics
+    axes = list(m["following_error_max_mm"])
+    rows = [
+        ("cycle time", f"{m['cycle_time_s']:.3f} s", f"planned {m['planned_cycle_time_s']:.3f} s"),
+        ("path deviation (setpoints vs program)", f"{m['path_deviation_max_mm'] * 1000:.2f} um", ""),
+        ("tracking error normal to the path", f"{m['tracking_error_max_mm'] * 1000:.2f} um max",
+         f"{m['tracking_error_rms_mm'] * 1000:.2f} um rms"),
+        ("contour error (actual vs program)", f"{m['contour_error_max_mm'] * 1000:.2f} um",
+         f"on the cut; rapids {m['contour_error_rapid_max_mm'] * 1000:.2f} um"),
+    ]
+    for key, label, scale, unit in (
+        ("following_error_max_mm", "following error", 1000.0, "um"), ("peak_velocity_mm_s", "peak velocity", 1.0, "mm/s"),
+        ("peak_accel_mm_s2", "peak acceleration", 1.0, "mm/s^2"), ("peak_jerk_mm_s3", "peak jerk", 1.0, "mm/s^3"),
+    ):
+        rows.append((label, "  ".join(f"{a.upper()} {m[key][a] * scale:.6g}" for a in axes), unit))
+    rows.append(("FIFO", f"min fill {m['fifo_min_fill']}", f"underruns {m['underruns']}, overruns {m['overruns']}"))
+    print(f"{result.program}: {m['result']}", file=out)
+    for label, value, note in rows:
+        print(f"  {label:<40} {value:<28} {note}", file=out)
+
+
+def run_cli(program: str, machine: str, json_out: str | None, plot_out: str | None, out: IO[str], err: IO[str]) -> int:
+    """`waterjet simulate`: exit 0 with the figures, 1 when the program cannot run (with the reason)."""
+    config = load_machine(machine, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"]})
+    try:
+        result = simulate(program, config)
+    except (SimulationError, SupervisorError, TimeoutError) as exc:
+        print(f"waterjet simulate: {exc}", file=err)
+        return 1
+    report(result, out)
+    if json_out:
+        Path(json_out).write_text(json.dumps({"program": result.program, **result.metrics}, indent=2) + "\n")
+    if plot_out:
+        from .plots import plot_run
+
+        r = result.trace
+        plot_run(
+            plot_out, t_s=np.arange(len(r)) * result.dt, commanded_mm=r["commanded"], actual_mm=r["actual"],
+            velocity_mm_s=r["velocity"], speed_command_v=r["speed_cmd"], programmed_xy=result.programmed_xy,
+            title=f"{result.program}: simulated run",
+        )
+    return 0
+
