@@ -64,6 +64,18 @@ def setpoint_dtype(n_axes: int) -> np.dtype:
     )
 
 
+def copy_out(ring: np.ndarray, counter: int, n: int) -> np.ndarray:
+    """A copy of the n records of a ring buffer starting at monotonic counter `counter` (wrapping)."""
+    capacity = len(ring)
+    start = counter % capacity
+    first = min(n, capacity - start)
+    out = np.empty(n, dtype=ring.dtype)
+    out[:first] = ring[start : start + first]
+    if first < n:
+        out[first:] = ring[: n - first]
+    return out
+
+
 class SetpointFifo:
     """Either end of the ring. Use `create` in the owner, `attach` elsewhere; one producer, one consumer."""
 
@@ -165,12 +177,7 @@ class SetpointFifo:
         n = min(max_records, self.head() - tail)
         if n <= 0:
             return np.empty(0, dtype=self.dtype)
-        start = tail % self.capacity
-        first = min(n, self.capacity - start)
-        out = np.empty(n, dtype=self.dtype)
-        out[:first] = self.ring[start : start + first]
-        if first < n:
-            out[first:] = self.ring[: n - first]
+        out = copy_out(self.ring, tail, n)
         self._tail = tail + n
         self._tail_cell[0] = self._tail
         return out

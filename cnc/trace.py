@@ -15,6 +15,8 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from .fifo import copy_out
+
 _HEADER = 256
 _OFF_META, _OFF_HEAD, _OFF_TAIL, _OFF_DROPPED = 0, 64, 128, 192
 _META = struct.Struct("<QQQ")
@@ -88,12 +90,7 @@ class TraceRing:
         n = self._head_cell[0] - tail
         if n <= 0:
             return np.empty(0, dtype=self.dtype)
-        start = tail % self.capacity
-        first = min(n, self.capacity - start)
-        out = np.empty(n, dtype=self.dtype)
-        out[:first] = self.ring[start:start + first]
-        if first < n:
-            out[first:] = self.ring[:n - first]
+        out = copy_out(self.ring, tail, n)
         self._tail = tail + n
         self._tail_cell[0] = self._tail
         return out
