@@ -94,6 +94,7 @@ def run_servo(rt: Runtime, ready) -> None:
 
 def run_planner(rt: Runtime, ready) -> None:
     import gc
+    import sys
 
     from .planner.process import Planner
 
@@ -107,6 +108,7 @@ def run_planner(rt: Runtime, ready) -> None:
         enter_realtime(max(1, rt.config.timing.realtime_priority - 2), "planner")
     gc.collect()
     gc.freeze()  # the planner allocates freely (numpy); collections stay short, the FIFO covers them
+    sys.setswitchinterval(0.001)  # the refills get the interpreter within 1 ms of the planning thread
     set_ready(ready)
     try:
         planner.run()

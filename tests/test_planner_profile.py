@@ -7,7 +7,7 @@ import random
 import numpy as np
 import pytest
 
-from cnc.planner.profile import Pieces, Zones, plan
+from cnc.planner.profile import PLATEAU_SLACK, Pieces, Zones, plan
 
 A, PLATEAU = 5000.0, 0.027
 
@@ -52,7 +52,7 @@ def plateaus_ok(p: Pieces) -> bool:
         if a == 0.0:
             flat += d
             continue
-        if last_sign and np.sign(a) != last_sign and flat < PLATEAU - 1e-9:
+        if last_sign and np.sign(a) != last_sign and flat < PLATEAU * (1 - PLATEAU_SLACK):
             return False
         last_sign, flat = np.sign(a), 0.0
     return True

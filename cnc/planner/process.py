@@ -22,6 +22,7 @@ import hashlib
 import logging
 import math
 import os
+import threading
 from pathlib import Path
 
 import msgspec
@@ -45,6 +46,8 @@ from .runner import ProgramRunner, RunState
 from .sections import move_steps, program_steps
 
 log = logging.getLogger(__name__)
+
+PLAN_AHEAD_S = 0.5  # motion planned this far ahead of the setpoints made, by the worker thread
 
 _RUN_STATES = {
     RunState.RUNNING: PlannerState.RUNNING, RunState.HOLDING: PlannerState.HOLDING, RunState.HELD: PlannerState.HELD,
@@ -103,6 +106,15 @@ class Planner:
         self.track_fill = False
         self.last_pushed: np.ndarray | None = None
         self._set(state=int(PlannerState.IDLE), homing_axis=-1, override=1.0, fifo_min_fill=-1, segment=-1)
+        # Look-ahead windows are planned by a worker thread, away from the refills: a window of
+        # hundreds of short chords takes tens of ms, more than the FIFO's slack. The main loop
+        # holds `lock` while it serves commands and refills; the worker only to fetch a window
+        # and to commit it (`ProgramRunner.plan_job`, `SectionStream.accept`).
+        self.lock = threading.Lock()
+        self.plan_wanted = threading.Event()
+        self._stop_worker = threading.Event()
+        self.worker = threading.Thread(target=self._plan_ahead, name="plan-ahead", daemon=True)
+        self.worker.start()
 
     # -- the loop ---------------------------------------------------------------------------
     def run(self) -> None:
@@ -112,15 +124,39 @@ class Planner:
             if woke:
                 while self.timer.wake.acquire(False):
                     pass
-            self.handle_commands()
-            if woke:
-                try:
-                    self.on_tick()
-                finally:
-                    self.timer.tick_done()
+            with self.lock:
+                self.handle_commands()
+                if woke:
+                    try:
+                        self.on_tick()
+                    finally:
+                        self.timer.tick_done()
             self.beat[Proc.PLANNER] += 1
 
+    def _plan_ahead(self) -> None:
+        """Worker: after each refill, plan windows until the motion is planned PLAN_AHEAD_S ahead."""
+        while not self._stop_worker.is_set():
+            if not self.plan_wanted.wait(0.05):
+                continue
+            self.plan_wanted.clear()
+            while not self._stop_worker.is_set():
+                with self.lock:
+                    runner = self.runner
+                    job = runner.plan_job(PLAN_AHEAD_S) if runner is not None else None
+                if job is None:
+                    break
+                try:
+                    job.compute()
+                except Exception:  # a bug: the main loop plans the same window itself and reports it
+                    log.exception("planner: planning ahead failed")
+                    break
+                with self.lock:
+                    if self.runner is runner:
+                        job.stream.accept(job)
+
     def close(self) -> None:
+        self._stop_worker.set()
+        self.worker.join(2.0)
         for q in self.queryables.values():
             q.undeclare()
         self.token.undeclare()
@@ -374,6 +410,7 @@ class Planner:
             records, done = runner.take(self.high - fill)
             self._push(records, done)
             self.track_fill = len(records) > 0 and not runner.idle
+            self.plan_wanted.set()
         elif runner.idle:
             records, done = runner.take(0)  # the record that leaves the servo at rest, if one is due
             self._push(records, done)

@@ -21,7 +21,6 @@ rather than jumping (it is allowed above a soft cap while doing so).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,9 +29,11 @@ EPS_MM = 1e-9
 EPS_V = 1e-9
 STILL_MM_S = 1e-6  # a speed this low is standing still: never cruise at it
 # Plateaus are checked to within this share of their length (positions kilometres along a
-# section carry rounding of 1e-9 mm) and made this much longer; the plateau already has two
-# samples of margin (`stream.py`), so the jerk bound does not notice.
+# section carry rounding of 1e-9 mm); the plateau already has two samples of margin
+# (`stream.py`), so the jerk bound does not notice. A fix aims this much longer, so that
+# the estimate it is made from never leaves a sliver for another round to fix.
 PLATEAU_SLACK = 1e-6
+PLATEAU_AIM = 1e-3
 
 
 @dataclass
@@ -120,8 +121,7 @@ def plan(
         if fixes[0][0] <= s_start + EPS_MM:  # the plateau would have to start in the past: cruise now
             cruise_first = True
             break
-        for fix in fixes:
-            zones, hard, soft = _with_cap(zones, hard, soft, *fix)
+        zones, hard, soft = _with_caps(zones, hard, soft, fixes)
     else:
         raise RuntimeError("speed profile: peaks kept needing a plateau after 50 passes")
     s0, v0, a, dur = pieces
@@ -184,120 +184,137 @@ def _soft_after_braking(zones: Zones, v_start: float) -> Zones:
 
 
 def _junction_speeds(edges: np.ndarray, caps: np.ndarray, accel: np.ndarray, v_start: float, v_end: float) -> np.ndarray:
-    """Speed at every zone edge: forward (reachable) and backward (can still meet what follows) passes."""
-    m = len(caps)
+    """Speed at every zone edge: forward (reachable) and backward (can still meet what follows) passes.
+
+    In u = v^2 each pass is a min-plus recursion, u[k+1] = min(C[k+1], u[k] + 2 A[k] L[k]),
+    whose solution is u[n] = S[n] + min over j <= n of (C[j] - S[j]), S the running sum of
+    2 A L: a cumulative minimum, so both passes are a few array operations.
+    """
     length = np.diff(edges)
-    w = np.empty(m + 1)
-    w[0] = v_start
+    d = 2.0 * accel * length
+    cumulative = np.concatenate(([0.0], np.cumsum(d)))
     cap_at = np.minimum(np.concatenate((caps[:1], caps)), np.concatenate((caps, caps[-1:])))
-    cap_at[0] = max(v_start, 0.0)
-    for k in range(m):
-        w[k + 1] = min(cap_at[k + 1], math.sqrt(w[k] * w[k] + 2.0 * accel[k] * length[k]))
-    w[m] = min(w[m], v_end)
-    for k in range(m - 1, -1, -1):
-        back = math.sqrt(w[k + 1] * w[k + 1] + 2.0 * accel[k] * length[k])
-        if back < w[k]:
-            w[k] = back
-    if w[0] < v_start - 1e-6 * max(1.0, v_start):
+    limit = cap_at * cap_at
+    limit[0] = v_start * v_start
+    forward = cumulative + np.minimum.accumulate(limit - cumulative)
+    limit[-1] = min(limit[-1], v_end * v_end)
+    limit[0] = np.inf  # the start is given; the backward pass only says whether it can be met
+    backward = np.minimum.accumulate((limit + cumulative)[::-1])[::-1] - cumulative
+    u = np.minimum(forward, backward)
+    if backward[0] < v_start * v_start * (1.0 - 2e-6) - 1e-12:
         # Too fast to meet what follows (a window shorter than a stop): keep the speed
         # continuous and brake as hard as allowed until the profile is met.
-        w[0] = v_start
-        for k in range(m):
-            w[k + 1] = max(w[k + 1], math.sqrt(max(w[k] * w[k] - 2.0 * accel[k] * length[k], 0.0)))
-    w[0] = v_start  # (rounding alone)
+        u = np.maximum(u, v_start * v_start - cumulative)
+    w = np.sqrt(np.maximum(u, 0.0))
+    w[0] = v_start  # (rounding alone otherwise)
     return w
 
 
 def _zone_pieces(edges, caps, accel, w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Accelerate / cruise / decelerate pieces of every zone, as (s0, v0, a, duration)."""
-    s0, v0, a, dur = [], [], [], []
-    for k in range(len(caps)):
-        x0, x1, c, acc, wa, wb = edges[k], edges[k + 1], caps[k], accel[k], w[k], w[k + 1]
-        length = x1 - x0
-        if length <= EPS_MM:
-            continue
-        peak2 = (wa * wa + wb * wb + 2.0 * acc * length) / 2.0
-        top = min(c, math.sqrt(peak2)) if np.isfinite(c) else math.sqrt(peak2)
-        top = max(top, wa, wb)
-        d_up = max((top * top - wa * wa) / (2.0 * acc), 0.0)
-        d_down = max((top * top - wb * wb) / (2.0 * acc), 0.0)
-        d_flat = length - d_up - d_down
-        if d_flat < 0.0:  # rounding: share the shortfall
-            d_up, d_down, d_flat = d_up + d_flat / 2.0, d_down + d_flat / 2.0, 0.0
-        x = x0
-        if d_up > EPS_MM and top > wa + EPS_V:
-            s0.append(x), v0.append(wa), a.append(acc), dur.append((top - wa) / acc)
-            x += d_up
-        if d_flat > EPS_MM and top > STILL_MM_S:
-            s0.append(x), v0.append(top), a.append(0.0), dur.append(d_flat / top)
-            x += d_flat
-        if d_down > EPS_MM and top > wb + EPS_V:
-            s0.append(x), v0.append(top), a.append(-acc), dur.append((top - wb) / acc)
-    return np.array(s0), np.array(v0), np.array(a), np.array(dur)
+    """Accelerate / cruise / decelerate pieces of every zone, as (s0, v0, a, duration), all zones at once."""
+    x0, length = edges[:-1], np.diff(edges)
+    wa, wb = w[:-1], w[1:]
+    peak = np.sqrt((wa * wa + wb * wb + 2.0 * accel * length) / 2.0)
+    top = np.maximum(np.minimum(caps, peak), np.maximum(wa, wb))
+    d_up = np.maximum((top * top - wa * wa) / (2.0 * accel), 0.0)
+    d_down = np.maximum((top * top - wb * wb) / (2.0 * accel), 0.0)
+    d_flat = length - d_up - d_down
+    short = d_flat < 0.0  # rounding: share the shortfall
+    d_up = np.where(short, d_up + d_flat / 2.0, d_up)
+    d_down = np.where(short, d_down + d_flat / 2.0, d_down)
+    d_flat = np.where(short, 0.0, d_flat)
+    real = length > EPS_MM
+    up = real & (d_up > EPS_MM) & (top > wa + EPS_V)
+    flat = real & (d_flat > EPS_MM) & (top > STILL_MM_S)
+    down = real & (d_down > EPS_MM) & (top > wb + EPS_V)
+    s_flat = x0 + np.where(up, d_up, 0.0)
+    s_down = s_flat + np.where(flat, d_flat, 0.0)
+    safe_top = np.where(top > 0.0, top, 1.0)
+    s0 = np.stack((x0, s_flat, s_down), axis=1)
+    v0 = np.stack((wa, top, top), axis=1)
+    a = np.stack((accel, np.zeros_like(accel), -accel), axis=1)
+    dur = np.stack(((top - wa) / accel, d_flat / safe_top, (top - wb) / accel), axis=1)
+    keep = np.stack((up, flat, down), axis=1).ravel()
+    return s0.ravel()[keep], v0.ravel()[keep], a.ravel()[keep], dur.ravel()[keep]
+
+
+def _turns(pieces):
+    """Consecutive pieces that accelerate (either way) with only cruise between: index pairs
+    (i, j) and the cruise time between them."""
+    s0, v0, a, dur = pieces
+    moving = np.flatnonzero(a != 0.0)
+    if len(moving) < 2:
+        return moving[:0], moving[:0], np.zeros(0)
+    cruise = np.concatenate(([0.0], np.cumsum(np.where(a == 0.0, dur, 0.0))))
+    i, j = moving[:-1], moving[1:]
+    return i, j, cruise[j] - cruise[i + 1]
 
 
 def _short_peaks(pieces, plateau_s: float) -> list[tuple[float, float, float]]:
     """Every speed-up straight into a slow-down without `plateau_s` of cruise between them,
     each as a cap (from_mm, to_mm, speed) that gives it one."""
     s0, v0, a, dur = pieces
-    n = len(a)
-    out = []
-    k = 0
-    while k < n:
-        if a[k] <= 0.0:
-            k += 1
-            continue
-        j = k
-        while j + 1 < n and a[j + 1] > 0.0:
-            j += 1  # the whole rise
-        c = j + 1
-        flat_mm = flat_s = 0.0
-        while c < n and a[c] == 0.0:
-            flat_mm += v0[c] * dur[c]
-            flat_s += dur[c]
-            c += 1
-        if c < n and a[c] < 0.0 and flat_s < plateau_s * (1.0 - PLATEAU_SLACK):
-            a_up, a_down = a[j], -a[c]
-            v_peak = v0[c]
-            s_flat0 = s0[j + 1] if j + 1 < n else s0[c]
-            kk = 1.0 / (2.0 * a_up) + 1.0 / (2.0 * a_down)
-            want = plateau_s * (1.0 + PLATEAU_SLACK)
-            v_cap = (-want + math.sqrt(want**2 + 4.0 * kk * (flat_mm + kk * v_peak * v_peak))) / (2.0 * kk)
-            v_cap = min(v_cap, v_peak * (1.0 - 1e-9))
-            lo = s_flat0 - (v_peak * v_peak - v_cap * v_cap) / (2.0 * a_up)
-            hi = s_flat0 + flat_mm + (v_peak * v_peak - v_cap * v_cap) / (2.0 * a_down)
-            out.append((lo, hi, v_cap))
-        k = c
+    i, j, flat_s = _turns(pieces)
+    hit = (a[i] > 0.0) & (a[j] < 0.0) & (flat_s < plateau_s * (1.0 - PLATEAU_SLACK))
+    i, j = i[hit], j[hit]
+    if not len(i):
+        return []
+    # the gentlest acceleration of the whole rise and fall: where zones of different
+    # acceleration meet, the cap then leaves at least the plateau in one round
+    a_up, a_down, v_peak = _run_min(np.where(a > 0.0, a, 0.0), i, -1), _run_min(np.where(a < 0.0, -a, 0.0), j, 1), v0[j]
+    s_flat0 = s0[i + 1]
+    flat_mm = s0[j] - s_flat0
+    kk = 1.0 / (2.0 * a_up) + 1.0 / (2.0 * a_down)
+    want = plateau_s * (1.0 + PLATEAU_AIM)
+    v_cap = (-want + np.sqrt(want * want + 4.0 * kk * (flat_mm + kk * v_peak * v_peak))) / (2.0 * kk)
+    v_cap = np.minimum(v_cap, v_peak * (1.0 - 1e-9))
+    drop = v_peak * v_peak - v_cap * v_cap
+    lo = s_flat0 - drop / (2.0 * a_up)
+    hi = s_flat0 + flat_mm + drop / (2.0 * a_down)
+    return list(zip(lo.tolist(), hi.tolist(), v_cap.tolist()))
+
+
+def _run_min(values: np.ndarray, at: np.ndarray, step: int) -> np.ndarray:
+    """For each index in `at`, the least of `values` over the run of non-zero values from it
+    backwards (step -1) or forwards (step 1)."""
+    out = values[at].copy()
+    idx = at.copy()
+    live = np.ones(len(at), dtype=bool)
+    for _ in range(len(values)):
+        idx = idx + step
+        live &= (idx >= 0) & (idx < len(values))
+        if not live.any():
+            break
+        v = values[np.clip(idx, 0, len(values) - 1)]
+        live &= v > 0.0
+        out = np.where(live, np.minimum(out, v), out)
     return out
 
 
 def _short_valleys(pieces, plateau_s: float) -> list[tuple[float, float, float]]:
     """Every slow-down straight into a speed-up without `plateau_s` of cruise between them,
-    each as a cap (from_mm, to_mm, speed) that holds the low speed long enough."""
+    each as a cap (from_mm, to_mm, speed) that holds the low speed long enough (a stop in
+    the middle is left to the averages: they handle a rest)."""
     s0, v0, a, dur = pieces
-    n = len(a)
-    out = []
-    for k in range(n):
-        if a[k] >= 0.0:
-            continue
-        c, flat_s = k + 1, 0.0
-        while c < n and a[c] == 0.0:
-            flat_s += dur[c]
-            c += 1
-        if c < n and a[c] > 0.0 and flat_s < plateau_s * (1.0 - PLATEAU_SLACK):
-            v_low = v0[c]
-            if v_low > EPS_V:  # (a stop in the middle is left to the averages: they handle a rest)
-                out.append((s0[c], s0[c] + v_low * (plateau_s * (1.0 + PLATEAU_SLACK) - flat_s), v_low))
-    return out
+    i, j, flat_s = _turns(pieces)
+    hit = (a[i] < 0.0) & (a[j] > 0.0) & (flat_s < plateau_s * (1.0 - PLATEAU_SLACK)) & (v0[j] > EPS_V)
+    j, flat_s = j[hit], flat_s[hit]
+    v_low = v0[j]
+    hi = s0[j] + v_low * (plateau_s * (1.0 + PLATEAU_AIM) - flat_s)
+    return list(zip(s0[j].tolist(), hi.tolist(), v_low.tolist()))
 
 
-def _with_cap(zones: Zones, hard: np.ndarray, soft: np.ndarray, lo: float, hi: float, cap: float):
-    """Zones with an extra hard cap on [lo, hi] (edges split there)."""
+def _with_caps(zones: Zones, hard: np.ndarray, soft: np.ndarray, caps: list[tuple[float, float, float]]):
+    """Zones with extra hard caps, each on its [lo, hi] (edges split there)."""
     edges = zones.edges
-    new_edges = np.unique(np.concatenate((edges, [min(max(lo, edges[0]), edges[-1]), min(max(hi, edges[0]), edges[-1])])))
+    bounds = np.clip(np.array([(lo, hi) for lo, hi, _ in caps]).ravel(), edges[0], edges[-1])
+    new_edges = np.unique(np.concatenate((edges, bounds)))
     idx = np.clip(np.searchsorted(edges, new_edges[:-1], side="right") - 1, 0, len(hard) - 1)
     mid = (new_edges[:-1] + new_edges[1:]) / 2.0
-    new_hard = np.where((mid >= lo) & (mid <= hi), np.minimum(hard[idx], cap), hard[idx])
+    new_hard = hard[idx].copy()
+    for lo, hi, cap in caps:
+        inside = (mid >= lo) & (mid <= hi)
+        new_hard[inside] = np.minimum(new_hard[inside], cap)
     out = Zones(new_edges, new_hard, zones.soft[idx], zones.accel[idx])
     return out, new_hard.copy(), soft[idx]
 

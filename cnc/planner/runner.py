@@ -28,7 +28,7 @@ from gcode.program import Program
 from ..config import MachineConfig
 from ..fifo import SetpointFlag, setpoint_dtype
 from .sections import Section, Step, program_steps
-from .stream import SectionStream
+from .stream import SectionStream, WindowJob
 
 _IN_MOTION = int(SetpointFlag.IN_MOTION)
 _SEGMENT_START = int(SetpointFlag.SEGMENT_START)
@@ -70,6 +70,7 @@ class ProgramRunner:
         self.events: list[Event] = []
         self.index = -1  # step being run
         self.stream: SectionStream | None = None
+        self._ready: dict[int, SectionStream] = {}  # streams of steps ahead, planned early (`prepare`)
         self.pause_left = 0
         self.repierce = 0  # samples of re-pierce still to make before motion continues
         self.flags_now = 0  # output bits of the last record made
@@ -88,6 +89,7 @@ class ProgramRunner:
     # -- the operator's controls ------------------------------------------------------------
     def set_override(self, ratio: float) -> None:
         self.override = ratio
+        self._ready.clear()  # planned under the old override
         if self.stream is not None and self.state in (RunState.RUNNING,):
             self.stream.set_override(ratio, min(ratio, 1.0))
 
@@ -207,7 +209,7 @@ class ProgramRunner:
             return
         step = self.steps[self.index]
         if isinstance(step, Section):
-            self.stream = SectionStream(step, self.override, min(self.override, 1.0))
+            self.stream = self._ready.pop(self.index, None) or SectionStream(step, self.override, min(self.override, 1.0))
             self._message_index = 0
         elif step.kind == "program_stop":
             self.events.append(Event("program_stop", step.text, step.line))
@@ -291,6 +293,38 @@ class ProgramRunner:
 
     def _ticks(self, seconds: float) -> int:
         return int(round(seconds / self.dt))
+
+    def plan_job(self, lead_s: float) -> WindowJob | None:
+        """The next window to plan ahead (`SectionStream.window_job`): of the motion under way,
+        or of the next section when the step under way ends within the lead."""
+        if self.state != RunState.RUNNING:
+            return None
+        left = lead_s
+        if self.stream is not None:
+            job = self.stream.window_job(lead_s)
+            if job is not None or not self.stream.final:
+                return job
+            left -= (self.stream.k_end - self.stream.k) * self.dt
+        else:
+            left -= self.pause_left * self.dt
+        for i in range(self.index + 1, len(self.steps)):
+            if left <= 0.0:
+                return None
+            step = self.steps[i]
+            if isinstance(step, Section):
+                ready = self._ready.setdefault(i, SectionStream(step, self.override, min(self.override, 1.0)))
+                return ready.window_job(left)
+            if step.kind == "program_stop":
+                return None
+            left -= step.seconds
+        return None
+
+    def prepare(self, lead_s: float) -> None:
+        """Plan one window ahead, here and now (what the planner's worker thread does away from the refills)."""
+        job = self.plan_job(lead_s)
+        if job is not None:
+            job.compute()
+            job.stream.accept(job)
 
     def planned_ticks(self) -> int:
         """Servo periods the whole program takes at 100 % override, from its first record to its last

@@ -19,10 +19,32 @@ import math
 
 import numpy as np
 
+from dataclasses import dataclass
+
 from .limits import envelope
 from .profile import Pieces, Zones, braking_distance, plan
 from .sections import Section
 from .smoothing import MovingAverage
+
+@dataclass
+class WindowJob:
+    """One look-ahead window to plan: a pure computation from the committed end state, so it may
+    run away from the stream (the planner's worker thread) and be accepted afterwards."""
+
+    stream: "SectionStream"
+    generation: int
+    start: tuple[float, float, float, float, float]  # s, v, last acceleration, cruised since, time
+    end_mm: float
+    holding: bool
+    override: float
+    rapid_override: float
+    pieces: Pieces | None = None
+
+    def compute(self) -> None:
+        s, v, a_prev, cruised, t0 = self.start
+        zones = self.stream.zones(s, self.end_mm, self.holding, self.override, self.rapid_override)
+        self.pieces = plan(zones, s, v, a_prev, 0.0, self.stream.plateau_s, t0, cruised)
+
 
 WINDOWS_PER_COMMIT = 2.0  # the window reaches this many commit lengths beyond what is committed
 REST_SAMPLES = 3  # a section ends with this many samples at rest: the next one's start and this one's
@@ -52,6 +74,7 @@ class SectionStream:
         self.widen_mm = v_top * self.reach_s
         self.override, self.rapid_override = override, rapid_override
         self.holding = False
+        self.generation = 0  # +1 at every replan: a window planned before it is stale
         self.pieces = Pieces.empty()
         self.final = False  # the committed pieces reach the end of the section
         self.k = 0  # samples made so far; sample k is at time k * dt
@@ -123,6 +146,21 @@ class SectionStream:
         self.k += n
         return y, centre
 
+    def window_job(self, lead_s: float) -> WindowJob | None:
+        """The next window to plan ahead so that committed motion reaches `lead_s` past the last
+        sample made (None when it does, or when nothing may be planned ahead now). Planned
+        ahead, a window is not planned while the FIFO drains, in `take`."""
+        if self.stopping or self.final or (len(self.pieces) and self.pieces.t_end >= self.k * self.dt + lead_s):
+            return None
+        return self._job()
+
+    def accept(self, job: WindowJob) -> bool:
+        """Commit a window planned ahead, unless a replan or another commit made it stale."""
+        if job.generation != self.generation or job.start != self._plan_start() or self.final:
+            return False
+        self._take_window(job)
+        return True
+
     def planned_samples(self) -> int:
         """Plan the whole section without sampling it; how many samples it takes (what `take` will give)."""
         self._cover(math.inf)
@@ -155,10 +193,19 @@ class SectionStream:
                 return float(p.a[i]), max(t - end, 0.0)
         return 0.0, 0.0
 
+    def _job(self, start: tuple | None = None) -> WindowJob:
+        start = start or self._plan_start()
+        end = min(start[0] + self.window_mm, self.length)
+        return WindowJob(self, self.generation, start, end, self.holding, self.override, self.rapid_override)
+
     def _commit(self, s: float, v: float, a_prev: float, cruised: float, t0: float) -> None:
-        end = min(s + self.window_mm, self.length)
-        zones = self._zones(s, end)
-        pieces = plan(zones, s, v, a_prev, 0.0, self.plateau_s, t0, cruised)
+        job = self._job((s, v, a_prev, cruised, t0))
+        job.compute()
+        self._take_window(job)
+
+    def _take_window(self, job: WindowJob) -> None:
+        """Commit a planned window: all of it at the end of the section or when stopping, else its first part."""
+        pieces, (s, v, _, _, _), end = job.pieces, job.start, job.end_mm
         reaches_end = end >= self.length - 1e-9
         if not reaches_end and not self.stopping:
             pieces = pieces.until(_time_at(pieces, s + self.commit_mm))
@@ -175,6 +222,7 @@ class SectionStream:
 
     def _replan(self) -> None:
         """Drop what is committed after the last sample made and plan again from there."""
+        self.generation += 1
         t = self.k * self.dt
         if self.done or (len(self.pieces) and t >= self.pieces.t_end and self.final):
             return
@@ -198,17 +246,18 @@ class SectionStream:
             return float(p.a[k]), 0.0
         return self._history(t)
 
-    def _zones(self, lo: float, hi: float) -> Zones:
-        """Caps and accelerations over [lo, hi], each widened to where the averages could mix it in."""
+    def zones(self, lo: float, hi: float, holding: bool, override: float, rapid_override: float) -> Zones:
+        """Caps and accelerations over [lo, hi] under these controls, each widened to where the
+        averages could mix it in (reads only what never changes: safe from another thread)."""
         lim = self.section.limits
         i0 = int(np.searchsorted(self.s1, lo - self.widen_mm, side="left"))
         i1 = int(np.searchsorted(self.s0, hi + self.widen_mm, side="right"))
         s0, s1 = self.s0[i0:i1], self.s1[i0:i1]
         hard = lim.v_hard[i0:i1]
-        if self.holding:
+        if holding:
             soft = np.zeros(len(hard))  # a hold stops rapids too
         else:
-            soft = np.where(lim.rapid[i0:i1], hard * self.rapid_override, lim.v_feed[i0:i1] * self.override)
+            soft = np.where(lim.rapid[i0:i1], hard * rapid_override, lim.v_feed[i0:i1] * override)
         k = (self.kink_at >= lo - self.widen_mm) & (self.kink_at <= hi + self.widen_mm)
         r = self.reach_s
         e_hard, v_hard = envelope(
