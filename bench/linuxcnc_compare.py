@@ -1,0 +1,448 @@
+"""Our trajectory planner beside LinuxCNC's: cycle time and path deviation, same programs, same limits.
+
+Each program runs through our planner offline (interpreter, `ProgramRunner`: the code the
+planner process runs) and through a headless LinuxCNC 2.9 (`linuxcnc_sim.run_linuxcnc`), with
+the axis limits of machines/waterjet.toml (X/Y velocity, acceleration, travel, servo period)
+and both machines starting at the program's first point. LinuxCNC gets no jerk limit (2.9
+has none); ours holds its own. Programs (generated; all within the 1600 x 1200 mm table):
+
+- the paper's test contour, bench/fig10_contour.ngc (tangent lines and arcs, G64 P0.005);
+- corner tests: a 100 mm square, and a zigzag whose corners have interior angles of 30, 60,
+  90, 120 and 150 degrees (30 = a sharp turn), at F12000 and F30000, G64 P0.05 and P0.005;
+- CAM polylines: a circle R100 as 0.5 mm chords at F6000, and a Lissajous curve as 0.2-2 mm
+  chords at F12000, G64 P0.05;
+- a nest: bench/gcode_speed.py's nesting program, about 2000 lines, with the kerf applied by
+  CAM and without jet, pierce-dwell and tool-change lines (LinuxCNC has none of our jet delays).
+
+For each: cycle time, both measured alike (servo periods from the last sample at rest before
+the first move to the last change of the commanded position, at LinuxCNC's 1 um sampling
+resolution), and their ratio ours/LinuxCNC (target <= 1.0); the largest distance of the
+commanded XY from the programmed geometry against the program's G64 P (target <= P); and
+per-axis peaks of |v|, |a|, |j| (backward differences of the commanded positions, at rest
+before and after). Distances are taken to the programmed elements near each sample's
+segment: ours tags every setpoint with it; LinuxCNC's samples carry their program line, which
+bounds the segments they may be on (`segment_spans`). A cross-check takes the distance to the
+nearest element anywhere in the program (in the JSON; a line is printed where they differ).
+
+From the repository root, with the project installed (LinuxCNC runs in real time: minutes):
+
+    .venv/bin/python bench/linuxcnc_compare.py [--quick] [--json OUT]
+
+Exits 0 when every program ran on both (or LinuxCNC is unavailable here: then only our
+figures are shown, with the reason), 1 when a LinuxCNC run failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import random
+import re
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import linuxcnc_sim
+from gcode_speed import nesting_program
+
+from cnc.config import MachineConfig, load_machine
+from cnc.machine_dialect import dialect_for
+from cnc.planner.measure import ProgrammedPath, peaks
+from cnc.planner.runner import ProgramRunner
+from gcode.interp import interpret
+from gcode.program import Program
+
+BENCH = Path(__file__).resolve().parent
+MACHINE_FILE = BENCH.parent / "machines" / "waterjet.toml"
+FIG10_FILE = BENCH / "fig10_contour.ngc"
+AXES = ("x", "y")
+# LinuxCNC has no jet: none of our jet-on, pierce and jet-off pauses may count in our time
+NO_JET_DELAYS = {"jet.on_delay_s": 0.0, "jet.pierce_dwell_s": 0.0, "jet.off_delay_s": 0.0}
+SAMPLE_RESOLUTION_MM = 1e-6  # halsampler prints "%f": LinuxCNC's positions come rounded to this
+REST_SAMPLES = 3  # samples at rest added around a trajectory, so the peaks see it start and stop
+TAG_WINDOW = 8  # elements either side of a sample's segment searched for the nearest geometry
+LINE_LEAD_RUNS = 2  # how many reported lines LinuxCNC's program line may run ahead of its head
+TAG_CHECK_MM = 1e-6  # tagged and nearest-anywhere deviation should agree to this
+HEADER = "G21 G90 G17 G40 G94"
+CORNER_FEEDS = (12000, 30000)  # mm/min: 200 and 500 mm/s
+CORNER_TOLERANCES_MM = (0.05, 0.005)
+CORNER_ANGLES_DEG = (30, 60, 90, 120, 150)
+SQUARE_MM = 100.0
+ZIGZAG_LEG_MM = 50.0
+CAM_TOLERANCE_MM = 0.05  # G64 P of the CAM polylines and of the nest
+CHORD_CIRCLE_RADIUS_MM, CHORD_CIRCLE_CHORD_MM, CHORD_CIRCLE_FEED = 100.0, 0.5, 6000
+LISSAJOUS_AMPLITUDE_MM = (300.0, 200.0)
+LISSAJOUS_CHORD_MM = (0.2, 2.0)
+LISSAJOUS_FEED = 12000
+NEST_LINES = 2000
+NEST_DROPPED = re.compile(r"^(M3|M5|G4 P[\d.]+|T\d+ M6)$")  # jet, pierce dwell, tool change
+TABLE_CENTRE = (800.0, 600.0)
+
+
+@dataclass(frozen=True)
+class Bench:
+    """One program of the comparison."""
+
+    name: str
+    text: str
+    quick: bool = False  # part of the --quick subset
+
+
+@dataclass
+class Figures:
+    """One planner's result on one program."""
+
+    cycle_time_s: float
+    max_deviation_mm: float
+    max_deviation_anywhere_mm: float  # to the nearest element of the whole program (cross-check)
+    peak_velocity_mm_s: list[float]
+    peak_accel_mm_s2: list[float]
+    peak_jerk_mm_s3: list[float]
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Comparison:
+    """Both planners on one program."""
+
+    bench: Bench
+    tolerance_mm: float
+    start_mm: tuple[float, float]
+    ours: Figures
+    linuxcnc: Figures | None = None
+    linuxcnc_error: str = ""
+
+    @property
+    def ratio(self) -> float | None:
+        return self.ours.cycle_time_s / self.linuxcnc.cycle_time_s if self.linuxcnc else None
+
+
+# --------------------------------------------------------------------------------------
+# Programs
+# --------------------------------------------------------------------------------------
+
+
+def _program(title: str, tolerance_mm: float, feed: int, points: list[tuple[float, float]]) -> str:
+    """A rapid to the first point, then straight moves through the others at `feed` (mm/min)."""
+    (x0, y0), rest = points[0], points[1:]
+    lines = [f"({title})", HEADER, f"G64 P{tolerance_mm:g}", f"G0 X{x0:.4f} Y{y0:.4f}", f"F{feed}"]
+    lines += [f"G1 X{x:.4f} Y{y:.4f}" for x, y in rest]
+    return "\n".join([*lines, "M2"]) + "\n"
+
+
+def _square(origin: tuple[float, float]) -> list[tuple[float, float]]:
+    x, y = origin
+    s = SQUARE_MM
+    return [(x, y), (x + s, y), (x + s, y + s), (x, y + s), (x, y)]
+
+
+def _zigzag(origin: tuple[float, float]) -> list[tuple[float, float]]:
+    """Straight legs meeting at CORNER_ANGLES_DEG (interior angles), turning left and right in turn."""
+    heading, points = 0.0, [origin]
+    for k, angle in enumerate((*CORNER_ANGLES_DEG, None)):
+        x, y = points[-1]
+        points.append((x + ZIGZAG_LEG_MM * math.cos(heading), y + ZIGZAG_LEG_MM * math.sin(heading)))
+        if angle is not None:
+            heading += (-1) ** k * math.radians(180 - angle)
+    return points
+
+
+def corner_benches() -> list[Bench]:
+    benches = []
+    for shape, points, origin in (("square 100", _square, (200.0, 200.0)), ("zigzag", _zigzag, (600.0, 400.0))):
+        for feed in CORNER_FEEDS:
+            for p in CORNER_TOLERANCES_MM:
+                name = f"{shape} F{feed} P{p:g}"
+                quick = (shape, feed, p) in (("square 100", 12000, 0.05), ("zigzag", 30000, 0.005))
+                benches.append(Bench(name, _program(name, p, feed, points(origin)), quick))
+    return benches
+
+
+def chord_circle_bench() -> Bench:
+    cx, cy = TABLE_CENTRE
+    r = CHORD_CIRCLE_RADIUS_MM
+    n = round(2 * math.pi * r / CHORD_CIRCLE_CHORD_MM)
+    angles = [2 * math.pi * k / n for k in range(n + 1)]
+    points = [(cx + r * math.cos(a), cy + r * math.sin(a)) for a in angles]
+    name = f"circle R{r:g} {n} chords F{CHORD_CIRCLE_FEED}"
+    return Bench(name, _program(name, CAM_TOLERANCE_MM, CHORD_CIRCLE_FEED, points), quick=True)
+
+
+def lissajous_bench(seed: int = 1) -> Bench:
+    """x = cx + A sin 3t, y = cy + B sin 2t, cut into chords of random length between the limits."""
+    (cx, cy), (a, b) = TABLE_CENTRE, LISSAJOUS_AMPLITUDE_MM
+    t = np.linspace(0.0, 2 * math.pi, 400_001)
+    curve = np.column_stack((cx + a * np.sin(3 * t), cy + b * np.sin(2 * t)))
+    s = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(curve, axis=0).T))))
+    rng = random.Random(seed)
+    stations = [0.0]
+    while stations[-1] + 2 * LISSAJOUS_CHORD_MM[1] < s[-1]:
+        stations.append(stations[-1] + rng.uniform(*LISSAJOUS_CHORD_MM))
+    stations.append(s[-1])
+    at = np.interp(stations, s, t)
+    points = list(zip(cx + a * np.sin(3 * at), cy + b * np.sin(2 * at)))
+    name = f"lissajous {len(points) - 1} chords F{LISSAJOUS_FEED}"
+    return Bench(name, _program(name, CAM_TOLERANCE_MM, LISSAJOUS_FEED, points))
+
+
+def nest_bench() -> Bench:
+    """The nesting program's first parts, CAM kerf, no jet: only motion left to compare."""
+    text = nesting_program(NEST_LINES).replace("G41 D1 ", "").replace("G40 ", "")
+    lines = [ln for ln in text.splitlines() if not NEST_DROPPED.match(ln)]
+    return Bench(f"nest {len(lines)} lines F2400", "\n".join(lines) + "\n")
+
+
+def benches() -> list[Bench]:
+    fig10 = Bench("fig10 contour F30000", FIG10_FILE.read_text(), quick=True)
+    return [fig10, *corner_benches(), chord_circle_bench(), lissajous_bench(), nest_bench()]
+
+
+# --------------------------------------------------------------------------------------
+# Measuring
+# --------------------------------------------------------------------------------------
+
+
+def motion_time_s(xy: np.ndarray, dt: float) -> float:
+    """Periods from the last sample at rest before the first move to the last change, at 1 um."""
+    steps = np.any(np.diff(np.round(xy / SAMPLE_RESOLUTION_MM), axis=0) != 0, axis=1)
+    moved = np.nonzero(steps)[0]
+    return float(moved[-1] + 1 - moved[0]) * dt if moved.size else 0.0
+
+
+def peak_figures(xy: np.ndarray, dt: float) -> dict[str, list[float]]:
+    """Per-axis peaks of the trajectory with the machine at rest before and after it."""
+    padded = np.concatenate((np.repeat(xy[:1], REST_SAMPLES, 0), xy, np.repeat(xy[-1:], REST_SAMPLES, 0)))
+    top = peaks(padded, dt)
+    return {"peak_velocity_mm_s": top["velocity"].tolist(), "peak_accel_mm_s2": top["acceleration"].tolist(),
+            "peak_jerk_mm_s3": top["jerk"].tolist()}
+
+
+def distance_anywhere(path: ProgrammedPath, xy: np.ndarray) -> np.ndarray:
+    """Distance of each point to the nearest element of the whole program (slow: every element)."""
+    n, span = len(path.elements), 2 * TAG_WINDOW + 1
+    best = np.full(len(xy), np.inf)
+    for centre in range(TAG_WINDOW, n + span - 1, span):
+        tag = path.elements[min(centre, n - 1)].segment
+        best = np.minimum(best, path.distance(xy, np.full(len(xy), tag), TAG_WINDOW))
+    return best
+
+
+def deviation_anywhere(path: ProgrammedPath, xy: np.ndarray, deviation: np.ndarray) -> float:
+    """Largest distance to the nearest element anywhere in the program: a cross-check of the
+    tagged `deviation` (it is never larger). Taken where `deviation` is at least half its peak
+    only, which gives the exact figure whenever that is at least half the peak."""
+    far = deviation >= 0.5 * deviation.max()
+    return float(distance_anywhere(path, xy[far]).max())
+
+
+def segment_spans(segment_lines: np.ndarray, lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each LinuxCNC sample, the first and last program segment it may be on: from the last
+    segment of the line reported LINE_LEAD_RUNS changes of line before its own to the last
+    segment of its own line. LinuxCNC reports lines in program order, but ahead of the head:
+    a run of short moves it merged into one (its naive-CAM detector, G64 Q, which defaults to P)
+    is reported by the run's last line, and a blend by the line it blends into."""
+    if np.any(np.diff(segment_lines) < 0):
+        raise ValueError("program segments are not in line order: cannot map LinuxCNC's lines to them")
+    last = np.clip(np.searchsorted(segment_lines, lines, side="right") - 1, 0, len(segment_lines) - 1)
+    run_starts = np.concatenate(([0], np.flatnonzero(np.diff(lines)) + 1))
+    run = np.searchsorted(run_starts, np.arange(len(lines)), side="right") - 1
+    before = last[run_starts[np.maximum(run - LINE_LEAD_RUNS, 0)]]
+    return np.minimum(before, last), np.maximum(before, last)
+
+
+def deviation_by_line(path: ProgrammedPath, program: Program, xy: np.ndarray, lines: np.ndarray) -> np.ndarray:
+    """Distance of each sample to the nearest element its program line allows (`segment_spans`,
+    widened by TAG_WINDOW elements either side for the corner blends)."""
+    first, last = segment_spans(program.segments["line"], lines)
+    span = 2 * TAG_WINDOW + 1
+    best = np.full(len(xy), np.inf)
+    for offset in range(0, int((last - first).max()) + span, span):  # the last tag is `last` itself
+        best = np.minimum(best, path.distance(xy, np.minimum(first + offset, last), TAG_WINDOW))
+    return best
+
+
+def figures(path: ProgrammedPath, xy: np.ndarray, deviation: np.ndarray, dt: float, **extra: Any) -> Figures:
+    """A planner's figures from its commanded XY (from rest) and the tagged deviation of each sample."""
+    return Figures(motion_time_s(xy, dt), float(deviation.max()), deviation_anywhere(path, xy, deviation),
+                   **peak_figures(xy, dt), extra=extra)
+
+
+# --------------------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------------------
+
+
+def interpret_from_start(text: str, config: MachineConfig) -> tuple[Program, tuple[float, float]]:
+    """The program interpreted with the head at its first programmed point (where both machines start)."""
+    dialect = dialect_for(config)
+    first = interpret(text, dataclasses.replace(dialect, start_position_mm=(0.0, 0.0, 0.0))).segments[0]["end"]
+    start = (float(first[0]), float(first[1]))
+    return interpret(text, dataclasses.replace(dialect, start_position_mm=(*start, 0.0))), start
+
+
+def run_ours(program: Program, start: tuple[float, float], config: MachineConfig) -> Figures:
+    dt = config.timing.period_s
+    runner = ProgramRunner(program, config)
+    planned = runner.planned_ticks()
+    chunks = []
+    wall = time.monotonic()
+    while not runner.finished:
+        records, _ = runner.take(1000)
+        chunks.append(records)
+    wall = time.monotonic() - wall
+    records = np.concatenate(chunks)
+    xy = np.concatenate(([start], records["position"]))
+    tags = np.concatenate((records["segment"][:1], records["segment"]))
+    path = ProgrammedPath(program.segments)
+    deviation = path.distance(xy, tags, TAG_WINDOW)
+    return figures(path, xy, deviation, dt,
+                   records_s=len(records) * dt, planned_s=planned * dt, planning_wall_s=wall)
+
+
+def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
+               config: MachineConfig) -> Figures:
+    dt = config.timing.period_s
+    wall = time.monotonic()
+    res = linuxcnc_sim.run_linuxcnc(
+        program_file,
+        max_velocity_mm_s={ax: config.axis[ax].max_velocity_mm_s for ax in AXES},
+        max_accel_mm_s2={ax: config.axis[ax].max_accel_mm_s2 for ax in AXES},
+        travel_mm={ax: (config.axis[ax].travel_min_mm, config.axis[ax].travel_max_mm) for ax in AXES},
+        period_s=dt, home_mm=dict(zip(AXES, start)))
+    wall = time.monotonic() - wall
+    xy = res["xy_mm"]
+    path = ProgrammedPath(program.segments)
+    return figures(path, xy, deviation_by_line(path, program, xy, res["line"]), dt,
+                   linuxcnc_cycle_time_s=res["cycle_time_s"], in_position_time_s=res["in_position_time_s"],
+                   version=res["version"], how=res["how"], run_wall_s=wall)
+
+
+def compare(bench: Bench, config: MachineConfig, workdir: Path, with_linuxcnc: bool) -> Comparison:
+    program, start = interpret_from_start(bench.text, config)
+    tolerance_mm = float(program.segments["tolerance"].max())
+    result = Comparison(bench, tolerance_mm, start, run_ours(program, start, config))
+    if with_linuxcnc:
+        program_file = workdir / (re.sub(r"[^\w.]+", "_", bench.name) + ".ngc")
+        program_file.write_text(bench.text)
+        try:
+            result.linuxcnc = run_theirs(program_file, program, start, config)
+        except linuxcnc_sim.LinuxCNCRunError as exc:
+            result.linuxcnc_error = str(exc)
+    return result
+
+
+# --------------------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------------------
+
+
+def _pair(values: list[float], fmt: str) -> str:
+    return " / ".join(format(v, fmt) for v in values)
+
+
+def _verdict(ok: bool) -> str:
+    return "met" if ok else "MISSED"
+
+
+def render_targets(rows: list[Comparison]) -> list[str]:
+    out = [f"{'program':34} {'P mm':>6} {'ours s':>8} {'LCNC s':>8} {'ratio':>6} {'<=1.0':>6}  "
+           f"{'ours dev mm':>11} {'/P':>5} {'<=P':>6}  {'LCNC dev mm':>11} {'/P':>5} {'<=P':>6}"]
+    for c in rows:
+        ours, theirs, p = c.ours, c.linuxcnc, c.tolerance_mm
+        dev = ours.max_deviation_mm
+        mine = f"{dev:11.5f} {dev / p:5.2f} {_verdict(dev <= p):>6}"
+        if theirs is None:
+            peer = f"{'-':>8} {'-':>6} {'-':>6}  {mine}  {'-':>11} {'-':>5} {'-':>6}"
+        else:
+            peer = (f"{theirs.cycle_time_s:8.3f} {c.ratio:6.2f} {_verdict(c.ratio <= 1.0):>6}  {mine}  "
+                    f"{theirs.max_deviation_mm:11.5f} {theirs.max_deviation_mm / p:5.2f} "
+                    f"{_verdict(theirs.max_deviation_mm <= p):>6}")
+        out.append(f"{c.bench.name:34} {p:6.3f} {ours.cycle_time_s:8.3f} {peer}")
+    return out
+
+
+def render_peaks(rows: list[Comparison]) -> list[str]:
+    out = [f"{'peaks per axis, X / Y':34} {'planner':9} {'|v| mm/s':>15} {'|a| mm/s^2':>17} {'|j| mm/s^3':>21}"]
+    for c in rows:
+        for label, f in (("ours", c.ours), ("LinuxCNC", c.linuxcnc)):
+            if f is not None:
+                name = c.bench.name if label == "ours" else ""
+                out.append(f"{name:34} {label:9} {_pair(f.peak_velocity_mm_s, '6.1f'):>15} "
+                           f"{_pair(f.peak_accel_mm_s2, '7.1f'):>17} {_pair(f.peak_jerk_mm_s3, '9.3g'):>21}")
+    return out
+
+
+def render_summary(rows: list[Comparison], config: MachineConfig) -> list[str]:
+    both = [c for c in rows if c.linuxcnc is not None]
+    x = config.axis["x"]
+    ours_ok = f"deviation <= P: ours {sum(c.ours.max_deviation_mm <= c.tolerance_mm for c in rows)} of {len(rows)}"
+    if both:
+        faster = sum(c.ratio <= 1.0 for c in both)
+        theirs_ok = sum(c.linuxcnc.max_deviation_mm <= c.tolerance_mm for c in both)
+        targets = (f"targets: cycle time ratio <= 1.0 met on {faster} of {len(both)}; "
+                   f"{ours_ok}, LinuxCNC {theirs_ok} of {len(both)}")
+    else:
+        targets = f"targets: cycle time ratio not measured (LinuxCNC did not run); {ours_ok}"
+    out = [targets,
+           f"note: LinuxCNC 2.9 limits velocity ({x.max_velocity_mm_s:g} mm/s) and acceleration "
+           f"({x.max_accel_mm_s2:g} mm/s^2) per axis but not jerk: its |a| steps within one servo period "
+           f"(|j| up to 2 A / dt = {2 * x.max_accel_mm_s2 / config.timing.period_s:.3g} mm/s^3); "
+           f"ours holds |j| <= {x.max_jerk_mm_s3:g} mm/s^3."]
+    for c in both:
+        if c.linuxcnc.max_deviation_mm - c.linuxcnc.max_deviation_anywhere_mm > TAG_CHECK_MM:
+            out.append(f"check: {c.bench.name}: LinuxCNC deviation by program line "
+                       f"{c.linuxcnc.max_deviation_mm:.5f} mm, to the nearest geometry anywhere "
+                       f"{c.linuxcnc.max_deviation_anywhere_mm:.5f} mm")
+    out += [f"LinuxCNC failed on {c.bench.name}: {c.linuxcnc_error}" for c in rows if c.linuxcnc_error]
+    return out
+
+
+def to_json(rows: list[Comparison], config: MachineConfig, linuxcnc: str, wall_s: float) -> dict[str, Any]:
+    keys = ("max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3", "travel_min_mm", "travel_max_mm")
+    limits = {ax: {k: getattr(config.axis[ax], k) for k in keys} for ax in AXES}
+    programs = [{"name": c.bench.name, "tolerance_mm": c.tolerance_mm, "start_mm": c.start_mm, "ratio": c.ratio,
+                 "ours": dataclasses.asdict(c.ours),
+                 "linuxcnc": dataclasses.asdict(c.linuxcnc) if c.linuxcnc else None,
+                 "linuxcnc_error": c.linuxcnc_error or None, "gcode": c.bench.text} for c in rows]
+    return {"machine_file": str(MACHINE_FILE), "period_s": config.timing.period_s, "limits": limits,
+            "linuxcnc": linuxcnc, "wall_time_s": wall_s, "programs": programs}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="run a few programs only")
+    ap.add_argument("--json", type=Path, metavar="OUT", help="write every figure here")
+    args = ap.parse_args(argv)
+    t0 = time.monotonic()
+    config = load_machine(MACHINE_FILE, NO_JET_DELAYS)
+    available, reason = linuxcnc_sim.available()
+    rows: list[Comparison] = []
+    with tempfile.TemporaryDirectory(prefix="linuxcnc_compare-") as tmp:
+        for bench in (b for b in benches() if b.quick or not args.quick):
+            try:
+                rows.append(compare(bench, config, Path(tmp), available))
+            except linuxcnc_sim.LinuxCNCUnavailable as exc:
+                available, reason = False, str(exc)
+                rows.append(compare(bench, config, Path(tmp), available))
+            print(f"  {bench.name}: done ({time.monotonic() - t0:.0f} s)", file=sys.stderr)
+    wall_s = time.monotonic() - t0
+    peer = reason if available else f"LinuxCNC (unavailable: {reason})"
+    print(f"ours vs {peer}; same limits: {MACHINE_FILE.name}, period {config.timing.period_s * 1e3:g} ms, "
+          "start at each program's first point")
+    print("\n".join([*render_targets(rows), "", *render_peaks(rows), "", *render_summary(rows, config)]))
+    print(f"ran in {wall_s:.0f} s")
+    if args.json:
+        args.json.write_text(json.dumps(to_json(rows, config, reason, wall_s), indent=1))
+        print(f"wrote {args.json}")
+    return 1 if any(c.linuxcnc_error for c in rows) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
