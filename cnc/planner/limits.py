@@ -47,10 +47,12 @@ import numpy as np
 
 from ..config import MachineConfig
 from .geometry import PathArrays
+from .profile import Zones
 from .path import BLEND_SHARE, COLLINEAR_RAD
 
 KINK_MAX_RAD = 0.01  # a larger turn between unblended elements is an exact stop
 GEOMETRY_JERK_SHARE = 0.5  # share of the jerk kept for curvature and kinks when a section has them
+GEOMETRY_JERK_SHARES = (0.3, 0.5, 0.7)  # the shares `sections.py` tries, keeping the fastest
 KINK_SHARE = 0.25  # of the geometry budgets (jerk, deviation), when a section has kinks
 KINK_ACCEL_SHARE = 0.02  # of the acceleration, when a section has kinks
 MAX_SMOOTHING_SAMPLES = 64
@@ -89,9 +91,18 @@ class SectionLimits:
     def v_max(self) -> float:
         return float(np.minimum(self.v_hard, self.v_feed).max())
 
+    @property
+    def v_max_any(self) -> float:
+        """The fastest the section may go at any override (feeds up to 200 %)."""
+        return float(np.minimum(self.v_hard, np.where(self.rapid, np.inf, 2.0 * self.v_feed)).max())
 
-def smoothing_for(config: MachineConfig, tolerance_mm: float, has_curves: bool, has_kinks: bool, blended: bool) -> Smoothing:
-    """The averages of a section whose tightest corner tolerance is `tolerance_mm`."""
+
+def smoothing_for(
+    config: MachineConfig, tolerance_mm: float, has_curves: bool, has_kinks: bool, blended: bool,
+    geometry_share: float = GEOMETRY_JERK_SHARE,
+) -> Smoothing:
+    """The averages of a section whose tightest corner tolerance is `tolerance_mm`; a section with
+    curves or kinks keeps `geometry_share` of the jerk for them."""
     dt = config.timing.period_s
     a_min, j_min = _axis_min(config, "max_accel_mm_s2"), _axis_min(config, "max_jerk_mm_s3")
     geometry = has_curves or has_kinks
@@ -100,7 +111,7 @@ def smoothing_for(config: MachineConfig, tolerance_mm: float, has_curves: bool, 
         n_axis = int(min(max(round(t_f / dt), 1), MAX_SMOOTHING_SAMPLES))
     else:
         n_axis = 1
-    jerk_path = j_min * (1.0 - GEOMETRY_JERK_SHARE) if geometry else j_min
+    jerk_path = j_min * (1.0 - geometry_share) if geometry else j_min
     accel_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if has_kinks else a_min
     n_path = max(1, math.ceil(accel_cap / (jerk_path * dt) - 1e-9))
     deviation = tolerance_mm * (1.0 - BLEND_SHARE) if blended else tolerance_mm
@@ -108,14 +119,15 @@ def smoothing_for(config: MachineConfig, tolerance_mm: float, has_curves: bool, 
 
 
 def section_limits(
-    path: PathArrays, feed_mm_s: np.ndarray, rapid: np.ndarray, tolerance_mm: float, blended: bool, config: MachineConfig
+    path: PathArrays, feed_mm_s: np.ndarray, rapid: np.ndarray, tolerance_mm: float, blended: bool, config: MachineConfig,
+    geometry_share: float = GEOMETRY_JERK_SHARE,
 ) -> SectionLimits:
     """Caps for every element and junction of one section."""
     n = len(path)
     kinks = path.kink_angles()
     kink = (kinks > COLLINEAR_RAD) & (kinks <= KINK_MAX_RAD)
     curved = path.arc
-    sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended)
+    sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended, geometry_share)
     v_axis, a_axis = _axis_caps(path, config, sm.accel_cap)
     v_feed = np.where(rapid, np.inf, feed_mm_s)
     v_upper = float(np.minimum(v_axis, v_feed).max()) if n else 0.0
@@ -259,3 +271,34 @@ def envelope(
         out[i0[k]:i1[k]] = c[k]
     keep = np.concatenate(([True], out[1:] != out[:-1]))  # merge equal neighbours
     return np.concatenate((edges[:-1][keep], edges[-1:])), out[keep]
+
+
+def section_zones(
+    path: PathArrays, lim: SectionLimits, lo: float, hi: float, holding: bool, override: float, rapid_override: float,
+) -> Zones:
+    """Caps and accelerations over [lo, hi] of a section under these controls, each widened to
+    where the averages could mix it in (by its own speed times `Smoothing.extension_s`)."""
+    reach = lim.smoothing.extension_s
+    widen_mm = lim.v_max_any * reach
+    s0_all, s1_all = path.s0[:-1], path.s0[1:]
+    i0 = int(np.searchsorted(s1_all, lo - widen_mm, side="left"))
+    i1 = int(np.searchsorted(s0_all, hi + widen_mm, side="right"))
+    s0, s1 = s0_all[i0:i1], s1_all[i0:i1]
+    hard = lim.v_hard[i0:i1]
+    if holding:
+        soft = np.zeros(len(hard))  # a hold stops rapids too
+    else:
+        soft = np.where(lim.rapid[i0:i1], hard * rapid_override, lim.v_feed[i0:i1] * override)
+    finite = np.isfinite(lim.v_kink)
+    kink_at, kink_cap = path.s0[1:-1][finite], lim.v_kink[finite]
+    k = (kink_at >= lo - widen_mm) & (kink_at <= hi + widen_mm)
+    e_hard, v_hard = envelope(
+        np.concatenate((s0, kink_at[k])), np.concatenate((s1, kink_at[k])),
+        np.concatenate((hard, kink_cap[k])), np.concatenate((hard, kink_cap[k])) * reach, lo, hi,
+    )
+    e_soft, v_soft = envelope(s0, s1, soft, np.minimum(soft, hard) * reach, lo, hi)
+    e_acc, v_acc = envelope(s0, s1, lim.accel[i0:i1], hard * reach, lo, hi)
+    edges = np.unique(np.concatenate((e_hard, e_soft, e_acc)))
+    mid = (edges[:-1] + edges[1:]) / 2.0
+    pick = lambda e, v: v[np.clip(np.searchsorted(e, mid, side="right") - 1, 0, len(v) - 1)]  # noqa: E731
+    return Zones(edges, pick(e_hard, v_hard), pick(e_soft, v_soft), pick(e_acc, v_acc))

@@ -12,8 +12,9 @@ and cuts back each line by R * tan(phi / 2). R is the largest radius with d <= P
 other half of P belongs to the planner's smoothing, `limits.py`) whose cut-backs fit in half
 of each neighbouring line, so that neighbouring blends never overlap.
 A corner is an exact stop (no blend) under G61, where the jet or the outputs switch (they
-switch exactly at the segment boundary), around dwells, where an arc meets at an angle, and
-where the height changes. `deviation` measures how far a path strays from the programmed
+switch exactly at the segment boundary), around dwells, where an arc meets at an angle,
+between a rapid and a feed move, where the height changes, and where the planner finds
+stopping faster than crawling through the blend (`sections.py`). `deviation` measures how far a path strays from the programmed
 one, so tests check the bound rather than trust the formula.
 """
 
@@ -108,8 +109,9 @@ def elements_from_program(segments: np.ndarray) -> list[Element]:
     return [e for e in out if e.kind == DWELL or e.length_mm > 0.0]
 
 
-def blend_corners(elements: list[Element]) -> list[Element]:
-    """Replace each blendable corner between two straight moves by a tangent arc within its tolerance."""
+def blend_corners(elements: list[Element], stop_before: frozenset[int] = frozenset()) -> list[Element]:
+    """Replace each blendable corner between two straight moves by a tangent arc within its tolerance,
+    except the corners into the elements of the segments in `stop_before` (exact stops there)."""
     if len(elements) < 2:
         return list(elements)
     cut_start = [0.0] * len(elements)  # how much each line loses at its start / end to blends
@@ -117,6 +119,8 @@ def blend_corners(elements: list[Element]) -> list[Element]:
     blends: dict[int, Element] = {}  # blend arc inserted after element i
     for i in range(len(elements) - 1):
         a, b = elements[i], elements[i + 1]
+        if b.segment in stop_before:
+            continue
         radius, phi = _blend_radius(a, b)
         if radius <= 0.0:
             continue

@@ -153,6 +153,14 @@ def _turns_against(a: np.ndarray, dur: np.ndarray, a_prev: float, plateau_s: flo
     return False
 
 
+def rough_duration_s(zones: Zones) -> float:
+    """Time of the profile from rest to rest over the zones, without the plateau rule: a quick
+    estimate, to compare ways of planning a section."""
+    caps = np.minimum(zones.hard, zones.soft)
+    w = _junction_speeds(zones.edges, caps, zones.accel, 0.0, 0.0)
+    return float(_zone_pieces(zones.edges, caps, zones.accel, w)[3].sum())
+
+
 def braking_distance(v: float, accel: float, plateau_s: float) -> float:
     """Distance a stop from speed v may need: a plateau of cruise, then braking at `accel`."""
     return v * plateau_s + v * v / (2.0 * accel)
@@ -256,39 +264,51 @@ def _short_peaks(pieces, plateau_s: float) -> list[tuple[float, float, float]]:
     s0, v0, a, dur = pieces
     i, j, flat_s = _turns(pieces)
     hit = (a[i] > 0.0) & (a[j] < 0.0) & (flat_s < plateau_s * (1.0 - PLATEAU_SLACK))
-    i, j = i[hit], j[hit]
-    if not len(i):
-        return []
-    # the gentlest acceleration of the whole rise and fall: where zones of different
-    # acceleration meet, the cap then leaves at least the plateau in one round
-    a_up, a_down, v_peak = _run_min(np.where(a > 0.0, a, 0.0), i, -1), _run_min(np.where(a < 0.0, -a, 0.0), j, 1), v0[j]
-    s_flat0 = s0[i + 1]
-    flat_mm = s0[j] - s_flat0
-    kk = 1.0 / (2.0 * a_up) + 1.0 / (2.0 * a_down)
-    want = plateau_s * (1.0 + PLATEAU_AIM)
-    v_cap = (-want + np.sqrt(want * want + 4.0 * kk * (flat_mm + kk * v_peak * v_peak))) / (2.0 * kk)
-    v_cap = np.minimum(v_cap, v_peak * (1.0 - 1e-9))
-    drop = v_peak * v_peak - v_cap * v_cap
-    lo = s_flat0 - drop / (2.0 * a_up)
-    hi = s_flat0 + flat_mm + drop / (2.0 * a_down)
-    return list(zip(lo.tolist(), hi.tolist(), v_cap.tolist()))
+    return [_peak_cap(pieces, int(p), int(q), plateau_s * (1.0 + PLATEAU_AIM)) for p, q in zip(i[hit], j[hit])]
 
 
-def _run_min(values: np.ndarray, at: np.ndarray, step: int) -> np.ndarray:
-    """For each index in `at`, the least of `values` over the run of non-zero values from it
-    backwards (step -1) or forwards (step 1)."""
-    out = values[at].copy()
-    idx = at.copy()
-    live = np.ones(len(at), dtype=bool)
-    for _ in range(len(values)):
-        idx = idx + step
-        live &= (idx >= 0) & (idx < len(values))
-        if not live.any():
-            break
-        v = values[np.clip(idx, 0, len(values) - 1)]
-        live &= v > 0.0
-        out = np.where(live, np.minimum(out, v), out)
-    return out
+def _peak_cap(pieces, last_rise: int, first_fall: int, want_s: float) -> tuple[float, float, float]:
+    """The cap that flattens a peak into a cruise of `want_s`: capping only flattens the top, so the
+    rise and fall below it stay as they are and the cap is the highest speed v at which
+    (where the fall reaches v - where the rise reaches v) / v >= want_s (found by bisection),
+    or the bump is flattened away when no such speed is above where it rose from."""
+    s0, v0, a, dur = pieces
+    rise = range(last_rise, -1, -1)
+    fall = range(first_fall, len(a))
+
+    def rise_at(v: float) -> float:  # where the rise reaches v
+        for k in rise:
+            if a[k] <= 0.0:
+                break
+            if v >= v0[k]:
+                return s0[k] + (v * v - v0[k] * v0[k]) / (2.0 * a[k])
+        return -np.inf
+
+    def fall_at(v: float) -> float:  # where the fall comes down to v
+        for k in fall:
+            if a[k] >= 0.0:
+                break
+            v_end = v0[k] + a[k] * dur[k]
+            if v >= v_end:
+                return s0[k] + (v0[k] * v0[k] - v * v) / (-2.0 * a[k])
+        return np.inf
+
+    k = last_rise
+    while k > 0 and a[k - 1] > 0.0:
+        k -= 1
+    m = first_fall
+    while m + 1 < len(a) and a[m + 1] < 0.0:
+        m += 1
+    # below the higher of the speeds the rise starts from and the fall ends at, the bump is gone
+    floor = max(float(v0[k]), float(v0[m] + a[m] * dur[m]))
+    lo, hi = floor, float(v0[first_fall])
+    for _ in range(60):
+        mid = (lo + hi) / 2.0
+        if mid > 0.0 and (fall_at(mid) - rise_at(mid)) / mid >= want_s:
+            lo = mid
+        else:
+            hi = mid
+    return float(rise_at(lo)), float(fall_at(lo)), lo
 
 
 def _short_valleys(pieces, plateau_s: float) -> list[tuple[float, float, float]]:

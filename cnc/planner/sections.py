@@ -22,8 +22,12 @@ from gcode.program import Program
 from ..config import MachineConfig
 from ..fifo import SetpointFlag
 from .geometry import PathArrays
-from .limits import KINK_MAX_RAD, SectionLimits, section_limits
+from .limits import GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, section_limits, section_zones, smoothing_for
+from .profile import rough_duration_s
 from .path import Element, blend_corners, elements_from_program
+
+REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and the next one's start
+# then never meet in one third difference (the jerk the drives see)
 
 STOP_KINDS = {"stop": "M0 program stop", "optional_stop": "M1 optional stop", "pallet": "M60 pallet change"}
 
@@ -94,7 +98,7 @@ def program_steps(program: Program, config: MachineConfig) -> list[Step]:
     def close_run() -> None:
         nonlocal offset, run
         if run:
-            for section in _split(blend_corners(run), config, offset, notes):
+            for section in _sections_of(run, config, offset, notes):
                 steps.append(section)
                 offset += section.length_mm
         run = []
@@ -147,6 +151,66 @@ def _last_position(steps: list[Step], default):
     return default
 
 
+def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes: dict) -> list[Section]:
+    """Sections of a run of elements between hard stops, each corner blended or stopped at,
+    whichever is faster."""
+    sections = _split(blend_corners(run), config, offset, notes)
+    stops = _corners_to_stop(sections, config)
+    if stops:
+        sections = _split(blend_corners(run, frozenset(stops)), config, offset, notes)
+    return sections
+
+
+def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]:
+    """Segments whose corner is faster to stop at than to blend.
+
+    A blend's speed cap v_b holds for the averages' span T_ext on either side of it, so the
+    head crawls through the corner for about 2 T_ext; a stop costs the averages' settling of
+    a straight section instead. Against passing at v (the neighbours' speed, or what their
+    length allows from a stop), with r = v_b / v:
+
+        blend ~ 2 T_ext (1 - r) + v (1 - r)^2 / A        stop ~ T_settle + v / A
+    """
+    straight = smoothing_for(config, 0.0, False, False, False)
+    settle_s = (straight.n_path + straight.n_axis + REST_SAMPLES) * straight.dt
+    accel = straight.accel_cap
+    out: set[int] = set()
+    for section in sections:
+        lim = section.limits
+        cap = np.minimum(lim.v_hard, lim.v_feed)
+        span_s = 2.0 * lim.smoothing.extension_s
+        elements = section.elements
+        for k in range(1, len(elements) - 1):
+            if not elements[k].blend:
+                continue
+            shortest = min(elements[k - 1].length_mm, elements[k + 1].length_mm) + elements[k].length_mm / 2.0
+            v = min(cap[k - 1], cap[k + 1], math.sqrt(accel * shortest))
+            r = min(cap[k] / v, 1.0) if v > 0.0 else 1.0
+            blend_s = span_s * (1.0 - r) + v * (1.0 - r) ** 2 / accel
+            if settle_s + v / accel < blend_s:
+                out.add(elements[k].segment)
+    return out
+
+
+def _fastest_limits(path: PathArrays, feed, rapid, tolerance: float, blended: bool, config: MachineConfig) -> SectionLimits:
+    """The section's limits under the share of jerk for curvature that runs it soonest: curves
+    want more of it (higher speeds on arcs), speed changes want less (shorter ramps)."""
+    best, best_s = None, math.inf
+    for share in GEOMETRY_JERK_SHARES:
+        lim = section_limits(path, feed, rapid, tolerance, blended, config, share)
+        if lim.smoothing.jerk_path == _axis_jerk(config):  # straight: no share to choose
+            return lim
+        sm = lim.smoothing
+        seconds = rough_duration_s(section_zones(path, lim, 0.0, path.total_mm, False, 1.0, 1.0)) + (sm.n_path + sm.n_axis) * sm.dt
+        if seconds < best_s:
+            best, best_s = lim, seconds
+    return best
+
+
+def _axis_jerk(config: MachineConfig) -> float:
+    return smoothing_for(config, 0.0, False, False, False).jerk_path
+
+
 def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict) -> list[Section]:
     """Cut a blended run of elements at every corner that is neither tangent nor a small kink."""
     motion = [e for e in path if e.kind != DWELL and e.length_mm > 1e-9]  # blends may leave a line of length 0
@@ -173,7 +237,7 @@ def _section(elements: list[Element], config: MachineConfig, offset: float, note
     rapid = np.array([e.kind == RAPID for e in elements])
     tolerance = min(e.tolerance_mm for e in elements)
     blended = any(e.blend for e in elements)
-    limits = section_limits(path, feed, rapid, tolerance, blended, config)
+    limits = _fastest_limits(path, feed, rapid, tolerance, blended, config)
     messages = []
     seen = set()
     for k, e in enumerate(elements):

@@ -21,9 +21,9 @@ import numpy as np
 
 from dataclasses import dataclass
 
-from .limits import envelope
+from .limits import section_zones
 from .profile import Pieces, Zones, braking_distance, plan
-from .sections import Section
+from .sections import REST_SAMPLES, Section
 from .smoothing import MovingAverage
 
 @dataclass
@@ -47,8 +47,6 @@ class WindowJob:
 
 
 WINDOWS_PER_COMMIT = 2.0  # the window reaches this many commit lengths beyond what is committed
-REST_SAMPLES = 3  # a section ends with this many samples at rest: the next one's start and this one's
-# end then never meet in one third difference (the jerk the drives see)
 
 
 class SectionStream:
@@ -63,18 +61,15 @@ class SectionStream:
         self.reach_s = sm.extension_s
         self.length = section.length_mm
         path = section.path
-        self.s0, self.s1 = path.s0[:-1], path.s0[1:]
-        self.kink_at = path.s0[1:-1][np.isfinite(lim.v_kink)]
-        self.kink_cap = lim.v_kink[np.isfinite(lim.v_kink)]
-        v_top = float(np.minimum(lim.v_hard, np.where(lim.rapid, np.inf, 2.0 * lim.v_feed)).max())
+        v_top = lim.v_max_any
         a_low = float(lim.accel.min())
         self.brake_mm = braking_distance(v_top, a_low, self.plateau_s) + 2.0 * v_top * self.reach_s + 1.0
         self.commit_mm = WINDOWS_PER_COMMIT * self.brake_mm
         self.window_mm = self.commit_mm + 2.0 * self.brake_mm
-        self.widen_mm = v_top * self.reach_s
         self.override, self.rapid_override = override, rapid_override
         self.holding = False
         self.generation = 0  # +1 at every replan: a window planned before it is stale
+        self._zone_cache: dict[tuple, Zones] = {}
         self.pieces = Pieces.empty()
         self.final = False  # the committed pieces reach the end of the section
         self.k = 0  # samples made so far; sample k is at time k * dt
@@ -247,29 +242,15 @@ class SectionStream:
         return self._history(t)
 
     def zones(self, lo: float, hi: float, holding: bool, override: float, rapid_override: float) -> Zones:
-        """Caps and accelerations over [lo, hi] under these controls, each widened to where the
-        averages could mix it in (reads only what never changes: safe from another thread)."""
-        lim = self.section.limits
-        i0 = int(np.searchsorted(self.s1, lo - self.widen_mm, side="left"))
-        i1 = int(np.searchsorted(self.s0, hi + self.widen_mm, side="right"))
-        s0, s1 = self.s0[i0:i1], self.s1[i0:i1]
-        hard = lim.v_hard[i0:i1]
-        if holding:
-            soft = np.zeros(len(hard))  # a hold stops rapids too
-        else:
-            soft = np.where(lim.rapid[i0:i1], hard * rapid_override, lim.v_feed[i0:i1] * override)
-        k = (self.kink_at >= lo - self.widen_mm) & (self.kink_at <= hi + self.widen_mm)
-        r = self.reach_s
-        e_hard, v_hard = envelope(
-            np.concatenate((s0, self.kink_at[k])), np.concatenate((s1, self.kink_at[k])),
-            np.concatenate((hard, self.kink_cap[k])), np.concatenate((hard, self.kink_cap[k])) * r, lo, hi,
-        )
-        e_soft, v_soft = envelope(s0, s1, soft, np.minimum(soft, hard) * r, lo, hi)
-        e_acc, v_acc = envelope(s0, s1, lim.accel[i0:i1], hard * r, lo, hi)
-        edges = np.unique(np.concatenate((e_hard, e_soft, e_acc)))
-        mid = (edges[:-1] + edges[1:]) / 2.0
-        pick = lambda e, v: v[np.clip(np.searchsorted(e, mid, side="right") - 1, 0, len(v) - 1)]  # noqa: E731
-        return Zones(edges, pick(e_hard, v_hard), pick(e_soft, v_soft), pick(e_acc, v_acc))
+        """Caps and accelerations over [lo, hi] under these controls: a slice of the whole section's
+        (`limits.section_zones`), made once per setting of the controls. Safe from another thread
+        (a dict lookup and insert; the arrays are never changed)."""
+        key = (holding, override, rapid_override)
+        whole = self._zone_cache.get(key)
+        if whole is None:
+            whole = section_zones(self.section.path, self.section.limits, 0.0, self.length, *key)
+            self._zone_cache[key] = whole
+        return _slice(whole, lo, hi)
 
     def _raw(self, t: np.ndarray) -> np.ndarray:
         """Raw arc length at times t (held at the end of the committed pieces beyond them)."""
@@ -279,6 +260,16 @@ class SectionStream:
         if self.final:
             s = np.where(t >= self.pieces.t_end, self.length, s)
         return np.minimum(s, self.length)
+
+
+def _slice(zones: Zones, lo: float, hi: float) -> Zones:
+    """The zones over [lo, hi] (the first and last cut there)."""
+    e = zones.edges
+    i0 = int(np.clip(np.searchsorted(e, lo, side="right") - 1, 0, len(zones.hard) - 1))
+    i1 = int(np.clip(np.searchsorted(e, hi, side="left"), i0 + 1, len(zones.hard)))
+    edges = e[i0:i1 + 1].copy()
+    edges[0], edges[-1] = lo, hi
+    return Zones(edges, zones.hard[i0:i1], zones.soft[i0:i1], zones.accel[i0:i1])
 
 
 def _time_at(pieces: Pieces, s: float) -> float:
