@@ -22,8 +22,10 @@ from gcode.program import Program
 from ..config import MachineConfig
 from ..fifo import SetpointFlag
 from .geometry import PathArrays
-from .limits import GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, section_limits, section_zones, smoothing_for
-from .profile import rough_duration_s
+from .limits import (
+    GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, section_limits, section_zones, smoothing_for,
+)
+from .profile import Zones, rough_duration_s
 from .path import Element, blend_corners, elements_from_program
 
 REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and the next one's start
@@ -44,6 +46,17 @@ class Section:
     segment: np.ndarray  # per element: program segment index
     line: np.ndarray  # per element: source line
     messages: list[tuple[float, str, int]] = field(default_factory=list)  # (arc length, text, line)
+    zone_cache: dict = field(default_factory=dict)  # its zones per setting of the controls (`zones`)
+
+    def zones(self, holding: bool, override: float, rapid_override: float) -> Zones:
+        """The whole section's caps and accelerations under these controls, made once per setting
+        (`limits.section_zones`); shared by every stream of the section, from any thread."""
+        key = (holding, override, rapid_override)
+        whole = self.zone_cache.get(key)
+        if whole is None:
+            whole = section_zones(self.path, self.limits, 0.0, self.length_mm, *key)
+            self.zone_cache[key] = whole
+        return whole
 
     @property
     def start(self) -> tuple[float, float, float]:
@@ -154,11 +167,9 @@ def _last_position(steps: list[Step], default):
 def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes: dict) -> list[Section]:
     """Sections of a run of elements between hard stops, each corner blended or stopped at,
     whichever is faster."""
-    sections = _split(blend_corners(run), config, offset, notes)
-    stops = _corners_to_stop(sections, config)
-    if stops:
-        sections = _split(blend_corners(run, frozenset(stops)), config, offset, notes)
-    return sections
+    first = _split(blend_corners(run), config, offset, notes, choose_jerk=False)
+    stops = _corners_to_stop(first, config)
+    return _split(blend_corners(run, frozenset(stops)) if stops else blend_corners(run), config, offset, notes)
 
 
 def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]:
@@ -192,16 +203,20 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
     return out
 
 
-def _fastest_limits(path: PathArrays, feed, rapid, tolerance: float, blended: bool, config: MachineConfig) -> SectionLimits:
+def _fastest_limits(
+    path: PathArrays, feed, rapid, tolerance: float, blended: bool, config: MachineConfig, choose: bool = True,
+) -> SectionLimits:
     """The section's limits under the share of jerk for curvature that runs it soonest: curves
-    want more of it (higher speeds on arcs), speed changes want less (shorter ramps)."""
+    want more of it (higher speeds on arcs), speed changes want less (shorter ramps). The
+    estimate ranks the candidates by the profile over the elements' own caps (unwidened)."""
     best, best_s = None, math.inf
-    for share in GEOMETRY_JERK_SHARES:
+    for share in GEOMETRY_JERK_SHARES if choose else (GEOMETRY_JERK_SHARE,):
         lim = section_limits(path, feed, rapid, tolerance, blended, config, share)
-        if lim.smoothing.jerk_path == _axis_jerk(config):  # straight: no share to choose
+        if not choose or lim.smoothing.jerk_path == _axis_jerk(config):  # straight: no share to choose
             return lim
         sm = lim.smoothing
-        seconds = rough_duration_s(section_zones(path, lim, 0.0, path.total_mm, False, 1.0, 1.0)) + (sm.n_path + sm.n_axis) * sm.dt
+        zones = Zones(path.s0, lim.v_hard, lim.v_feed, lim.accel)
+        seconds = rough_duration_s(zones) + (sm.n_path + sm.n_axis) * sm.dt
         if seconds < best_s:
             best, best_s = lim, seconds
     return best
@@ -211,14 +226,14 @@ def _axis_jerk(config: MachineConfig) -> float:
     return smoothing_for(config, 0.0, False, False, False).jerk_path
 
 
-def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict) -> list[Section]:
+def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True) -> list[Section]:
     """Cut a blended run of elements at every corner that is neither tangent nor a small kink."""
     motion = [e for e in path if e.kind != DWELL and e.length_mm > 1e-9]  # blends may leave a line of length 0
     out: list[Section] = []
     start = 0
     for i in range(1, len(motion) + 1):
         if i == len(motion) or _stops_between(motion[i - 1], motion[i]):
-            out.append(_section(motion[start:i], config, offset, notes))
+            out.append(_section(motion[start:i], config, offset, notes, choose_jerk))
             offset += out[-1].length_mm
             start = i
     return out
@@ -231,13 +246,13 @@ def _stops_between(a: Element, b: Element) -> bool:
     return abs(turn) > KINK_MAX_RAD or z_turn or (a.jet, a.aux) != (b.jet, b.aux)
 
 
-def _section(elements: list[Element], config: MachineConfig, offset: float, notes: dict) -> Section:
+def _section(elements: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True) -> Section:
     path = PathArrays.of(elements)
     feed = np.array([e.feed_mm_s for e in elements])
     rapid = np.array([e.kind == RAPID for e in elements])
     tolerance = min(e.tolerance_mm for e in elements)
     blended = any(e.blend for e in elements)
-    limits = _fastest_limits(path, feed, rapid, tolerance, blended, config)
+    limits = _fastest_limits(path, feed, rapid, tolerance, blended, config, choose_jerk)
     messages = []
     seen = set()
     for k, e in enumerate(elements):

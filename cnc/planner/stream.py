@@ -21,7 +21,6 @@ import numpy as np
 
 from dataclasses import dataclass
 
-from .limits import section_zones
 from .profile import Pieces, Zones, braking_distance, plan
 from .sections import REST_SAMPLES, Section
 from .smoothing import MovingAverage
@@ -69,7 +68,6 @@ class SectionStream:
         self.override, self.rapid_override = override, rapid_override
         self.holding = False
         self.generation = 0  # +1 at every replan: a window planned before it is stale
-        self._zone_cache: dict[tuple, Zones] = {}
         self.pieces = Pieces.empty()
         self.final = False  # the committed pieces reach the end of the section
         self.k = 0  # samples made so far; sample k is at time k * dt
@@ -243,14 +241,8 @@ class SectionStream:
 
     def zones(self, lo: float, hi: float, holding: bool, override: float, rapid_override: float) -> Zones:
         """Caps and accelerations over [lo, hi] under these controls: a slice of the whole section's
-        (`limits.section_zones`), made once per setting of the controls. Safe from another thread
-        (a dict lookup and insert; the arrays are never changed)."""
-        key = (holding, override, rapid_override)
-        whole = self._zone_cache.get(key)
-        if whole is None:
-            whole = section_zones(self.section.path, self.section.limits, 0.0, self.length, *key)
-            self._zone_cache[key] = whole
-        return _slice(whole, lo, hi)
+        (`Section.zones`). Safe from another thread (the arrays are never changed)."""
+        return _slice(self.section.zones(holding, override, rapid_override), lo, hi)
 
     def _raw(self, t: np.ndarray) -> np.ndarray:
         """Raw arc length at times t (held at the end of the committed pieces beyond them)."""
