@@ -223,6 +223,122 @@ class JetConfig:
     close_on_hold: bool = opt(True, doc="close the jet while motion is held or paused (it re-pierces on resume)")
 
 
+PLC_VAR_KINDS = ("discrete_input", "input_register", "coil", "holding_register")
+PLC_VAR_TYPES = ("bool", "uint16", "int16")
+MAX_PLC_VARS = 64  # per direction: the shared-memory images hold this many values
+
+
+@dataclass(frozen=True)
+class PlcVarConfig:
+    """One variable of the external PLC's image: where it lives and how to scale it."""
+
+    id: str = opt(_REQUIRED, doc="identifier used by the control logic, procedures and the HMI (letters, digits, _)")
+    kind: str = opt(
+        _REQUIRED, doc="Modbus table: discrete_input and input_register are read (PLC -> CNC), coil and holding_register written",
+        choices=PLC_VAR_KINDS,
+    )
+    address: int = opt(_REQUIRED, "", "0-based Modbus address in its table", 0, 65535)
+    type: str = opt("bool", doc="value type (registers: uint16 or int16; bits: bool)", choices=PLC_VAR_TYPES)
+    scale: float = opt(1.0, "", "engineering value = raw * scale (registers only)", -1.0e6, 1.0e6)
+    unit: str = opt("", doc="engineering unit, for display")
+    description: str = opt("", doc="what the variable means, for the operator and the integrator")
+
+
+@dataclass(frozen=True)
+class PlcConfig:
+    """The Modbus RTU link to the external PLC (transport system and high-pressure pump)."""
+
+    port: str = opt(
+        "", doc="serial device of the external PLC; empty on the sim board: the PLC simulator on a pty pair"
+    )
+    baud: int = opt(19200, "baud", "serial speed", 1200, 921600)
+    parity: str = opt("E", doc="parity (Modbus RTU default: even)", choices=("N", "E", "O"))
+    stop_bits: int = opt(1, "", "stop bits", 1, 2)
+    unit_id: int = opt(1, "", "Modbus unit (slave) address of the PLC", 1, 247)
+    cycle_ms: float = opt(50.0, "ms", "target period of one exchange (read the input image, write the output image)", 5.0, 10000.0)
+    timeout_ms: float = opt(100.0, "ms", "how long one request may wait for its response", 5.0, 10000.0)
+    lost_after_cycles: int = opt(3, "cycles", "consecutive failed exchanges after which the link counts as lost", 1, 100)
+    reconnect_s: float = opt(1.0, "s", "pause between reconnection attempts while the link is lost", 0.01, 600.0)
+    var: list[PlcVarConfig] = field(default_factory=list, metadata={"array_of": PlcVarConfig})
+
+    def inputs(self) -> list[PlcVarConfig]:
+        """Variables read from the PLC, in image order."""
+        return [v for v in self.var if v.kind in ("discrete_input", "input_register")]
+
+    def outputs(self) -> list[PlcVarConfig]:
+        """Variables written to the PLC, in image order."""
+        return [v for v in self.var if v.kind in ("coil", "holding_register")]
+
+
+ALARM_LEVELS = ("fatal", "error", "warning", "info")
+
+
+@dataclass(frozen=True)
+class AlarmConfig:
+    """One entry of the alarm and message catalogue."""
+
+    code: int = opt(_REQUIRED, "", "stable numeric code, shown to the operator and kept in the history", 1, 999999)
+    id: str = opt(_REQUIRED, doc="name the controller raises it by (letters, digits, _)")
+    text: str = opt(_REQUIRED, doc="what the operator reads")
+    level: str = opt("error", doc="fatal and error stop the cut; warning and info do not", choices=ALARM_LEVELS)
+    cause: str = opt("", doc="likely cause")
+    remedy: str = opt("", doc="what to do about it")
+
+
+@dataclass(frozen=True)
+class ProcedureStepConfig:
+    """One step of a guided procedure: a condition to become true, or an operator action."""
+
+    text: str = opt(_REQUIRED, doc="the step as listed to the operator")
+    condition: str = opt(
+        "", doc="expression over named signals that completes the step, e.g. 'plc.transport_ready and din.doors_closed'"
+    )
+    action: str = opt("", doc="operator action that completes the step instead of a condition", choices=("", "confirm"))
+    instruction: str = opt("", doc="what the operator must do while the step is awaited")
+    timeout_s: float = opt(0.0, "s", "raise timeout_alarm when the step has waited this long (0: wait forever)", 0.0, 86400.0)
+    timeout_alarm: str = opt("procedure_timeout", doc="alarm id raised on timeout")
+
+
+@dataclass(frozen=True)
+class ProcedureConfig:
+    """A guided procedure: a title and ordered steps the operator is walked through."""
+
+    id: str = opt(_REQUIRED, doc="name used by commands and by the automatic cycle (letters, digits, _)")
+    title: str = opt(_REQUIRED, doc="shown at the top of the procedure window")
+    step: list[ProcedureStepConfig] = field(default_factory=list, metadata={"array_of": ProcedureStepConfig})
+
+
+@dataclass(frozen=True)
+class PumpConfig:
+    """The high-pressure pump, run by the external PLC."""
+
+    cut_pressure_bar: float = opt(3800.0, "bar", "cutting pressure", 0.0, 10000.0)
+    pierce_pressure_bar: float = opt(1200.0, "bar", "low pressure to pierce at", 0.0, 10000.0)
+    pierce_at_low_pressure: bool = opt(True, doc="pierce at pierce_pressure_bar, then cut at cut_pressure_bar")
+    tolerance_bar: float = opt(150.0, "bar", "pressure counts as reached within this band", 1.0, 5000.0)
+    ramp_timeout_s: float = opt(20.0, "s", "raise pump_pressure_fault when the pressure is not reached in this time", 0.1, 600.0)
+    drop_bar: float = opt(600.0, "bar", "a drop this far below the set pressure while cutting is a pump pressure fault", 1.0, 10000.0)
+
+
+@dataclass(frozen=True)
+class CycleConfig:
+    """The automatic cycle: transport phase, cutting phase, unload."""
+
+    transport_procedure: str = opt("transport", doc="procedure walked before the first transport phase")
+    transport_timeout_s: float = opt(60.0, "s", "longest the PLC may take to feed material and close the gripper", 0.1, 3600.0)
+    unload_timeout_s: float = opt(60.0, "s", "longest the PLC may take to open the gripper and unload", 0.1, 3600.0)
+
+
+@dataclass(frozen=True)
+class LogicConfig:
+    """The control-logic process (soft-PLC)."""
+
+    history: str = opt(
+        "", doc="alarm and message history (SQLite); relative to the machine file; empty: a file in the run directory"
+    )
+    history_keep_days: float = opt(365.0, "days", "history entries older than this are deleted at start", 1.0, 36500.0)
+
+
 @dataclass(frozen=True)
 class GatewayConfig:
     """The HMI's door on Zenoh."""
@@ -262,6 +378,12 @@ class MachineConfig:
     nozzle: list[NozzleConfig] = field(default_factory=list, metadata={"array_of": NozzleConfig})
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     jet: JetConfig = field(default_factory=JetConfig)
+    plc: PlcConfig = field(default_factory=PlcConfig)
+    pump: PumpConfig = field(default_factory=PumpConfig)
+    cycle: CycleConfig = field(default_factory=CycleConfig)
+    logic: LogicConfig = field(default_factory=LogicConfig)
+    alarm: list[AlarmConfig] = field(default_factory=list, metadata={"array_of": AlarmConfig})
+    procedure: list[ProcedureConfig] = field(default_factory=list, metadata={"array_of": ProcedureConfig})
     gateway: GatewayConfig = field(default_factory=GatewayConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
@@ -434,11 +556,83 @@ def _cross_check(cfg: MachineConfig) -> None:
         if nz.number in seen:
             raise ConfigError(src, f"[[nozzle]] #{k}", "number", f"nozzle {nz.number} is already entry #{seen[nz.number]}")
         seen[nz.number] = k
+    _check_plc(cfg)
+    _check_alarms(cfg)
+    _check_procedures(cfg)
     if not cfg.zenoh.listen:
         raise ConfigError(src, "zenoh", "listen", "needs at least one endpoint, e.g. tcp/127.0.0.1:7447")
     for prefix_part in cfg.zenoh.key_prefix.split("/"):
         if not prefix_part or any(c in prefix_part for c in "*$?#"):
             raise ConfigError(src, "zenoh", "key_prefix", f"{cfg.zenoh.key_prefix!r} is not a valid key prefix")
+
+
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+
+
+def _check_plc(cfg: MachineConfig) -> None:
+    src = cfg.source
+    ids: dict[str, int] = {}
+    used: dict[tuple[str, int], int] = {}
+    for k, v in enumerate(cfg.plc.var, start=1):
+        where = f"[[plc.var]] #{k}"
+        if not _IDENT.match(v.id):
+            raise ConfigError(src, where, "id", f"{v.id!r} must be letters, digits and _, not starting with a digit")
+        if v.id in ids:
+            raise ConfigError(src, where, "id", f"{v.id!r} is already entry #{ids[v.id]}")
+        ids[v.id] = k
+        bit = v.kind in ("discrete_input", "coil")
+        if bit != (v.type == "bool"):
+            raise ConfigError(src, where, "type", f"{v.type!r} does not fit a {v.kind} (bits are bool, registers uint16 or int16)")
+        if (v.kind, v.address) in used:
+            raise ConfigError(src, where, "address", f"{v.kind} {v.address} is already entry #{used[(v.kind, v.address)]}")
+        used[(v.kind, v.address)] = k
+    for direction, group in (("read", cfg.plc.inputs()), ("written", cfg.plc.outputs())):
+        if len(group) > MAX_PLC_VARS:
+            raise ConfigError(src, "plc", "var", f"{len(group)} variables {direction}; at most {MAX_PLC_VARS} each way")
+    if cfg.plc.timeout_ms >= cfg.plc.cycle_ms * cfg.plc.lost_after_cycles:
+        raise ConfigError(
+            src, "plc", "timeout_ms",
+            f"{cfg.plc.timeout_ms:g} ms must be shorter than lost_after_cycles x cycle_ms "
+            f"({cfg.plc.lost_after_cycles} x {cfg.plc.cycle_ms:g} ms) so that a loss is seen in time",
+        )
+
+
+def _check_alarms(cfg: MachineConfig) -> None:
+    src = cfg.source
+    codes: dict[int, int] = {}
+    ids: dict[str, int] = {}
+    for k, a in enumerate(cfg.alarm, start=1):
+        where = f"[[alarm]] #{k}"
+        if a.code in codes:
+            raise ConfigError(src, where, "code", f"{a.code} is already entry #{codes[a.code]}")
+        if not _IDENT.match(a.id):
+            raise ConfigError(src, where, "id", f"{a.id!r} must be letters, digits and _, not starting with a digit")
+        if a.id in ids:
+            raise ConfigError(src, where, "id", f"{a.id!r} is already entry #{ids[a.id]}")
+        codes[a.code], ids[a.id] = k, k
+
+
+def _check_procedures(cfg: MachineConfig) -> None:
+    src = cfg.source
+    alarm_ids = {a.id for a in cfg.alarm}
+    ids: dict[str, int] = {}
+    for k, p in enumerate(cfg.procedure, start=1):
+        where = f"[[procedure]] #{k}"
+        if not _IDENT.match(p.id):
+            raise ConfigError(src, where, "id", f"{p.id!r} must be letters, digits and _, not starting with a digit")
+        if p.id in ids:
+            raise ConfigError(src, where, "id", f"{p.id!r} is already entry #{ids[p.id]}")
+        ids[p.id] = k
+        if not p.step:
+            raise ConfigError(src, where, "step", "a procedure needs at least one [[procedure.step]]")
+        for j, st in enumerate(p.step, start=1):
+            swhere = f"[[procedure]] #{k} ({p.id}) step #{j}"
+            if bool(st.condition) == bool(st.action):
+                raise ConfigError(src, swhere, "condition", "give exactly one of condition or action")
+            if st.timeout_s > 0 and alarm_ids and st.timeout_alarm not in alarm_ids:
+                raise ConfigError(src, swhere, "timeout_alarm", f"{st.timeout_alarm!r} is not an [[alarm]] id")
+    if cfg.procedure and cfg.cycle.transport_procedure and cfg.cycle.transport_procedure not in ids:
+        raise ConfigError(src, "cycle", "transport_procedure", f"{cfg.cycle.transport_procedure!r} is not a [[procedure]] id")
 
 
 def _range_text(meta: dict) -> str:

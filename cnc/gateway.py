@@ -34,7 +34,7 @@ class Gateway:
         self.hw, self.servo, self.motion = area.reader("hw"), area.reader("servo"), area.reader("motion")
         self._last_actual: list[float] | None = None
         self._last_tick = 0
-        self.shutdown = area.blocks["command"].array["shutdown"]
+        self.shutdown = area.blocks["supervisor"].array["shutdown"]
         hb = area.blocks["heartbeat"].array[0]
         self.beat = hb["beat"]
         hb["pid"][Proc.GATEWAY] = os.getpid()

@@ -4,15 +4,18 @@
 |-------------|--------------------|-------|
 | hw          | hardware server    | hardware image: tick counter, encoders, digital in, read-backs, watchdog |
 | servo       | servo              | speed commands, drive enables, outputs, commanded/actual position, following error, faults, counters |
-| command     | commander          | what the servo and the board are asked to do: enable, reset, safe state, shutdown |
+| command     | commander          | what the servo and the board are asked to do: drives enable, fault reset |
+| supervisor  | supervisor         | safe state forced on a lost process, shutdown, virtual-clock gate, servo tracing |
 | motion      | FIFO producer      | the planner's state and progress, and homing's position references for the servo |
 | sim         | commander          | simulated-board environment: e-stop, doors, mains, drive faults, friction |
+| plc         | PLC link           | the external PLC's input image, link state and counters |
+| plc_out     | control logic      | the external PLC's output image |
 | hw_timing   | hardware server    | histogram of tick wake latency (1 us bins) |
 | servo_timing| servo              | histogram of tick-to-speed-command latency (1 us bins) |
 | heartbeat   | one slot each      | per-process heartbeat counter and pid |
 
-The commander is the process that holds the `Controller` handle (the supervisor's process
-until the control-logic process takes the role over). The FIFO producer is the planner
+The commander is the control-logic process when it runs; a controller started without it
+(tests of the servo and the planner alone) has the supervisor's process as its commander. The FIFO producer is the planner
 process; a controller started without it (tests of the servo alone) feeds the FIFO and
 writes `motion` from the supervisor's process instead.
 """
@@ -154,6 +157,14 @@ def command_layout(n: int) -> BlockLayout:
         [
             F("servo_enable", "I"),
             F("reset_seq", "Q"),  # +1 = reset faults (servo and watchdog)
+        ],
+    )
+
+
+def supervisor_layout() -> BlockLayout:
+    return BlockLayout(
+        "supervisor",
+        [
             F("safe_state", "I"),  # hold the board in the safe state
             F("shutdown", "I"),  # bit per process (Proc): stop it
             F("virtual_run_until", "Q"),  # virtual clock: do not tick past this tick (0: run freely)
@@ -210,6 +221,43 @@ def sim_layout(n: int) -> BlockLayout:
     )
 
 
+class LinkState(enum.IntEnum):
+    """The PLC link as the PLC-link process sees it. Numbers are stable."""
+
+    DOWN = 0  # not started, or no serial port
+    CONNECTING = 1  # port opening, or waiting before a reconnection attempt
+    OK = 2  # exchanging
+    LOST = 3  # lost_after_cycles consecutive exchanges failed; reconnecting
+
+
+MAX_PLC_VARS = 64  # values per image direction (config.MAX_PLC_VARS)
+
+
+def plc_layout() -> BlockLayout:
+    """The PLC's input image and the link's health (writer: the PLC-link process). Inputs are
+    engineering values (raw * scale; bits 0/1) in the order of `PlcConfig.inputs()`."""
+    return BlockLayout(
+        "plc",
+        [
+            F("state", "I"),  # LinkState
+            F("exchanges", "Q"),  # completed exchanges since start
+            F("failed", "Q"),  # failed exchanges since start
+            F("missed", "I"),  # consecutive failed exchanges now
+            F("losses", "Q"),  # times the link was declared lost
+            F("cycle_us", "q"),  # duration of the last exchange
+            F("input_seq", "Q"),  # +1 at every input image read
+            F("output_seq_sent", "Q"),  # plc_out.seq of the last output image written to the PLC
+            F("inputs", "d", MAX_PLC_VARS),
+            F("error", "s", 160),  # last failure
+        ],
+    )
+
+
+def plc_out_layout() -> BlockLayout:
+    """The PLC's output image (writer: the control logic), in the order of `PlcConfig.outputs()`."""
+    return BlockLayout("plc_out", [F("seq", "Q"), F("outputs", "d", MAX_PLC_VARS)])
+
+
 def timing_layout(name: str) -> BlockLayout:
     return BlockLayout(name, [F("count", "Q"), F("max_ns", "q"), F("hist", "Q", HIST_BINS)])
 
@@ -224,8 +272,11 @@ def controller_layouts(n_axes: int) -> list[BlockLayout]:
         hw_layout(n_axes),
         servo_layout(n_axes),
         command_layout(n_axes),
+        supervisor_layout(),
         motion_layout(n_axes),
         sim_layout(n_axes),
+        plc_layout(),
+        plc_out_layout(),
         timing_layout("hw_timing"),
         timing_layout("servo_timing"),
         heartbeat_layout(),

@@ -68,7 +68,7 @@ def run_servo(rt: Runtime, ready) -> None:
     session, token = _token(rt, "servo")
     servo = Servo(rt.config, area, fifo, record_latency=rt.clock == "realtime", trace=trace)
     timer = rt.timer_clients["servo"]
-    shutdown = area.blocks["command"].array["shutdown"]
+    shutdown = area.blocks["supervisor"].array["shutdown"]
     my_bit = 1 << Proc.SERVO
     if rt.clock == "realtime":
         enter_realtime(max(1, rt.config.timing.realtime_priority - 1), "servo")

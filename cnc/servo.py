@@ -52,6 +52,7 @@ class Servo:
         self.out.load_current()
         self.hw = area.reader("hw")
         self.command = area.reader("command")
+        self.supervisor = area.reader("supervisor")
         self.motion = area.reader("motion")
         t = area.blocks["servo_timing"].array
         self.timing, self.hist = t, t[0]["hist"]
@@ -83,8 +84,9 @@ class Servo:
         self._h_enc, self._h_ain, self._h_din = hx["encoder_counts"], hx["axis_inputs"], hx["digital_in"]
         self._h_trip, self._h_safe, self._h_reset = hx["watchdog_tripped"], hx["safe_state"], hx["reset_seq"]
         cx = self.command.layout.index
-        self._c_enable, self._c_reset, self._c_safe = cx["servo_enable"], cx["reset_seq"], cx["safe_state"]
-        self._c_trace = cx["trace_enable"]
+        self._c_enable, self._c_reset = cx["servo_enable"], cx["reset_seq"]
+        sx = self.supervisor.layout.index
+        self._s_safe, self._s_trace = sx["safe_state"], sx["trace_enable"]
         mx = self.motion.layout.index
         self._m_ref = (mx["position_ref_seq"], mx["position_ref_mask"], mx["position_ref_counts"], mx["position_ref_mm"])
         # one 8-byte read per tick tells whether a reference waits; the block is read only then
@@ -103,6 +105,7 @@ class Servo:
         t0 = time.monotonic_ns()
         hw, _ = self.hw.read()
         cmd, _ = self.command.read()
+        sup, _ = self.supervisor.read()
         v, I, n = self.out.values, self._i, self.n
         tick = hw[self._h_tick]
         if not self.first and tick <= self.last_tick:
@@ -131,7 +134,7 @@ class Servo:
                 state = self._clear_fault(actual)
 
         if state != ServoState.FAULT:
-            fault = self._interlock(hw, cmd)
+            fault = self._interlock(hw, cmd, sup)
             if fault is not None:
                 self._trip(fault[0], fault[1], 0.0, tick)
                 state = ServoState.FAULT
@@ -154,7 +157,7 @@ class Servo:
         v[I["ticks_processed"]] += 1
         v[I["loop_ns"]] = time.monotonic_ns() - t0
         self.out.publish()
-        if cmd[self._c_trace] and self.trace is not None:
+        if sup[self._s_trace] and self.trace is not None:
             self.trace.write(
                 tick, v[I["commanded_mm"]], actual, v[I["commanded_velocity_mm_s"]], v[I["speed_cmd_v"]],
                 v[I["setpoint_flags"]], v[I["setpoint_segment"]], v[I["setpoint_line"]], self.fifo.fill(),
@@ -250,13 +253,13 @@ class Servo:
         """Let go of the views into shared memory (before the segment is closed)."""
         self._ref_seq_cell.release()
 
-    def _interlock(self, hw: tuple, cmd: tuple) -> tuple[ServoFault, int] | None:
+    def _interlock(self, hw: tuple, cmd: tuple, sup: tuple) -> tuple[ServoFault, int] | None:
         """Conditions that trip the servo whatever it is doing."""
         if not hw[self._h_din] & DigitalIn.ESTOP_OK:
             return ServoFault.ESTOP, -1
         if hw[self._h_trip]:
             return ServoFault.WATCHDOG, -1
-        if cmd[self._c_safe] or hw[self._h_safe]:
+        if sup[self._s_safe] or hw[self._h_safe]:
             return ServoFault.SAFE_STATE, -1
         ain = hw[self._h_ain]
         for i in range(self.n):

@@ -117,6 +117,8 @@ class Supervisor:
         self.trace = TraceRing.create(unique_name(cfg.machine.name, "trace"), TRACE_CAPACITY, n)
         self.command: BlockWriter = self.area.writer("command")
         self.command.publish()
+        self.control: BlockWriter = self.area.writer("supervisor")
+        self.control.publish()
         # without a planner process the supervisor feeds the FIFO, and so writes `motion`
         self.motion_writer: BlockWriter | None = None if "planner" in self.process_names else self.area.writer("motion")
         self.sim: BlockWriter = self.area.writer("sim")
@@ -171,15 +173,15 @@ class Supervisor:
     def stop(self) -> None:
         """Safe state, then stop the processes in reverse start order and free the shared memory."""
         if self.area is not None and self.children:
-            self.command.set("safe_state", 1)
-            self.command.publish()
+            self.control.set("safe_state", 1)
+            self.control.publish()
             self._wait_ticks(3, timeout_s=0.5)
             for name in reversed(self.process_names):
                 child = self.children.pop(name, None)
                 if child is None:
                     continue
-                self.command.set("shutdown", self.command.get("shutdown") | 1 << POLICIES[name].slot)
-                self.command.publish()
+                self.control.set("shutdown", self.control.get("shutdown") | 1 << POLICIES[name].slot)
+                self.control.publish()
                 child.process.join(5.0)
                 if child.process.is_alive():
                     log.warning("%s did not stop in time: terminating", name)
@@ -236,8 +238,8 @@ class Supervisor:
         moving = policy.slot == Proc.PLANNER and self.servo()["state"] == ServoState.TRACKING
         if policy.slot in (Proc.SERVO, Proc.HARDWARE) or moving:
             # without the servo, the board or (mid-motion) the planner nothing may move: jet off, drives off
-            self.command.set("safe_state", 1)
-            self.command.publish()
+            self.control.set("safe_state", 1)
+            self.control.publish()
         child = self.children.pop(name)
         now = time.monotonic()
         recent = [t for t in child.restarts if now - t < 60.0]
@@ -276,7 +278,8 @@ class Supervisor:
 
     def reset(self) -> None:
         """Clear latched faults: servo faults, the drive watchdog, a supervisor-forced safe state."""
-        self.command.set("safe_state", 0)
+        self.control.set("safe_state", 0)
+        self.control.publish()
         self.command.set("reset_seq", self.command.get("reset_seq") + 1)
         self.command.publish()
 
@@ -301,18 +304,18 @@ class Supervisor:
 
     def set_tracing(self, on: bool) -> None:
         """Have the servo write every tick into the trace ring (`self.trace`)."""
-        self.command.set("trace_enable", int(on))
-        self.command.publish()
+        self.control.set("trace_enable", int(on))
+        self.control.publish()
 
     def set_safe_state(self, on: bool = True) -> None:
-        self.command.set("safe_state", int(on))
-        self.command.publish()
+        self.control.set("safe_state", int(on))
+        self.control.publish()
 
     def pause_virtual_clock(self) -> int:
         """Virtual clock: stop time after the current tick; returns the tick it stops at."""
         self._require_virtual()
-        self.command.set("virtual_run_until", max(self.hw()["tick"], 1))
-        self.command.publish()
+        self.control.set("virtual_run_until", max(self.hw()["tick"], 1))
+        self.control.publish()
         self.wait_until(lambda: self.hw()["paused"], 5.0, "the virtual clock to pause")
         return self.hw()["tick"]
 
@@ -320,14 +323,14 @@ class Supervisor:
         """Virtual clock: advance exactly `n` ticks from a pause and stop again; returns the tick reached."""
         self._require_virtual()
         target = self.hw()["tick"] + n
-        self.command.set("virtual_run_until", target)
-        self.command.publish()
+        self.control.set("virtual_run_until", target)
+        self.control.publish()
         self.wait_until(lambda: self.hw()["paused"] and self.hw()["tick"] == target, timeout_s, f"tick {target}")
         return target
 
     def resume_virtual_clock(self) -> None:
-        self.command.set("virtual_run_until", 0)
-        self.command.publish()
+        self.control.set("virtual_run_until", 0)
+        self.control.publish()
 
     def _require_virtual(self) -> None:
         if self.clock != "virtual":

@@ -95,4 +95,4 @@ def test_losing_the_hardware_server_is_fatal_and_leaves_the_servo_safe(virtual_c
         sup.poll()
         time.sleep(0.01)
     assert sup.failed and "hardware process exited with code -9" in sup.failed
-    assert sup.command.get("safe_state") == 1
+    assert sup.control.get("safe_state") == 1

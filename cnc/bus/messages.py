@@ -81,6 +81,80 @@ class Status(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
+# -- alarms, messages and procedures (events) ------------------------------------------------
+
+
+class AlarmEvent(msgspec.Struct, frozen=True):
+    """One entry of the alarm and message history, published on `<root>/event/alarm` after it
+    is stored. `seq` increases by one per entry across restarts: a subscriber that sees a gap
+    asks the history for the entries it missed."""
+
+    seq: int
+    stamp_ns: int  # wall-clock time, ns since the epoch
+    code: int
+    id: str  # catalogue id
+    level: str  # fatal | error | warning | info
+    action: str  # raised | cleared | acknowledged | reset
+    text: str
+    detail: str = ""  # what was found: axis, value, line
+    source: str = ""  # the process or subsystem that raised it
+    cause: str = ""
+    remedy: str = ""
+    version: int = SCHEMA_VERSION
+
+
+class ActiveAlarm(msgspec.Struct, frozen=True):
+    """An alarm that is raised and not yet reset (in `AlarmList`)."""
+
+    code: int
+    id: str
+    level: str
+    text: str
+    detail: str
+    source: str
+    raised_seq: int
+    raised_ns: int
+    active: bool  # its condition is still present (false: cleared, waits for reset)
+    acknowledged: bool
+
+
+class AlarmList(msgspec.Struct, frozen=True):
+    """Answer of the active-alarms query."""
+
+    alarms: list[ActiveAlarm]
+    last_seq: int
+    version: int = SCHEMA_VERSION
+
+
+class HistoryPage(msgspec.Struct, frozen=True):
+    """Answer of a history query: entries in sequence order, and whether more follow."""
+
+    entries: list[AlarmEvent]
+    last_seq: int  # newest sequence number in the history
+    more: bool
+    version: int = SCHEMA_VERSION
+
+
+class ProcedureStep(msgspec.Struct, frozen=True):
+    text: str
+    state: str  # pending | awaited | done | timed_out
+    instruction: str = ""
+    action: str = ""  # "confirm" when the operator must confirm the step
+
+
+class ProcedureState(msgspec.Struct, frozen=True):
+    """A guided procedure as the operator sees it (`<root>/procedure`, on change)."""
+
+    id: str  # "" when no procedure runs
+    title: str
+    state: str  # idle | running | done | stopped | timed_out
+    step: int  # index of the step awaited (-1 when none)
+    steps: list[ProcedureStep]
+    instruction: str  # what the operator must do now
+    seq: int  # +1 at every change
+    version: int = SCHEMA_VERSION
+
+
 # -- commands to the planner (answered with a Reply) ------------------------------------------
 
 

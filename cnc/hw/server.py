@@ -46,6 +46,7 @@ class HardwareServer:
         self.hw.load_current()
         self.servo = area.reader("servo")
         self.command = area.reader("command")
+        self.supervisor = area.reader("supervisor")
         self.sim = area.reader("sim")
         self.sim_block = area.blocks["sim"]
         timing = area.blocks["hw_timing"].array[0]
@@ -62,9 +63,9 @@ class HardwareServer:
         s_idx = self.servo.layout.index
         i_speed, i_enable, i_dout = s_idx["speed_cmd_v"], s_idx["drive_enable_mask"], s_idx["digital_out"]
         i_stick, i_sticks = s_idx["tick"], s_idx["ticks_processed"]
-        c_idx = self.command.layout.index
-        i_shutdown, i_safe, i_reset = c_idx["shutdown"], c_idx["safe_state"], c_idx["reset_seq"]
-        i_until = c_idx["virtual_run_until"]
+        i_reset = self.command.layout.index["reset_seq"]
+        s_idx = self.supervisor.layout.index
+        i_shutdown, i_safe, i_until = s_idx["shutdown"], s_idx["safe_state"], s_idx["virtual_run_until"]
         v = self.hw.values
         i_tick, i_ttime, i_wtime = idx["tick"], idx["tick_time_ns"], idx["wake_time_ns"]
         i_enc, i_ilc, i_ils, i_ain = idx["encoder_counts"], idx["index_latch_counts"], idx["index_latch_seq"], idx["axis_inputs"]
@@ -83,7 +84,8 @@ class HardwareServer:
                 self._gate(tick, i_until, i_shutdown)
             deadline, woke = self.clock.wait()
             cmd, _ = self.command.read()
-            if cmd[i_shutdown] & 1 << Proc.HARDWARE:
+            sup, _ = self.supervisor.read()
+            if sup[i_shutdown] & 1 << Proc.HARDWARE:
                 board.safe_state()
                 break
             servo, _ = self.servo.read()
@@ -103,7 +105,7 @@ class HardwareServer:
                 last_reset = v[i_reset_ack] = cmd[i_reset]
                 if v[i_trip] and v[i_missed] == 0:
                     v[i_trip] = 0
-            safe = bool(v[i_trip] or cmd[i_safe])
+            safe = bool(v[i_trip] or sup[i_safe])
             if safe:
                 board.safe_state()
             else:
@@ -139,9 +141,9 @@ class HardwareServer:
         """Virtual clock: hold time still while the commander has set a tick not to pass."""
         i_paused = self.hw.layout.index["paused"]
         while True:
-            cmd, _ = self.command.read()
-            until = cmd[i_until]
-            if not until or tick < until or cmd[i_shutdown] & 1 << Proc.HARDWARE:
+            sup, _ = self.supervisor.read()
+            until = sup[i_until]
+            if not until or tick < until or sup[i_shutdown] & 1 << Proc.HARDWARE:
                 if self.hw.values[i_paused]:
                     self.hw.values[i_paused] = 0
                     self.hw.publish()

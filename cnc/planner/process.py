@@ -84,7 +84,7 @@ class Planner:
         self.out = area.writer("motion")
         self.out.load_current()
         self.hw_r, self.servo_r = area.reader("hw"), area.reader("servo")
-        self.shutdown = area.blocks["command"].array["shutdown"]
+        self.shutdown = area.blocks["supervisor"].array["shutdown"]
         hb = area.blocks["heartbeat"].array[0]
         self.beat = hb["beat"]
         hb["pid"][Proc.PLANNER] = os.getpid()
