@@ -685,16 +685,26 @@ def _render(cls: type, table: str, lines: list[str]) -> None:
     for f in subtables:
         sub = f"{table}.{f.name}" if table else f.name
         if "array_of" in f.metadata:
-            cls_ = f.metadata["array_of"]
-            lines.append(f"[[{sub}]]")
-            lines.append(f"# {(cls_.__doc__ or '').strip().splitlines()[0]} (repeat the table for each entry)")
-            for g in dataclasses.fields(cls_):
-                lines.extend(_render_option(g))
-            lines.append("")
+            _render_array(f.metadata["array_of"], sub, lines)
         elif "table_of" in f.metadata:
             _render(f.metadata["table_of"], f"{sub}.x", lines)
         else:
             _render(hints[f.name], sub, lines)
+
+
+def _render_array(cls: type, sub: str, lines: list[str]) -> None:
+    """`[[sub]]` with its options, then any arrays nested in it (`[[sub.name]]`)."""
+    lines.append(f"[[{sub}]]")
+    lines.append(f"# {(cls.__doc__ or '').strip().splitlines()[0]} (repeat the table for each entry)")
+    nested = []
+    for g in dataclasses.fields(cls):
+        if "array_of" in g.metadata:
+            nested.append(g)
+        else:
+            lines.extend(_render_option(g))
+    lines.append("")
+    for g in nested:
+        _render_array(g.metadata["array_of"], f"{sub}.{g.name}", lines)
 
 
 def _render_option(f: dataclasses.Field) -> list[str]:

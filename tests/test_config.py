@@ -38,7 +38,7 @@ def test_shipped_machine_describes_the_papers_table():
         (MINIMAL + "[timing]\nwatchdog_missed_ticks = 2.5\n", "m.toml: [timing] watchdog_missed_ticks: expected an integer, got 2.5 (allowed 1 to 1000 ticks)"),
         (MINIMAL + "[timing]\nbase_rate_hz = 100\n", "m.toml: [timing] base_rate_hz: 100.0 is out of range: allowed 250 to 4000 Hz"),
         (MINIMAL + "[board]\nkind = \"pci\"\n", "m.toml: [board] kind: 'pci' is not one of: sim"),
-        (MINIMAL + "[pump]\n", "m.toml: (top level) pump: unknown key"),
+        (MINIMAL + "[pumps]\n", "m.toml: (top level) pumps: unknown key"),
         ("[axis.x]\ntravel_min_mm = 10\ntravel_max_mm = 10\n", "m.toml: [axis.x] travel_max_mm: 10 must be greater than travel_min_mm 10"),
         (MINIMAL + "[sim.axes.y]\n", "m.toml: [sim.axes] y: no such axis declared (declared: x)"),
         (MINIMAL + "[sim.axes.x]\nfriction = 1\n", "m.toml: [sim.axes.x] friction: unknown key"),
