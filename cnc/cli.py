@@ -96,6 +96,12 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--plot", metavar="OUT.png", help="draw the XY contour and per-axis tracking (the paper's Figs. 10-12)")
     simulate.set_defaults(func=_cmd_simulate)
 
+    plc_sim = sub.add_parser("plc-sim", help="the simulated external PLC (transport system, pump) as a Modbus RTU server")
+    from plc_link import sim_cli
+
+    sim_cli.add_arguments(plc_sim)
+    plc_sim.set_defaults(func=sim_cli.run)
+
     demo = sub.add_parser("demo", help="run the simulated machine end to end and exit 0 when it behaved")
     _machine_arg(demo)
     demo.add_argument("--clock", choices=("realtime", "virtual"), default="realtime")

@@ -271,6 +271,12 @@ class PlcConfig:
 
 
 ALARM_LEVELS = ("fatal", "error", "warning", "info")
+# ids the control logic raises by name: a catalogue must declare them (the others it raises when declared)
+CONTROLLER_ALARM_IDS = (
+    "estop", "doors_open", "following_error", "soft_limit", "hard_limit", "watchdog", "process_lost", "plc_link_lost",
+    "plc_error", "pump_pressure_fault", "transport_timeout", "procedure_stop", "procedure_timeout", "program_error",
+    "program_message", "wrong_mode", "cycle_done", "internal_error",
+)
 
 
 @dataclass(frozen=True)
@@ -610,6 +616,9 @@ def _check_alarms(cfg: MachineConfig) -> None:
         if a.id in ids:
             raise ConfigError(src, where, "id", f"{a.id!r} is already entry #{ids[a.id]}")
         codes[a.code], ids[a.id] = k, k
+    missing = [i for i in CONTROLLER_ALARM_IDS if i not in ids]
+    if cfg.alarm and missing:
+        raise ConfigError(src, "[[alarm]]", "id", f"the catalogue lacks alarms the controller raises: {', '.join(missing)}")
 
 
 def _check_procedures(cfg: MachineConfig) -> None:

@@ -20,8 +20,11 @@ from .config import MachineConfig
 from .dataserver import SharedArea
 from .fifo import SetpointFifo
 from .hw.board import AxisIn, DigitalIn, DigitalOut
-from .layout import ClockKind, PlannerState, Proc, RunResult, ServoFault, ServoState
+from .alarms import AlarmLevel
+from .layout import ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
+from .logic.states import CyclePhase, MachineState, Mode
 
+_LEVELS = {int(level): level.name.lower() for level in AlarmLevel}
 _CLOCK_NAMES = {ClockKind.VIRTUAL: "virtual", ClockKind.REALTIME: "realtime", ClockKind.REALTIME_FALLBACK: "realtime-fallback"}
 
 
@@ -32,6 +35,8 @@ class Gateway:
         self.config, self.area, self.fifo = config, area, fifo
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
         self.hw, self.servo, self.motion = area.reader("hw"), area.reader("servo"), area.reader("motion")
+        self.logic, self.plc = area.reader("logic"), area.reader("plc")
+        self.pressure_index = next((k for k, v in enumerate(config.plc.inputs()) if v.id == "pump_pressure"), -1)
         self._last_actual: list[float] | None = None
         self._last_tick = 0
         self.shutdown = area.blocks["supervisor"].array["shutdown"]
@@ -48,6 +53,7 @@ class Gateway:
     def status(self) -> Status:
         """Assemble one status message from consistent snapshots of the blocks."""
         hw, sv, mo = self.hw.read_dict(), self.servo.read_dict(), self.motion.read_dict()
+        lo, plc = self.logic.read_dict(), self.plc.read_dict()
         names = self.config.axis_names
         fault = ServoFault(sv["fault"])
         axes = []
@@ -100,6 +106,21 @@ class Gateway:
             program=self._program(mo),
             event=mo["event"],
             error=mo["error"],
+            machine_state=MachineState(lo["state"]).name,
+            mode=Mode(lo["mode"]).name,
+            cycle_phase=CyclePhase(lo["phase"]).name,
+            cycles_done=lo["cycles_done"],
+            cycles_target=lo["cycles_target"],
+            plc_link=LinkState(plc["state"]).name,
+            plc_exchanges=plc["exchanges"],
+            pump_on=bool(lo["pump_on"]),
+            pump_set_bar=lo["pump_set_bar"],
+            pump_pressure_bar=plc["inputs"][self.pressure_index] if self.pressure_index >= 0 and plc["state"] == LinkState.OK else 0.0,
+            alarms_active=lo["alarms_active"],
+            alarm_level=_LEVELS.get(lo["alarm_level"], ""),
+            alarm_seq=lo["alarm_seq"],
+            procedure=lo["procedure"],
+            logic_message=lo["message"],
         )
 
     def _program(self, mo: dict) -> ProgramProgress | None:

@@ -7,10 +7,12 @@
 | command     | commander          | what the servo and the board are asked to do: drives enable, fault reset |
 | supervisor  | supervisor         | safe state forced on a lost process, shutdown, virtual-clock gate, servo tracing |
 | motion      | FIFO producer      | the planner's state and progress, and homing's position references for the servo |
-| sim         | commander          | simulated-board environment: e-stop, doors, mains, drive faults, friction |
+| sim         | supervisor         | simulated-board environment: e-stop, doors, mains, drive faults, friction |
 | plc         | PLC link           | the external PLC's input image, link state and counters |
 | plc_out     | control logic      | the external PLC's output image |
+| logic       | control logic      | mode, machine state, cycle phase, alarms summary, procedure, scan time |
 | hw_timing   | hardware server    | histogram of tick wake latency (1 us bins) |
+| logic_scan, logic_wake | control logic | histograms of the soft-PLC's scan time and wake latency (1 us bins) |
 | servo_timing| servo              | histogram of tick-to-speed-command latency (1 us bins) |
 | heartbeat   | one slot each      | per-process heartbeat counter and pid |
 
@@ -157,6 +159,8 @@ def command_layout(n: int) -> BlockLayout:
         [
             F("servo_enable", "I"),
             F("reset_seq", "Q"),  # +1 = reset faults (servo and watchdog)
+            F("output_inhibit", "I"),  # DigitalOut bits held off whatever the setpoints say (jet off first on a fault)
+            F("output_force", "I"),  # DigitalOut bits switched on while the axes hold still (jet test)
         ],
     )
 
@@ -246,7 +250,7 @@ def plc_layout() -> BlockLayout:
             F("losses", "Q"),  # times the link was declared lost
             F("cycle_us", "q"),  # duration of the last exchange
             F("input_seq", "Q"),  # +1 at every input image read
-            F("output_seq_sent", "Q"),  # plc_out.seq of the last output image written to the PLC
+            F("output_seq_sent", "Q"),  # plc_out.image_seq of the last output image written to the PLC
             F("inputs", "d", MAX_PLC_VARS),
             F("error", "s", 160),  # last failure
         ],
@@ -255,7 +259,35 @@ def plc_layout() -> BlockLayout:
 
 def plc_out_layout() -> BlockLayout:
     """The PLC's output image (writer: the control logic), in the order of `PlcConfig.outputs()`."""
-    return BlockLayout("plc_out", [F("seq", "Q"), F("outputs", "d", MAX_PLC_VARS)])
+    return BlockLayout("plc_out", [F("image_seq", "Q"), F("outputs", "d", MAX_PLC_VARS)])
+
+
+def logic_layout() -> BlockLayout:
+    """The control logic's state for the gateway and the tests (writer: control logic)."""
+    return BlockLayout(
+        "logic",
+        [
+            F("mode", "I"),  # Mode
+            F("state", "I"),  # MachineState
+            F("phase", "I"),  # CyclePhase
+            F("cycles_done", "Q"),
+            F("cycles_target", "Q"),  # 0: until stopped
+            F("drives_on", "I"),  # the commander asks for the drives
+            F("pump_on", "I"),
+            F("pump_set_bar", "d"),
+            F("jet_test", "I"),
+            F("alarm_seq", "Q"),  # newest history sequence number
+            F("alarms_active", "I"),  # entries in the active list
+            F("alarm_level", "i"),  # most severe level in the active list (AlarmLevel), -1 none
+            F("blocking", "I"),  # a fatal or error alarm is in the active list
+            F("procedure_seq", "Q"),
+            F("procedure", "s", 32),  # id of the procedure shown ("" none)
+            F("procedure_state", "s", 16),
+            F("scans", "Q"),
+            F("scan_us", "q"),  # duration of the last scan
+            F("message", "s", 200),  # last refusal or notice
+        ],
+    )
 
 
 def timing_layout(name: str) -> BlockLayout:
@@ -277,7 +309,10 @@ def controller_layouts(n_axes: int) -> list[BlockLayout]:
         sim_layout(n_axes),
         plc_layout(),
         plc_out_layout(),
+        logic_layout(),
         timing_layout("hw_timing"),
         timing_layout("servo_timing"),
+        timing_layout("logic_scan"),
+        timing_layout("logic_wake"),
         heartbeat_layout(),
     ]

@@ -139,4 +139,37 @@ def run_gateway(rt: Runtime, ready) -> None:
         area.close()
 
 
-PROCESS_MAINS = {"hardware": run_hardware, "servo": run_servo, "planner": run_planner, "gateway": run_gateway}
+def run_logic(rt: Runtime, ready) -> None:
+    from .logic.process import Logic
+
+    child_setup(rt, "logic")
+    area = _attach(rt)
+    session = open_client(rt.zenoh_connect)
+    logic = Logic(rt.config, area, session, rt.timer_clients["logic"], rt.history_path)
+    if rt.clock == "realtime":
+        # below the planner: the soft-PLC's 4 ms scan has slack, the FIFO refills have less
+        enter_realtime(max(1, rt.config.timing.realtime_priority - 3), "logic")
+    import gc
+
+    gc.collect()
+    gc.freeze()  # collections stay short; the logic is not on the servo path and may allocate freely
+    set_ready(ready)
+    try:
+        logic.run()
+    finally:
+        logic.close()
+        session.close()
+        del logic
+        area.close()
+
+
+def run_plc_link(rt: Runtime, ready) -> None:
+    from plc_link.process import run_plc_link as run
+
+    run(rt, ready)
+
+
+PROCESS_MAINS = {
+    "hardware": run_hardware, "servo": run_servo, "planner": run_planner, "gateway": run_gateway,
+    "logic": run_logic, "plc_link": run_plc_link,
+}

@@ -24,6 +24,8 @@ class Runtime:
     trace_name: str = ""
     timer_clients: dict[str, TimerClient] = field(default_factory=dict)
     log_level: int = logging.INFO
+    plc_port: str = ""  # serial device of the PLC link: the machine file's, or the simulator's pty
+    history_path: str = ""  # the alarm and message history (SQLite)
 
 
 def child_setup(rt: Runtime, name: str) -> None:

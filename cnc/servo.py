@@ -85,6 +85,7 @@ class Servo:
         self._h_trip, self._h_safe, self._h_reset = hx["watchdog_tripped"], hx["safe_state"], hx["reset_seq"]
         cx = self.command.layout.index
         self._c_enable, self._c_reset = cx["servo_enable"], cx["reset_seq"]
+        self._c_inhibit, self._c_force = cx["output_inhibit"], cx["output_force"]
         sx = self.supervisor.layout.index
         self._s_safe, self._s_trace = sx["safe_state"], sx["trace_enable"]
         mx = self.motion.layout.index
@@ -151,6 +152,10 @@ class Servo:
                 self._open_loop(actual)  # close the loop where the table is, whatever was commanded before
             state = self._close_loop(actual, tick, steps)
 
+        if cmd[self._c_inhibit] or cmd[self._c_force]:
+            # the commander's word on the outputs: inhibit wins at once (jet off before the stop), force only at rest
+            dout = v[I["digital_out"]] | (cmd[self._c_force] if state == ServoState.HOLDING else 0)
+            v[I["digital_out"]] = dout & ~cmd[self._c_inhibit] & OUTPUT_MASK
         v[I["state"]] = state
         v[I["tick"]] = tick
         v[I["actual_mm"]] = actual

@@ -38,7 +38,7 @@ from .layout import PlannerState, RunResult, ServoState
 from .machine_dialect import dialect_for
 from .planner.measure import ProgrammedPath, peaks
 from .planner.path import elements_from_program, sample
-from .supervisor import Supervisor, SupervisorError
+from .supervisor import MOTION_ONLY, Supervisor, SupervisorError
 
 CHUNK_TICKS = 20_000  # ticks per step of the clock: well within the trace ring
 SETTLE_S = 0.2  # recorded after the last setpoint: the table comes to rest
@@ -63,7 +63,7 @@ def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
     """Home, load, run; return the figures. Raises SimulationError with the planner's reason on refusal.
     `config` should listen on a port of its own (see `run_cli`)."""
     dt = config.timing.period_s
-    with Supervisor(config, clock="virtual") as sup:
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
         _prepare(sup, program_path)
         m0, s0 = sup.motion(), sup.servo()
         sup.pause_virtual_clock()

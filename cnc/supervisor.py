@@ -1,17 +1,19 @@
 """Supervisor: creates the data server, starts the controller processes and watches them.
 
 It owns the shared-memory segments (created at start, unlinked at stop, nothing left in
-/dev/shm) and the controller's Zenoh router, which every process and HMI connects to.
+/dev/shm), the controller's Zenoh router, which every process and HMI connects to, and, on
+the simulated board with no PLC serial port configured, the PLC simulator on a pty pair.
 Processes start in dependency order (servo waits for ticks, then the hardware server
-ticks, then the gateway publishes) and are watched by exit and by heartbeat. When a
-critical process dies the board is forced into the safe state; what may be restarted is
-restarted: the gateway freely, the servo into a latched fault that a reset clears; the
-hardware server owns the board, so its loss stops the controller; losing the planner in
-mid-motion forces the safe state too. Until the control-logic process exists the
-supervisor's process is also the commander: the only writer of the `command` and `sim`
-blocks, through the methods below, and it asks the planner through `self.planner`. Started
-without the planner process (`DIRECT_FEED`, for tests of the servo alone) it feeds the FIFO
-and writes the `motion` block itself.
+ticks, then the planner, the PLC link, the control logic and the gateway) and are watched
+by exit and by heartbeat. When a critical process dies the board is forced into the safe
+state; what may be restarted is restarted: the gateway, the PLC link and the control logic
+freely (the logic rebuilds its active alarms from the history), the servo into a latched
+fault that a reset clears; the hardware server owns the board, so its loss stops the
+controller; losing the planner or the control logic in mid-motion forces the safe state.
+The control logic is the machine's commander; started without it (`MOTION_ONLY`, for tests
+of motion and for `waterjet simulate`) the supervisor's process commands the servo and asks
+the planner itself, and without the planner too (`DIRECT_FEED`) it feeds the FIFO and
+writes the `motion` block.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import multiprocessing
 import os
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 from .bus.keys import Keys
@@ -30,6 +33,8 @@ from .dataserver import BlockWriter, SharedArea, unique_name
 from .fifo import SetpointFifo
 from .hw.timers import TimerClient
 from .layout import Proc, ServoFault, ServoState, controller_layouts
+from .bus.messages import Drives, Reset
+from .logic.client import LogicClient
 from .planner.client import PlannerClient
 from .procs import PROCESS_MAINS
 from .runtime import Runtime
@@ -38,6 +43,17 @@ from .trace import TraceRing
 log = logging.getLogger(__name__)
 
 FIFO_CAPACITY = 8192  # 8 s of setpoints at 1 kHz
+
+
+def default_history_path(config: MachineConfig) -> str:
+    """`[logic] history` beside the machine file, or the user's state directory when empty."""
+    if config.logic.history:
+        path = Path(config.logic.history)
+        if not path.is_absolute() and config.source not in ("<defaults>", "<string>"):
+            path = Path(config.source).resolve().parent / path
+        return str(path)
+    state = Path(os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state")
+    return str(state / "waterjet" / config.machine.name / "history.sqlite")
 
 
 class SupervisorError(RuntimeError):
@@ -54,9 +70,12 @@ POLICIES = {
     "servo": ProcessPolicy(Proc.SERVO, "faulted"),
     "hardware": ProcessPolicy(Proc.HARDWARE, "never"),
     "planner": ProcessPolicy(Proc.PLANNER, "always"),
+    "plc_link": ProcessPolicy(Proc.PLC_LINK, "always"),
+    "logic": ProcessPolicy(Proc.LOGIC, "always"),
     "gateway": ProcessPolicy(Proc.GATEWAY, "always"),
 }
-START_ORDER = ("servo", "hardware", "planner", "gateway")
+START_ORDER = ("servo", "hardware", "planner", "plc_link", "logic", "gateway")
+MOTION_ONLY = ("servo", "hardware", "planner", "gateway")  # no soft-PLC: the supervisor's process commands (motion tests, simulate)
 DIRECT_FEED = ("servo", "hardware", "gateway")  # no planner: the supervisor's process feeds the FIFO (servo tests)
 TRACE_CAPACITY = 1 << 16  # ticks the trace ring holds between two drains
 MAX_RESTARTS_PER_MINUTE = 5
@@ -81,6 +100,8 @@ class Supervisor:
         clock: str = "realtime",
         processes: tuple[str, ...] = START_ORDER,
         log_level: int = logging.INFO,
+        history_path: str | os.PathLike | None = None,
+        plc_sim_times: Any = None,
     ) -> None:
         if clock not in ("realtime", "virtual"):
             raise ValueError(f"clock {clock!r} is not one of: realtime, virtual")
@@ -89,6 +110,9 @@ class Supervisor:
             raise ValueError(f"unknown controller process {unknown[0]!r} (known: {', '.join(POLICIES)})")
         self.config, self.clock, self.log_level = config, clock, log_level
         self.process_names = tuple(p for p in START_ORDER if p in processes)
+        self.history_path = str(history_path) if history_path is not None else default_history_path(config)
+        self.plc_sim = None  # the PLC simulator, when this controller started one
+        self.plc_sim_times = plc_sim_times  # its plant's times (plc_link.sim_model.PlantTimes; None: realistic)
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
         self.ctx = multiprocessing.get_context("spawn")
         self.children: dict[str, _Child] = {}
@@ -115,8 +139,10 @@ class Supervisor:
         self.area = SharedArea.create(unique_name(cfg.machine.name, "data"), controller_layouts(n))
         self.fifo = SetpointFifo.create(unique_name(cfg.machine.name, "fifo"), FIFO_CAPACITY, n)
         self.trace = TraceRing.create(unique_name(cfg.machine.name, "trace"), TRACE_CAPACITY, n)
-        self.command: BlockWriter = self.area.writer("command")
-        self.command.publish()
+        # the commander's block: the control logic's when it runs, else this process's
+        self.command: BlockWriter | None = None if "logic" in self.process_names else self.area.writer("command")
+        if self.command is not None:
+            self.command.publish()
         self.control: BlockWriter = self.area.writer("supervisor")
         self.control.publish()
         # without a planner process the supervisor feeds the FIFO, and so writes `motion`
@@ -130,11 +156,14 @@ class Supervisor:
         try:
             self.router = open_router(cfg.zenoh.listen)
             self._token = self.router.liveliness().declare_token(self.keys.alive("supervisor"))
+            plc_port = self._plc_port()
             clients = {}
             if "servo" in self.process_names:
                 clients["servo"] = TimerClient.new(self.ctx, "servo", 1)
             if "planner" in self.process_names:
                 clients["planner"] = TimerClient.new(self.ctx, "planner", cfg.planner.divisor)
+            if "logic" in self.process_names:
+                clients["logic"] = TimerClient.new(self.ctx, "logic", cfg.timing.logic_divisor)
             self.runtime = Runtime(
                 config=cfg,
                 clock=self.clock,
@@ -144,8 +173,11 @@ class Supervisor:
                 trace_name=self.trace.shm.name,
                 timer_clients=clients,
                 log_level=self.log_level,
+                plc_port=plc_port,
+                history_path=self.history_path,
             )
             self.planner = PlannerClient(self.router, self.keys)
+            self.logic = LogicClient(self.router, self.keys)
             for name in self.process_names:
                 self._spawn(name)
         except BaseException:
@@ -170,30 +202,36 @@ class Supervisor:
         child.last_beat_change = time.monotonic()
         self.children[name] = child
 
+    def _plc_port(self) -> str:
+        """The PLC link's serial device: the machine file's, or a PLC simulator's on a pty pair
+        that this controller starts (sim board, `[plc] port` empty)."""
+        cfg = self.config
+        if "plc_link" not in self.process_names or cfg.plc.port or not cfg.plc.var:
+            return cfg.plc.port
+        if cfg.board.kind != "sim":
+            raise SupervisorError("[plc] port is empty: a real board needs the PLC's serial device")
+        from plc_link.sim_server import start_simulator_process
+
+        self.plc_sim = start_simulator_process(cfg, self.ctx, times=self.plc_sim_times)
+        return self.plc_sim.device
+
     def stop(self) -> None:
         """Safe state, then stop the processes in reverse start order and free the shared memory."""
         if self.area is not None and self.children:
+            # the commander goes first, so that the safe state of a shutdown is not taken for a fault
+            self._stop_child("logic")
             self.control.set("safe_state", 1)
             self.control.publish()
             self._wait_ticks(3, timeout_s=0.5)
             for name in reversed(self.process_names):
-                child = self.children.pop(name, None)
-                if child is None:
-                    continue
-                self.control.set("shutdown", self.control.get("shutdown") | 1 << POLICIES[name].slot)
-                self.control.publish()
-                child.process.join(5.0)
-                if child.process.is_alive():
-                    log.warning("%s did not stop in time: terminating", name)
-                    child.process.terminate()
-                    child.process.join(2.0)
-                if child.process.is_alive():
-                    child.process.kill()
-                    child.process.join(2.0)
+                self._stop_child(name)
         for name, child in list(self.children.items()):
             child.process.kill()
             child.process.join(2.0)
         self.children.clear()
+        if self.plc_sim is not None:
+            self.plc_sim.stop()
+            self.plc_sim = None
         if self._token is not None:
             self._token.undeclare()
             self._token = None
@@ -210,6 +248,21 @@ class Supervisor:
             self._beats = None  # drop the numpy view so the segment can be unmapped
             self.area.close()
             self.area = None
+
+    def _stop_child(self, name: str) -> None:
+        child = self.children.pop(name, None)
+        if child is None:
+            return
+        self.control.set("shutdown", self.control.get("shutdown") | 1 << POLICIES[name].slot)
+        self.control.publish()
+        child.process.join(5.0)
+        if child.process.is_alive():
+            log.warning("%s did not stop in time: terminating", name)
+            child.process.terminate()
+            child.process.join(2.0)
+        if child.process.is_alive():
+            child.process.kill()
+            child.process.join(2.0)
 
     # -- watching ------------------------------------------------------------------------
     def poll(self) -> None:
@@ -235,7 +288,7 @@ class Supervisor:
     def _on_death(self, name: str, why: str) -> None:
         policy = POLICIES[name]
         self._note(f"{name} process {why}")
-        moving = policy.slot == Proc.PLANNER and self.servo()["state"] == ServoState.TRACKING
+        moving = policy.slot in (Proc.PLANNER, Proc.LOGIC) and self.servo()["state"] == ServoState.TRACKING
         if policy.slot in (Proc.SERVO, Proc.HARDWARE) or moving:
             # without the servo, the board or (mid-motion) the planner nothing may move: jet off, drives off
             self.control.set("safe_state", 1)
@@ -272,7 +325,13 @@ class Supervisor:
 
     # -- commander -----------------------------------------------------------------------
     def enable(self, on: bool = True) -> None:
-        """Ask the servo to close the loop (drives on) or open it (drives off)."""
+        """Ask the servo to close the loop (drives on) or open it (drives off): through the control
+        logic when it runs (it may refuse: the reason is raised)."""
+        if self.command is None:
+            reply = self.logic.request(Drives(on))
+            if not reply.ok:
+                raise SupervisorError(reply.reason)
+            return
         self.command.set("servo_enable", int(on))
         self.command.publish()
 
@@ -280,6 +339,9 @@ class Supervisor:
         """Clear latched faults: servo faults, the drive watchdog, a supervisor-forced safe state."""
         self.control.set("safe_state", 0)
         self.control.publish()
+        if self.command is None:
+            self.logic.request(Reset())
+            return
         self.command.set("reset_seq", self.command.get("reset_seq") + 1)
         self.command.publish()
 

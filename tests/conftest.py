@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cnc.config import MachineConfig, load_machine
-from cnc.supervisor import DIRECT_FEED, Supervisor
+from cnc.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor
 
 REPO = Path(__file__).resolve().parent.parent
 MACHINE_FILE = REPO / "machines" / "waterjet.toml"
@@ -39,7 +39,7 @@ def machine() -> MachineConfig:
 @pytest.fixture
 def virtual_controller(machine):
     """The whole controller (the planner feeds the FIFO) on the virtual clock."""
-    with Supervisor(machine, clock="virtual") as sup:
+    with Supervisor(machine, clock="virtual", processes=MOTION_ONLY) as sup:
         yield sup
 
 
@@ -52,7 +52,7 @@ def direct_controller(machine):
 
 @pytest.fixture
 def realtime_controller(machine):
-    with Supervisor(machine, clock="realtime") as sup:
+    with Supervisor(machine, clock="realtime", processes=MOTION_ONLY) as sup:
         yield sup
 
 

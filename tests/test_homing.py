@@ -7,7 +7,7 @@ import pytest
 from cnc.bus.messages import Home, Stop
 from cnc.hw.board import AxisIn
 from cnc.layout import PlannerState, ServoFault, ServoState
-from cnc.supervisor import Supervisor
+from cnc.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import ask, enable_and_hold, home, machine_config, wait_planner_idle
 
@@ -20,7 +20,7 @@ SIM = {
 
 def test_homing_puts_every_axis_in_machine_coordinates_and_parks_it():
     config = machine_config(**SIM)
-    with Supervisor(config, clock="virtual") as sup:
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
         unhomed = enable_and_hold(sup)
         assert unhomed == pytest.approx([31.0 - 123.0, 44.0 + 7.0]), "before homing: the counters' frames"
         home(sup)
@@ -40,7 +40,7 @@ def test_homing_puts_every_axis_in_machine_coordinates_and_parks_it():
 
 def test_homing_starts_by_backing_off_when_the_axis_is_already_on_its_switch():
     config = machine_config(**{**SIM, "sim.axes.x.start_position_mm": -3.0})
-    with Supervisor(config, clock="virtual") as sup:
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
         enable_and_hold(sup)
         assert sup.hw()["axis_inputs"][0] & AxisIn.HOME
         home(sup, ["x"])
@@ -52,7 +52,7 @@ def test_homing_starts_by_backing_off_when_the_axis_is_already_on_its_switch():
 
 def test_a_missing_home_switch_is_reported_naming_the_axis_and_nothing_is_homed():
     config = machine_config(**{**SIM, "axis.x.home_search_velocity_mm_s": 40.0})  # searching the wrong way
-    with Supervisor(config, clock="virtual") as sup:
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
         enable_and_hold(sup)
         errors = sup.motion()["error_seq"]
         ask(sup, Home(["x"]))
@@ -63,7 +63,7 @@ def test_a_missing_home_switch_is_reported_naming_the_axis_and_nothing_is_homed(
 
 
 def test_homing_is_refused_with_the_drives_off_or_an_unknown_axis():
-    with Supervisor(machine_config(**SIM), clock="virtual") as sup:
+    with Supervisor(machine_config(**SIM), clock="virtual", processes=MOTION_ONLY) as sup:
         reply = sup.planner.request(Home())
         assert not reply.ok and "the drives are not enabled" in reply.reason
         enable_and_hold(sup)
@@ -72,7 +72,7 @@ def test_homing_is_refused_with_the_drives_off_or_an_unknown_axis():
 
 
 def test_stopping_a_homing_brings_the_axis_to_rest_and_reports_it():
-    with Supervisor(machine_config(**SIM), clock="virtual") as sup:
+    with Supervisor(machine_config(**SIM), clock="virtual", processes=MOTION_ONLY) as sup:
         enable_and_hold(sup)
         sup.pause_virtual_clock()
         ask(sup, Home(["x"]))

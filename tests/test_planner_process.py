@@ -15,7 +15,7 @@ from cnc.bus.keys import Keys
 from cnc.bus.messages import GoTo, Hold, Jog, JogStop, LoadProgram, Override, Resume, Start, Status, Stop, decode
 from cnc.bus.session import open_client
 from cnc.layout import PlannerState, RunResult, ServoState
-from cnc.supervisor import Supervisor
+from cnc.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import MACHINE_FILE, REPO, ask, enable_and_hold, home, machine_config, wait_planner_idle
 
@@ -35,7 +35,7 @@ M2
 def homed():
     """One controller, homed, for the tests that leave it idle again."""
     config = machine_config(**{"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0})
-    with Supervisor(config, clock="virtual") as sup:
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
         enable_and_hold(sup)
         home(sup)
         yield sup
@@ -92,7 +92,7 @@ def test_a_program_runs_to_its_end_in_its_planned_time_and_its_progress_reaches_
 
 
 def test_start_is_refused_before_homing_naming_the_axes(tmp_path):
-    with Supervisor(machine_config(), clock="virtual") as sup:
+    with Supervisor(machine_config(), clock="virtual", processes=MOTION_ONLY) as sup:
         enable_and_hold(sup)
         ask(sup, LoadProgram(write(tmp_path, PART)))
         assert "part.ngc cannot start: axis X, Y not homed" in refused(sup, Start())
@@ -219,7 +219,7 @@ def test_jog_continuous_and_incremental_and_go_to_move_through_the_planner(homed
 
 
 def test_go_to_is_refused_on_an_unhomed_axis():
-    with Supervisor(machine_config(), clock="virtual") as sup:
+    with Supervisor(machine_config(), clock="virtual", processes=MOTION_ONLY) as sup:
         enable_and_hold(sup)
         assert "axis X is not homed" in refused(sup, GoTo({"x": 100.0}))
         ask(sup, Jog("x", 30.0, distance_mm=12.0))  # jogging needs no home

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from cnc.supervisor import Supervisor
+from cnc.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import MACHINE_FILE, REPO, enable_and_hold, free_port, machine_config
 
@@ -79,7 +79,7 @@ def test_a_dead_gateway_is_restarted_and_status_resumes(virtual_controller):
 
 def test_a_hung_process_is_found_by_its_heartbeat_and_replaced():
     config = machine_config(**{"supervisor.heartbeat_timeout_s": 0.5})
-    with Supervisor(config, clock="virtual") as sup:
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
         old = sup.children["gateway"].process.pid
         os.kill(old, signal.SIGSTOP)
         sup.wait_until(lambda: "gateway" in sup.children and sup.children["gateway"].process.pid != old, 30.0, "a new gateway")

@@ -28,6 +28,26 @@ class Keys:
         """The planner's command queryable for one verb (controller-internal: the commander asks)."""
         return f"{self.root}/internal/planner/{verb}"
 
+    def logic(self, verb: str) -> str:
+        """The control logic's command queryable for one verb (the gateway and tests ask)."""
+        return f"{self.root}/internal/logic/{verb}"
+
+    @property
+    def event_alarm(self) -> str:
+        return f"{self.root}/event/alarm"
+
+    @property
+    def procedure(self) -> str:
+        return f"{self.root}/procedure"
+
+    @property
+    def alarms_active(self) -> str:
+        return f"{self.root}/alarms/active"
+
+    @property
+    def alarms_history(self) -> str:
+        return f"{self.root}/alarms/history"
+
     def alive(self, process: str) -> str:
         """Liveliness token of one controller process (or HMI station)."""
         return f"{self.root}/alive/{process}"

@@ -78,6 +78,21 @@ class Status(msgspec.Struct, frozen=True):
     program: ProgramProgress | None = None
     event: str = ""  # last program event (message, program stop)
     error: str = ""  # last failure the planner reported
+    machine_state: str = "IDLE"  # MachineState name (the control logic's)
+    mode: str = "MANUAL"  # Mode name
+    cycle_phase: str = "NONE"  # CyclePhase name
+    cycles_done: int = 0
+    cycles_target: int = 0
+    plc_link: str = "DOWN"  # LinkState name
+    plc_exchanges: int = 0
+    pump_on: bool = False
+    pump_set_bar: float = 0.0
+    pump_pressure_bar: float = 0.0
+    alarms_active: int = 0
+    alarm_level: str = ""  # most severe active level ("" none)
+    alarm_seq: int = 0  # newest history entry: a subscriber that missed one catches up from here
+    procedure: str = ""  # id of the procedure shown
+    logic_message: str = ""  # last refusal or notice of the control logic
     version: int = SCHEMA_VERSION
 
 
@@ -238,6 +253,92 @@ class Reply(msgspec.Struct, frozen=True):
 PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "load": LoadProgram, "start": Start, "hold": Hold, "resume": Resume, "stop": Stop, "override": Override,
     "jog": Jog, "jog_stop": JogStop, "goto": GoTo, "home": Home,
+}
+
+
+# -- commands to the control logic (the machine's commander; answered with a Reply) ---------
+
+
+class SetMode(msgspec.Struct, frozen=True):
+    """Operation mode: MANUAL (jog, home, pump and jet by hand) or AUTO (the automatic cycle)."""
+
+    mode: str
+    version: int = SCHEMA_VERSION
+
+
+class CycleStart(msgspec.Struct, frozen=True):
+    """Start the automatic cycle for `cycles` cycles (0: until stopped)."""
+
+    cycles: int = 1
+    version: int = SCHEMA_VERSION
+
+
+class Reset(msgspec.Struct, frozen=True):
+    """Reset faults and alarms whose cause has gone, and switch the drives on."""
+
+    version: int = SCHEMA_VERSION
+
+
+class Drives(msgspec.Struct, frozen=True):
+    """Switch the axis drives on or off (manual mode or idle)."""
+
+    on: bool
+    version: int = SCHEMA_VERSION
+
+
+class Pump(msgspec.Struct, frozen=True):
+    """Run the high-pressure pump (manual mode), at `pressure_bar` or the machine's cutting pressure."""
+
+    on: bool
+    pressure_bar: float | None = None
+    version: int = SCHEMA_VERSION
+
+
+class JetTest(msgspec.Struct, frozen=True):
+    """Open the jet at standstill (manual mode, pump at pressure), or close it."""
+
+    on: bool
+    version: int = SCHEMA_VERSION
+
+
+class Acknowledge(msgspec.Struct, frozen=True):
+    """The operator has seen alarm `code` (all active alarms when None)."""
+
+    code: int | None = None
+    version: int = SCHEMA_VERSION
+
+
+class ProcedureStart(msgspec.Struct, frozen=True):
+    """Start the guided procedure `id` of the machine file."""
+
+    id: str
+    version: int = SCHEMA_VERSION
+
+
+class ProcedureConfirm(msgspec.Struct, frozen=True):
+    """The operator did what the awaited step asks."""
+
+    version: int = SCHEMA_VERSION
+
+
+class ProcedureStop(msgspec.Struct, frozen=True):
+    """"Procedure stopped": abandon the running procedure."""
+
+    version: int = SCHEMA_VERSION
+
+
+class ProcedureEnd(msgspec.Struct, frozen=True):
+    """"End the procedure": close a finished or stopped procedure."""
+
+    version: int = SCHEMA_VERSION
+
+
+LOGIC_COMMANDS: dict[str, type[msgspec.Struct]] = {
+    "mode": SetMode, "start": CycleStart, "hold": Hold, "resume": Resume, "stop": Stop, "reset": Reset,
+    "drives": Drives, "home": Home, "jog": Jog, "jog_stop": JogStop, "goto": GoTo, "load": LoadProgram,
+    "override": Override, "pump": Pump, "jet_test": JetTest, "acknowledge": Acknowledge,
+    "procedure_start": ProcedureStart, "procedure_confirm": ProcedureConfirm, "procedure_stop": ProcedureStop,
+    "procedure_end": ProcedureEnd,
 }
 
 

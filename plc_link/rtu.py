@@ -1,0 +1,112 @@
+"""Modbus RTU framing arithmetic: CRC-16/Modbus, character timing and frame sizes.
+
+Shared by the master's timing budget, the simulator's server (which must pace its answers
+like a real serial line) and the benchmark. Frame sizes follow the Modbus application
+protocol v1.1b3: an RTU frame is address (1) + function (1) + data + CRC (2), and frames
+are separated by at least 3.5 character times of silence on the line.
+"""
+
+from __future__ import annotations
+
+# Function codes this project uses (and the simulator serves).
+READ_COILS = 0x01
+READ_DISCRETE_INPUTS = 0x02
+READ_HOLDING_REGISTERS = 0x03
+READ_INPUT_REGISTERS = 0x04
+WRITE_SINGLE_COIL = 0x05
+WRITE_SINGLE_REGISTER = 0x06
+WRITE_MULTIPLE_COILS = 0x0F
+WRITE_MULTIPLE_REGISTERS = 0x10
+
+# Exception codes
+ILLEGAL_FUNCTION = 0x01
+ILLEGAL_DATA_ADDRESS = 0x02
+ILLEGAL_DATA_VALUE = 0x03
+
+# Per-request quantity limits of the protocol
+MAX_READ_BITS = 2000
+MAX_READ_REGISTERS = 125
+MAX_WRITE_BITS = 1968
+MAX_WRITE_REGISTERS = 123
+
+FRAME_OVERHEAD = 4  # address + function + CRC
+SILENCE_CHARS = 3.5  # inter-frame gap, in character times
+
+_BIT_FUNCTIONS = (READ_COILS, READ_DISCRETE_INPUTS, WRITE_MULTIPLE_COILS)
+
+
+def _crc_table() -> tuple[int, ...]:
+    """Table-driven CRC-16/Modbus: reflected polynomial 0xA001, one entry per byte value."""
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+        table.append(crc)
+    return tuple(table)
+
+
+_CRC_TABLE = _crc_table()
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/Modbus of `data` (init 0xFFFF, reflected 0x8005); sent low byte first."""
+    crc = 0xFFFF
+    for b in data:
+        crc = (crc >> 8) ^ _CRC_TABLE[(crc ^ b) & 0xFF]
+    return crc
+
+
+def with_crc(frame: bytes) -> bytes:
+    """`frame` followed by its CRC, low byte first, as it goes on the line."""
+    crc = crc16(frame)
+    return frame + bytes((crc & 0xFF, crc >> 8))
+
+
+def crc_ok(frame: bytes) -> bool:
+    """True when the last two bytes of `frame` are the CRC of the bytes before them."""
+    return len(frame) >= 4 and crc16(frame[:-2]) == frame[-2] | (frame[-1] << 8)
+
+
+def bits_per_char(parity: str, stop_bits: int) -> int:
+    """Bits on the line per character: start + 8 data + parity (E/O) + stop bits."""
+    return 1 + 8 + (0 if parity == "N" else 1) + stop_bits
+
+
+def char_time_s(baud: int, parity: str = "E", stop_bits: int = 1) -> float:
+    """Time one character takes on the line at `baud`."""
+    return bits_per_char(parity, stop_bits) / baud
+
+
+def request_size(function: int, count: int) -> int:
+    """Bytes of the request frame of `function` for `count` bits or registers."""
+    if function in (READ_COILS, READ_DISCRETE_INPUTS, READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
+        return FRAME_OVERHEAD + 4  # start address, quantity
+    if function in (WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER):
+        return FRAME_OVERHEAD + 4  # address, value
+    if function == WRITE_MULTIPLE_COILS:
+        return FRAME_OVERHEAD + 5 + (count + 7) // 8  # start, quantity, byte count, packed bits
+    if function == WRITE_MULTIPLE_REGISTERS:
+        return FRAME_OVERHEAD + 5 + 2 * count
+    raise ValueError(f"function code {function:#04x} is not one this link uses")
+
+
+def response_size(function: int, count: int) -> int:
+    """Bytes of the normal (not exception) response frame of `function` for `count` items."""
+    if function in _BIT_FUNCTIONS[:2]:
+        return FRAME_OVERHEAD + 1 + (count + 7) // 8  # byte count, packed bits
+    if function in (READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
+        return FRAME_OVERHEAD + 1 + 2 * count
+    if function in (WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_COILS, WRITE_MULTIPLE_REGISTERS):
+        return FRAME_OVERHEAD + 4  # echo of address and value / quantity
+    raise ValueError(f"function code {function:#04x} is not one this link uses")
+
+
+EXCEPTION_RESPONSE_SIZE = FRAME_OVERHEAD + 1  # exception code
+
+
+def transaction_time_s(function: int, count: int, char_s: float) -> float:
+    """Theoretical minimum time of one request/response pair: both frames on the line, each
+    followed by its 3.5-character silence (the receiver only knows a frame ended after it)."""
+    chars = request_size(function, count) + response_size(function, count) + 2 * SILENCE_CHARS
+    return chars * char_s

@@ -1,0 +1,333 @@
+"""The PLC link: RTU arithmetic, the image's requests, the pymodbus master against the simulator
+on a real pty (exchange, timing, loss and reconnection), and the process loop over shared memory."""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import threading
+import time
+
+import pytest
+
+from cnc.config import PlcVarConfig, load_machine
+from cnc.dataserver import SharedArea, unique_name
+from cnc.layout import LinkState, Proc, controller_layouts
+from plc_link import rtu
+from plc_link.image import ImageError, PlcImage
+from plc_link.master import PlcExceptionResponse, PlcMaster, PlcTimeout
+from plc_link.process import PlcLink
+from plc_link.pty_pair import PtyPair
+from plc_link.sim_model import PlantTimes, PlcModel
+from plc_link.sim_server import PlcSimServer
+from tests.conftest import MACHINE_FILE
+
+MACHINE = load_machine(MACHINE_FILE)
+PLC = MACHINE.plc
+FAST = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.05)
+
+
+class Sim:
+    """A simulator serving on a fresh pty pair (the far end of the cable)."""
+
+    def __init__(self, times: PlantTimes = FAST) -> None:
+        self.pair = PtyPair()
+        self.model = PlcModel(PLC, times)
+        self.server = PlcSimServer(PLC, self.model, self.pair.server_fd)
+        self.server.start()
+        self.device = self.pair.device
+
+    def cut(self) -> None:
+        """Pull the cable: stop serving and close the simulator's end."""
+        self.server.stop()
+        self.pair.close()
+
+
+@pytest.fixture
+def sim():
+    s = Sim()
+    yield s
+    s.cut()
+    assert s.server.error is None
+
+
+def wait_for(cond, timeout_s: float = 3.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(0.002)
+    return False
+
+
+def var(id_: str, kind: str, address: int, type_: str = "", scale: float = 1.0) -> PlcVarConfig:
+    bits = kind in ("discrete_input", "coil")
+    return PlcVarConfig(id=id_, kind=kind, address=address, type=type_ or ("bool" if bits else "uint16"), scale=scale)
+
+
+# -- RTU arithmetic and the image --------------------------------------------------------
+
+
+def test_crc16_matches_known_vectors():
+    assert rtu.crc16(b"123456789") == 0x4B37  # CRC-16/MODBUS check value
+    assert rtu.with_crc(bytes.fromhex("01030000000A")) == bytes.fromhex("01030000000AC5CD")
+    assert rtu.crc_ok(bytes.fromhex("010402FFFFB880"))
+    assert not rtu.crc_ok(bytes.fromhex("010402FFFFB881"))
+
+
+def test_character_time_counts_start_parity_and_stop_bits():
+    assert rtu.char_time_s(19200, "E", 1) == pytest.approx(11 / 19200)
+    assert rtu.char_time_s(19200, "N", 2) == pytest.approx(11 / 19200)
+    assert rtu.char_time_s(9600, "N", 1) == pytest.approx(10 / 9600)
+
+
+def test_shipped_map_is_read_with_one_request_per_table():
+    image = PlcImage(PLC)
+    reads = [(r.function, r.address, r.count) for r in image.read_requests]
+    assert reads == [(rtu.READ_DISCRETE_INPUTS, 0, 16), (rtu.READ_INPUT_REGISTERS, 0, 4)]
+    groups = [(g.bits, g.address, len(g.indices)) for g in image.write_groups]
+    assert groups == [(True, 0, 6), (False, 0, 2)]
+
+
+def test_reads_split_at_wide_gaps_and_protocol_limits_and_writes_at_any_gap():
+    regs = [var(f"r{a}", "input_register", a) for a in (0, 5, 60, *range(100, 230))]
+    bits = [var(f"b{a}", "discrete_input", a) for a in (0, 1, 100, 400)]
+    outs = [var("c0", "coil", 0), var("c1", "coil", 1), var("c3", "coil", 3), var("h7", "holding_register", 7)]
+    image = PlcImage(dataclasses.replace(PLC, var=bits + regs + outs))
+    reads = [(r.function, r.address, r.count) for r in image.read_requests]
+    assert reads == [
+        (rtu.READ_DISCRETE_INPUTS, 0, 101),  # a 98-bit gap costs 12 characters: read through it
+        (rtu.READ_DISCRETE_INPUTS, 400, 1),  # a 299-bit gap costs more than a request
+        (rtu.READ_INPUT_REGISTERS, 0, 6),
+        (rtu.READ_INPUT_REGISTERS, 60, 1),
+        (rtu.READ_INPUT_REGISTERS, 100, 125),  # the protocol's limit
+        (rtu.READ_INPUT_REGISTERS, 225, 5),
+    ]
+    assert [(g.address, len(g.indices)) for g in image.write_groups] == [(0, 2), (3, 1), (7, 1)]
+
+
+def test_values_decode_with_sign_and_scale_and_encode_with_rounding():
+    plc = dataclasses.replace(PLC, var=[
+        var("t", "input_register", 0, "int16", 0.5), var("b", "discrete_input", 0),
+        var("set", "holding_register", 0, "uint16", 0.1), var("off", "holding_register", 1, "int16"),
+    ])
+    image = PlcImage(plc)
+    inputs = [0.0, 0.0]
+    image.decode_inputs([[1], [0xFFFE]], inputs)  # bits first, then registers
+    assert inputs == [-1.0, 1.0]
+    assert image.encode_outputs([300.04, -2]) == [3000, -2]
+    assert image.write_span(0, [3000, -2], 0, 1).values == (3000, 0xFFFE)
+    with pytest.raises(ImageError, match=r"PLC output set: 7000 is out of range 0\.\.6553\.5"):
+        image.encode_outputs([7000.0, 0])
+    raw, errors = image.clamp_outputs([7000.0, 40000])
+    assert raw == [65535, 32767] and "off" in errors[1]
+
+
+def test_theoretical_exchange_time_of_the_shipped_map():
+    image = PlcImage(PLC)
+    char_s = 11 / 19200
+    # read bits 8+7, read registers 8+13 bytes, each frame followed by 3.5 characters
+    assert image.read_time_s() == pytest.approx((8 + 7 + 8 + 13 + 4 * 3.5) * char_s)
+    # plus write coils 10+8 and write registers 13+8: 59 ms, more than the 50 ms cycle
+    assert image.full_exchange_time_s() == pytest.approx((75 + 8 * 3.5) * char_s)
+    assert image.full_exchange_time_s() > PLC.cycle_ms / 1000
+
+
+# -- the master against the simulator ----------------------------------------------------
+
+
+def test_exchange_reads_the_model_and_the_model_sees_the_writes(sim):
+    master = PlcMaster(PLC, sim.device)
+    try:
+        image = master.image
+        outputs = [0.0] * len(image.outputs)
+        outputs[image.output_index["pump_on"]] = 1.0
+        outputs[image.output_index["pump_pressure_set"]] = 250.0
+        master.exchange(outputs)
+        master.exchange(outputs)  # one write request per cycle at 19200 baud: coils, then registers
+        assert master.writes_pending == 0
+        assert sim.model.outputs()["pump_on"] == 1.0
+        assert sim.model.outputs()["pump_pressure_set"] == pytest.approx(250.0)
+        pressure = image.input_index["pump_pressure"]
+        seen = []
+        assert wait_for(lambda: seen.append(master.exchange(outputs)[pressure]) or seen[-1] == pytest.approx(250.0))
+        assert any(0.0 < p < 250.0 for p in seen)  # it ramped, and we saw it on the way
+        assert master.inputs[image.input_index["pump_running"]] == 1.0
+    finally:
+        master.close()
+
+
+def test_measured_exchange_is_no_faster_than_the_line_and_fits_the_cycle(sim):
+    master = PlcMaster(PLC, sim.device)
+    try:
+        image = master.image
+        outputs = [0.0] * len(image.outputs)
+        master.exchange(outputs)
+        master.exchange(outputs)  # every output confirmed: only reads from here
+        reads, writes = [], []
+        for k in range(12):
+            outputs[image.output_index["cnc_heartbeat"]] = 1 + k // 2  # a write every other cycle
+            t0 = time.perf_counter()
+            master.exchange(outputs)
+            (writes if k % 2 == 0 else reads).append(time.perf_counter() - t0)
+        write_s = image.write_time_s(image.write_span(1, [0] * 8, 1, 1))
+        assert min(reads) >= image.read_time_s()
+        assert min(writes) >= image.read_time_s() + write_s
+        assert statistics.median(reads) < PLC.cycle_ms / 1000
+        assert statistics.median(writes) < PLC.cycle_ms / 1000
+    finally:
+        master.close()
+
+
+def test_transport_sequence_over_the_link(sim):
+    master = PlcMaster(PLC, sim.device)
+    image = master.image
+    outputs = [0.0] * len(image.outputs)
+    beat = [0]
+
+    def until(var_id: str, value: float) -> bool:
+        def check() -> bool:
+            beat[0] += 1
+            outputs[image.output_index["cnc_heartbeat"]] = beat[0]
+            return master.cycle(outputs) and master.inputs[image.input_index[var_id]] == value
+        return wait_for(check)
+
+    try:
+        assert until("transport_ready", 1.0)
+        outputs[image.output_index["feed_material"]] = 1.0
+        assert until("material_in_place", 1.0)
+        outputs[image.output_index["feed_material"]] = 0.0
+        outputs[image.output_index["gripper_close"]] = 1.0
+        assert until("gripper_closed", 1.0)
+        outputs[image.output_index["unload"]] = 1.0
+        assert until("unload_done", 1.0)
+        assert master.inputs[image.input_index["material_in_place"]] == 0.0
+        assert master.inputs[image.input_index["gripper_closed"]] == 0.0
+    finally:
+        master.close()
+
+
+def test_silent_plc_is_a_timeout_naming_the_request(sim):
+    master = PlcMaster(PLC, sim.device)
+    try:
+        master.exchange([0.0] * 8)
+        sim.model.inject("link_dead", True)
+        with pytest.raises(PlcTimeout, match=r"read discrete inputs 0\.\.15 \(function 2\): no valid response within 100 ms"):
+            master.exchange([0.0] * 8)
+    finally:
+        master.close()
+
+
+def test_exception_response_names_the_request_and_code(sim):
+    plc = dataclasses.replace(PLC, var=[*PLC.var, var("extra", "discrete_input", 20)])
+    master = PlcMaster(plc, sim.device)
+    try:
+        with pytest.raises(PlcExceptionResponse, match=r"read discrete inputs 0\.\.20 .*exception 02 \(illegal data address\)"):
+            master.exchange([0.0] * 8)
+    finally:
+        master.close()
+
+
+def test_out_of_range_output_is_clamped_and_reported_without_failing_the_cycle(sim):
+    master = PlcMaster(PLC, sim.device)
+    try:
+        outputs = [0.0] * 8
+        outputs[master.image.output_index["pump_pressure_set"]] = 9000.0
+        assert master.cycle(outputs) and master.cycle(outputs)
+        assert master.status.state == LinkState.OK
+        assert "pump_pressure_set: 9000 bar is out of range" in master.status.error
+        assert sim.model.outputs()["pump_pressure_set"] == pytest.approx(6553.5)
+    finally:
+        master.close()
+
+
+def test_cut_cable_is_lost_within_lost_after_cycles_then_reconnects_to_a_new_simulator(sim):
+    plc = dataclasses.replace(PLC, reconnect_s=0.2)
+    master = PlcMaster(plc, sim.device)
+    outputs = [0.0] * 8
+    second = None
+    try:
+        assert master.cycle(outputs) and master.status.state == LinkState.OK
+        sim.cut()
+        cycles = 0
+        while master.status.state != LinkState.LOST and cycles < 10:
+            master.cycle(outputs)
+            cycles += 1
+        assert master.status.state == LinkState.LOST and cycles == plc.lost_after_cycles
+        assert master.status.losses == 1 and master.status.error
+        second = Sim()
+        master.retarget(second.device)
+        assert wait_for(lambda: master.cycle(outputs) and master.status.state == LinkState.OK)
+        assert master.status.missed == 0
+        assert wait_for(lambda: master.cycle(outputs) and master.writes_pending == 0)
+        assert second.model.outputs()["pump_on"] == 0.0 and second.server.stats.responses >= 3
+    finally:
+        master.close()
+        if second is not None:
+            second.cut()
+
+
+def test_no_port_keeps_the_link_down_and_says_why():
+    master = PlcMaster(dataclasses.replace(PLC, port=""))
+    assert not master.cycle([0.0] * 8)
+    assert master.status.state == LinkState.DOWN
+    assert master.status.error == "no serial port: [plc] port is empty and no simulator was started"
+
+
+# -- the process loop over shared memory -------------------------------------------------
+
+
+@pytest.fixture
+def area():
+    a = SharedArea.create(unique_name("test", "plc"), controller_layouts(2))
+    yield a
+    a.close()
+
+
+def test_link_loop_publishes_inputs_state_and_counters_into_shared_memory(sim, area):
+    plc_out = area.writer("plc_out")
+    image = PlcImage(PLC)
+    outputs = [0.0] * 64
+    outputs[image.output_index["pump_on"]] = 1.0
+    outputs[image.output_index["pump_pressure_set"]] = 100.0
+    plc_out.set("image_seq", 5)
+    plc_out.set("outputs", outputs)
+    plc_out.publish()
+    link = PlcLink(MACHINE, area, sim.device)
+    thread = threading.Thread(target=link.run)
+    thread.start()
+    reader = area.reader("plc")
+    beat = area.blocks["heartbeat"].array[0]["beat"]
+    try:
+        pressure = image.input_index["pump_pressure"]
+        assert wait_for(lambda: reader.read_dict()["inputs"][pressure] == pytest.approx(100.0))
+        plc = reader.read_dict()
+        assert plc["state"] == LinkState.OK and plc["error"] == ""
+        assert plc["output_seq_sent"] == 5 and plc["input_seq"] >= 2 and plc["exchanges"] >= 2
+        assert 0 < plc["cycle_us"] < PLC.cycle_ms * 1000
+        assert plc["inputs"][image.input_index["plc_running"]] == 1.0
+        assert beat[Proc.PLC_LINK] >= 2
+        outputs[image.output_index["cnc_heartbeat"]] = 77.0  # the control logic advances it
+        plc_out.set("image_seq", 6)
+        plc_out.set("outputs", outputs)
+        plc_out.publish()
+        assert wait_for(lambda: sim.model.outputs()["cnc_heartbeat"] == 77.0, 1.0)  # within HEARTBEAT_PERIOD_S
+        assert wait_for(lambda: reader.read_dict()["output_seq_sent"] == 6)
+        sim.model.inject("link_dead", True)
+        assert wait_for(lambda: reader.read_dict()["state"] == LinkState.LOST)
+        assert reader.read_dict()["losses"] == 1 and "no valid response" in reader.read_dict()["error"]
+    finally:
+        area.blocks["supervisor"].array["shutdown"][0] |= 1 << Proc.PLC_LINK
+        thread.join(2.0)
+        link.close()
+    assert not thread.is_alive()
+    assert reader.read_dict()["state"] == LinkState.DOWN
+
+
+def test_link_loop_without_a_port_stays_down_and_beats(area):
+    link = PlcLink(dataclasses.replace(MACHINE, plc=dataclasses.replace(PLC, port="")), area, "")
+    link.step(time.monotonic())
+    plc = area.reader("plc").read_dict()
+    assert plc["state"] == LinkState.DOWN
+    assert plc["error"] == "no serial port: [plc] port is empty and no simulator was started"
+    link.close()
