@@ -263,3 +263,25 @@ def test_setpoints_left_in_the_fifo_are_dropped_while_the_drives_are_off(direct_
     sup.wait_until(lambda: sup.fifo.fill() == 0, 5.0, "the servo to drop them")
     held = enable_and_hold(sup)
     assert held == pytest.approx(start, abs=0.01), "nothing stale ran when the drives came back"
+
+
+def test_the_commanders_output_inhibit_closes_the_jet_at_once_and_force_opens_it_only_at_rest():
+    """A fault closes the jet before the stop (inhibit wins over the setpoints, within the tick);
+    the jet test opens it only while the axes hold still."""
+    from cnc.hw.board import DigitalOut
+
+    jet = int(DigitalOut.JET_VALVE)
+    with BareServo(fifo_capacity=64) as bare:
+        for k in range(4):
+            flags = SetpointFlag.IN_MOTION | (SetpointFlag.JET_ON if k < 2 else 0)
+            bare.fifo.push_one((0.001 * k, 0.0), (1.0, 0.0), flags, segment=k)
+        assert bare.run(1)["digital_out"] & jet
+        bare.order(output_inhibit=jet)
+        s = bare.run(2)
+        assert not s["digital_out"] & jet and s["state"] == ServoState.TRACKING, "jet off while still moving"
+        bare.order(output_inhibit=0, output_force=jet)
+        s = bare.run(3)
+        assert not s["digital_out"] & jet and s["state"] == ServoState.TRACKING, "no jet test while moving"
+        for tick in range(4, 10):
+            s = bare.run(tick)
+        assert s["state"] == ServoState.HOLDING and s["digital_out"] & jet, "jet test at rest"

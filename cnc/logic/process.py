@@ -556,7 +556,7 @@ class Logic:
         din_estop = "estop" in self.present
         servo, motion = snap.servo, snap.motion
         homed = servo["homed_mask"] & self.reader.all_homed == self.reader.all_homed
-        if din_estop or servo["state"] == ServoState.FAULT and servo["fault"] == ServoFault.ESTOP:
+        if din_estop:  # released, the latched alarm makes it FAULT until reset
             state = MachineState.ESTOP
         elif self.book.blocking():
             state = MachineState.FAULT

@@ -1,0 +1,322 @@
+"""The control logic in the whole controller on the virtual clock, with the PLC simulator over a
+real pty: the automatic cycle, guided procedures, refusals, interlocks, PLC link loss and the
+alarm history across killed processes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import pytest
+
+from cnc.alarms import AlarmHistory
+from cnc.bus.keys import Keys
+from cnc.bus.messages import (
+    AlarmEvent, AlarmList, CycleStart, Drives, Home, HistoryPage, Jog, JetTest, LoadProgram, ProcedureConfirm,
+    ProcedureEnd, ProcedureStart, ProcedureState, ProcedureStop, Pump, Reply, Reset, SetMode, Stop, decode,
+)
+from cnc.hw.board import DigitalOut
+from cnc.layout import LinkState, PlannerState, RunResult, ServoState
+from cnc.logic.states import CyclePhase, MachineState
+from cnc.supervisor import Supervisor
+from plc_link.sim_model import PlantTimes
+
+from .conftest import machine_config
+
+FAST_PLANT = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.1, ramp_bar_s=20000.0)
+NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0}  # homing is short
+PART = """(a part: pierce, a square with a rounded corner, jet off)
+G21 G90 G64 P0.05 F6000
+G0 X100 Y100
+M3
+G1 X140
+G1 Y130
+G3 X130 Y140 R10
+G1 X100
+G1 Y100
+M5
+G0 X60 Y60
+M2
+"""
+
+
+class Events:
+    """Everything the controller publishes on its alarm and procedure keys, as a subscriber sees it."""
+
+    def __init__(self, sup: Supervisor) -> None:
+        keys = Keys(sup.config.zenoh.key_prefix, sup.config.machine.name)
+        self.alarms: list[AlarmEvent] = []
+        self.procedures: list[ProcedureState] = []
+        self.lock = threading.Lock()
+        self.subs = [
+            sup.router.declare_subscriber(keys.event_alarm, lambda s: self._add(self.alarms, decode(s.payload.to_bytes(), AlarmEvent))),
+            sup.router.declare_subscriber(keys.procedure, lambda s: self._add(self.procedures, decode(s.payload.to_bytes(), ProcedureState))),
+        ]
+
+    def _add(self, into: list, item) -> None:
+        with self.lock:
+            into.append(item)
+
+    def codes(self, action: str = "raised") -> list[int]:
+        with self.lock:
+            return [e.code for e in self.alarms if e.action == action]
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+
+
+@pytest.fixture
+def plc_controller(tmp_path):
+    """The whole controller, PLC link and PLC simulator included, with a plant that moves fast."""
+    config = machine_config(**NEAR_HOME)
+    with Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=FAST_PLANT) as sup:
+        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
+        yield sup
+
+
+def logic(sup: Supervisor) -> dict:
+    return sup.area.reader("logic").read_dict()
+
+
+def command(sup: Supervisor, msg) -> str:
+    """Ask the control logic; insist it accepts; returns the reply's remark."""
+    reply = sup.logic.request(msg)
+    assert reply.ok, reply.reason
+    return reply.reason
+
+
+def refusal(sup: Supervisor, msg) -> str:
+    reply = sup.logic.request(msg)
+    assert not reply.ok, f"{msg} was accepted"
+    return reply.reason
+
+
+def ready_in_auto(sup: Supervisor, tmp_path, program: str | None = None) -> None:
+    """Drives on, homed, a program loaded, AUTO: READY for cycle start."""
+    command(sup, Reset())
+    command(sup, Home())
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
+                   60.0, "homing")
+    path = tmp_path / "nest.ngc"
+    path.write_text(program or PART)
+    command(sup, LoadProgram(str(path)))
+    command(sup, SetMode("AUTO"))
+
+
+def press_button_when_asked(sup: Supervisor, until, timeout_s: float, what: str) -> None:
+    """Play the operator at the transport station: press its button whenever the procedure waits for it."""
+    def step() -> bool:
+        lo = logic(sup)
+        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
+            sup.plc_sim.press_button()
+        return until()
+    sup.wait_until(step, timeout_s, what)
+
+
+def test_automatic_cycle_runs_transport_cutting_and_unload_for_the_cycles_asked(plc_controller, tmp_path):
+    sup = plc_controller
+    events = Events(sup)
+    ready_in_auto(sup, tmp_path)
+    runs = sup.motion()["run_seq"]
+    command(sup, CycleStart(cycles=2))
+    phases, pressures = set(), set()
+
+    def done() -> bool:
+        lo = logic(sup)
+        phases.add(CyclePhase(lo["phase"]))
+        if lo["phase"] == CyclePhase.CUTTING:
+            pressures.add(sup.plc_sim.outputs()["pump_pressure_set"])
+        return lo["cycles_done"] == 2 and lo["phase"] == CyclePhase.NONE
+
+    press_button_when_asked(sup, done, 120.0, "two automatic cycles")
+    m = sup.motion()
+    assert m["run_seq"] == runs + 2 and m["run_result"] == RunResult.DONE
+    assert phases >= {CyclePhase.PROCEDURE, CyclePhase.TRANSPORT, CyclePhase.PRESSURE, CyclePhase.CUTTING, CyclePhase.UNLOAD}
+    assert {1200.0, 3800.0} <= pressures, "pierce at low pressure, then cut at high pressure"
+    assert logic(sup)["state"] == MachineState.READY
+    sup.wait_until(lambda: 3001 in events.codes(), 5.0, "the cycle-done message")
+    # the transport procedure was walked step by step, each change published
+    steps = [p for p in events.procedures if p.id == "transport"]
+    assert steps[-1].state == "done" and all(s.state == "done" for s in steps[-1].steps)
+    assert [p.seq for p in steps] == sorted({p.seq for p in steps})
+    assert any(p.step == 10 and p.instruction.startswith("Press the button") for p in steps)
+    assert 2842 in events.codes()  # the paper's "press button" prompt
+    sup.wait_until(lambda: sup.plc_sim.outputs()["unload"] == 0.0, 5.0, "the unload output to drop")
+    assert sup.plc_sim.outputs()["feed_material"] == 0.0 and sup.plc_sim.outputs()["cnc_cutting"] == 0.0
+    events.close()
+
+
+def test_commands_the_mode_or_state_does_not_allow_are_refused_with_the_reason(plc_controller, tmp_path):
+    sup = plc_controller
+    events = Events(sup)
+    assert "wrong operation mode: cycle start needs AUTO (mode is MANUAL)" in refusal(sup, CycleStart())
+    sup.wait_until(lambda: 37 in events.codes(), 5.0, "alarm 37 Wrong operation mode")
+    assert "no such" not in refusal(sup, JetTest(True))  # drives off, no pressure
+    assert "mode 'TURBO' is not one of: MANUAL, AUTO" in refusal(sup, SetMode("TURBO"))
+    ready_in_auto(sup, tmp_path)
+    assert "jog needs MANUAL" in refusal(sup, Jog("x", 10.0))
+    assert "pump on/off needs MANUAL" in refusal(sup, Pump(True))
+    assert "cycles -1 must be 0" in refusal(sup, CycleStart(cycles=-1))
+    command(sup, CycleStart(cycles=1))
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.RUNNING, 10.0, "the cycle to run")
+    assert "cannot change the operation mode while RUNNING" in refusal(sup, SetMode("MANUAL"))
+    assert "cannot start while RUNNING" in refusal(sup, CycleStart())
+    command(sup, Stop())
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.STOPPED, 30.0, "the stop")
+    keys = Keys(sup.config.zenoh.key_prefix, sup.config.machine.name)
+    replies = list(sup.router.get(keys.logic("start"), payload=b'{"cycles": "many"}', timeout=5.0))
+    assert "malformed command" in decode(replies[0].ok.payload.to_bytes(), Reply).reason
+    events.close()
+
+
+def test_door_opened_during_a_cut_closes_the_jet_first_then_stops_on_the_path(plc_controller, tmp_path):
+    sup = plc_controller
+    events = Events(sup)
+    ready_in_auto(sup, tmp_path)
+    command(sup, CycleStart(cycles=1))
+    jet = lambda: bool(sup.hw()["digital_out"] & DigitalOut.JET_VALVE)  # noqa: E731
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING and jet()
+                            and sup.servo()["state"] == ServoState.TRACKING, 60.0, "cutting with the jet on")
+    start = sup.pause_virtual_clock()
+    sup.set_sim(doors_open=1)
+    jet_off_at = moving_after_jet_off = None
+    for _ in range(200):
+        tick = sup.run_ticks(1)
+        if jet_off_at is None and not jet():
+            jet_off_at = tick
+        elif jet_off_at is not None and moving_after_jet_off is None:
+            moving_after_jet_off = sup.servo()["state"] == ServoState.TRACKING
+            break
+    sup.resume_virtual_clock()
+    assert jet_off_at is not None and jet_off_at - start <= 2 * sup.config.timing.logic_divisor + 2, "jet closed within a scan"
+    assert moving_after_jet_off, "the jet closed before the axes stopped"
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING and sup.motion()["state"] == PlannerState.IDLE,
+                   30.0, "the controlled stop")
+    s = sup.servo()
+    assert s["fault"] == 0, "decelerated on the path, no trip"
+    assert sup.motion()["run_result"] == RunResult.ABORTED
+    assert logic(sup)["state"] == MachineState.FAULT and not jet()
+    sup.wait_until(lambda: 2292 in events.codes(), 5.0, "alarm 2292 in the events")
+    assert "2292 Safety doors closed" in command(sup, Reset())  # the door is still open: not reset
+    sup.set_sim(doors_open=0)
+    sup.wait_until(lambda: 2292 in events.codes("cleared"), 5.0, "the door alarm to clear")
+    assert command(sup, Reset()) == ""
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
+    with AlarmHistory(sup.history_path, readonly=True) as history:
+        actions = [(e.code, e.action) for e in history.after(0, 1000).entries if e.code == 2292]
+    assert actions == [(2292, "raised"), (2292, "cleared"), (2292, "reset")]
+    events.close()
+
+
+def test_plc_link_loss_is_an_alarm_within_three_cycles_a_safe_stop_and_the_link_comes_back(plc_controller, tmp_path):
+    sup = plc_controller
+    events = Events(sup)
+    ready_in_auto(sup, tmp_path)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0, "the cutting phase")
+    before = sup.area.reader("plc").read_dict()
+    sup.plc_sim.inject("link_dead", True)
+    sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.LOST, 5.0, "the link to be lost")
+    plc = sup.area.reader("plc").read_dict()
+    assert plc["failed"] - before["failed"] == sup.config.plc.lost_after_cycles, "lost after exactly 3 failed exchanges"
+    sup.wait_until(lambda: 1020 in events.codes(), 5.0, "alarm 1020 PLC link lost")
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING,
+                   30.0, "the safe stop")
+    assert not sup.hw()["digital_out"] & DigitalOut.JET_VALVE
+    assert logic(sup)["state"] == MachineState.FAULT and logic(sup)["phase"] == CyclePhase.NONE
+    sup.plc_sim.inject("link_dead", False)
+    sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 10.0, "the reconnection")
+    sup.wait_until(lambda: 1020 in events.codes("cleared"), 5.0, "the link alarm to clear")
+    command(sup, Reset())
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
+    events.close()
+
+
+def test_emergency_stop_trips_everything_and_reset_waits_for_its_release(plc_controller, tmp_path):
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path)
+    sup.set_sim(estop_pressed=1)
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.ESTOP, 5.0, "ESTOP")
+    assert sup.servo()["state"] == ServoState.FAULT
+    assert "1001 Emergency stop" in command(sup, Reset())
+    assert "alarms wait for reset: 1001 Emergency stop" in refusal(sup, CycleStart())
+    sup.set_sim(estop_pressed=0)
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT, 5.0, "the e-stop released, its alarm latched")
+    command(sup, Reset())
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
+
+
+def test_guided_procedure_walks_its_steps_publishes_each_change_and_can_be_stopped(plc_controller):
+    sup = plc_controller
+    events = Events(sup)
+    command(sup, ProcedureStart("startup"))
+    sup.wait_until(lambda: any(p.id == "startup" and p.step == 3 for p in events.procedures), 10.0, "steps 1-3 done")
+    awaited = [p for p in events.procedures if p.id == "startup"][-1]
+    assert awaited.steps[3].text == "Drives on" and awaited.instruction == "Reset the machine to switch the drives on"
+    assert [s.state for s in awaited.steps] == ["done", "done", "done", "awaited", "pending"]
+    assert "while it runs; stop it first" in refusal(sup, ProcedureEnd())
+    command(sup, Reset())
+    command(sup, Home())
+    sup.wait_until(lambda: events.procedures[-1].state == "done", 60.0, "the start-up procedure to finish")
+    command(sup, ProcedureEnd())
+    sup.wait_until(lambda: events.procedures[-1].state == "idle", 5.0, "the window to close")
+    command(sup, ProcedureStart("pump_warmup"))
+    sup.wait_until(lambda: events.procedures[-1].instruction.startswith("Move the head over the catcher"), 5.0, "a confirm step")
+    command(sup, ProcedureConfirm())
+    sup.wait_until(lambda: events.procedures[-1].step == 1, 5.0, "the confirm to count")
+    command(sup, ProcedureStop())
+    sup.wait_until(lambda: 2131 in events.codes(), 5.0, "alarm 2131 procedure stop")
+    assert events.procedures[-1].state == "stopped"
+    events.close()
+
+
+def test_manual_mode_runs_the_pump_and_the_jet_test_only_at_pressure(plc_controller):
+    sup = plc_controller
+    command(sup, Reset())
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "drives on")
+    assert "the jet test needs at least 1050 bar" in refusal(sup, JetTest(True))
+    command(sup, Pump(True, pressure_bar=2000.0))
+    sup.wait_until(lambda: abs(sup.plc_sim.inputs()["pump_pressure"] - 2000.0) < 50, 10.0, "the pump at 2000 bar")
+    sup.wait_until(lambda: sup.logic.request(JetTest(True)).ok, 10.0, "the jet test to be allowed at pressure")
+    sup.wait_until(lambda: sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 5.0, "the jet to open")
+    assert "jet test off" in refusal(sup, Pump(False))
+    command(sup, JetTest(False))
+    sup.wait_until(lambda: not sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 5.0, "the jet to close")
+    command(sup, Pump(False))
+    command(sup, Drives(False))
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.DISABLED, 5.0, "drives off")
+
+
+@pytest.mark.parametrize("victim", ["logic", "gateway", "plc_link", "planner"])
+def test_alarm_history_loses_nothing_when_a_process_is_killed(plc_controller, victim):
+    sup = plc_controller
+    events = Events(sup)
+    keys = Keys(sup.config.zenoh.key_prefix, sup.config.machine.name)
+    sup.set_sim(doors_open=1)  # an active alarm the restarted logic must remember
+    sup.wait_until(lambda: 2292 in events.codes(), 5.0, "the door alarm")
+    for _ in range(5):
+        refusal(sup, CycleStart())  # wrong mode: one history entry each
+    before = sup.children[victim].process.pid
+    os.kill(before, signal.SIGKILL)
+    sup.wait_until(lambda: victim in sup.children and sup.children[victim].process.pid != before, 30.0, f"a new {victim}")
+    sup.wait_until(lambda: sup.logic.request(Reset()).ok, 30.0, "the logic to answer")
+    for _ in range(3):
+        refusal(sup, CycleStart())
+    active = decode(list(sup.router.get(keys.alarms_active, timeout=5.0))[0].ok.payload.to_bytes(), AlarmList)
+    assert any(a.code == 2292 and a.active for a in active.alarms), "the door alarm survived"
+    page = decode(list(sup.router.get(f"{keys.alarms_history}?after=0;limit=1000", timeout=5.0))[0].ok.payload.to_bytes(),
+                  HistoryPage)
+    seqs = [e.seq for e in page.entries]
+    assert seqs == list(range(1, len(seqs) + 1)), "sequence numbers increase by one, none lost"
+    assert page.last_seq == seqs[-1]
+    assert sum(1 for e in page.entries if e.code == 37) == 8
+    # a subscriber that saw the events live catches up on anything it missed, by sequence number
+    sup.wait_until(lambda: events.alarms and events.alarms[-1].seq == page.last_seq, 5.0, "the last event live")
+    seen = {e.seq for e in events.alarms}
+    missed = [s for s in seqs if s not in seen]
+    catch_up = decode(list(sup.router.get(f"{keys.alarms_history}?after={min(missed) - 1 if missed else page.last_seq}",
+                                          timeout=5.0))[0].ok.payload.to_bytes(), HistoryPage)
+    assert set(missed) <= {e.seq for e in catch_up.entries}
+    assert sup.failed is None
+    events.close()
