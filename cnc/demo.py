@@ -1,11 +1,16 @@
 """`waterjet demo`: the simulated machine end to end, headless.
 
-Starts the controller on the simulated board and a separate subscriber process that prints
-the status it receives over Zenoh; enables the drives, homes the machine through the
-planner, loads a small nest of leather parts (pierces, contours with arcs, lead-ins, a CAM
-polyline), runs it with the jet switched in step with the motion, and checks that it ended
-where the program ends, without servo fault, FIFO underrun or lost status; then shuts down
-and checks that no shared memory is left behind.
+Starts the whole controller on the simulated board, with the PLC simulator on a pty pair
+behind the PLC link, and a separate subscriber process that prints the status, the alarms
+and the guided procedure it receives over Zenoh. Then it plays the operator: reset (drives
+on), home in MANUAL, load a small nest of leather parts, switch to AUTO and start two
+automatic cycles; the transport procedure asks for the transport-station button, which the
+demo presses. Each cycle feeds material and closes the gripper (transport phase), ramps the
+pump to its pierce pressure, cuts the nest (pierce low, cut high), and unloads. During the
+second cut a safety door is opened (fault injection): the jet closes first, the axes stop on
+the path, alarm 2292 is raised; the door is closed, the alarm reset, and one more cycle cut.
+Finally it checks the history (every alarm stored, sequence numbers without a gap), that no
+servo fault or FIFO underrun happened, and that no shared memory is left behind.
 """
 
 from __future__ import annotations
@@ -16,14 +21,18 @@ import os
 import socket
 import sys
 import tempfile
-import time
 from pathlib import Path
 
+from .alarms import AlarmHistory
 from .bus.keys import Keys
-from .bus.messages import Home, LoadProgram, Start, Status, decode
+from .bus.messages import (
+    AlarmEvent, CycleStart, Home, LoadProgram, ProcedureState, Reset, SetMode, Status, decode,
+)
 from .bus.session import open_client
 from .config import load_machine
+from .hw.board import DigitalOut
 from .layout import PlannerState, RunResult, ServoState
+from .logic.states import CyclePhase, MachineState
 from .supervisor import Supervisor, SupervisorError
 
 POSITION_TOLERANCE_MM = 0.005
@@ -69,11 +78,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def print_status(endpoint: str, prefix: str, machine: str, stop, ready, counter) -> None:
-    """Subscriber process: print about one status message a second received over Zenoh."""
+def print_status(endpoint: str, prefix: str, machine: str, stop, ready, counter, alarms) -> None:
+    """Subscriber process: print about one status message a second, and every alarm and procedure
+    change, as received over Zenoh."""
     import threading
 
     session = open_client([endpoint])
+    keys = Keys(prefix, machine)
     got_one = threading.Event()
 
     def on_status(sample) -> None:
@@ -87,45 +98,70 @@ def print_status(endpoint: str, prefix: str, machine: str, stop, ready, counter)
             prog = st.program
             where = f"line {prog.line:4d} {100 * prog.progress:5.1f}% ETA {prog.eta_s:5.1f}s" if prog and prog.segment >= 0 else ""
             print(
-                f"[subscriber] #{st.seq:<4} {st.planner_state:<8} {pos}  F {st.feed_commanded_mm_s:6.1f} mm/s"
-                f"  jet {'ON ' if st.jet_on else 'off'} {where}",
+                f"[subscriber] #{st.seq:<4} {st.mode:<6} {st.machine_state:<8} {st.cycle_phase:<9} {pos}"
+                f"  F {st.feed_commanded_mm_s:6.1f} mm/s  jet {'ON ' if st.jet_on else 'off'}"
+                f"  pump {st.pump_pressure_bar:6.0f} bar  PLC {st.plc_link} {where}",
                 flush=True,
             )
 
-    sub = session.declare_subscriber(Keys(prefix, machine).status, on_status)
+    def on_alarm(sample) -> None:
+        ev: AlarmEvent = decode(sample.payload.to_bytes(), AlarmEvent)
+        with alarms.get_lock():
+            alarms.value += 1
+        print(f"[subscriber] alarm #{ev.seq} {ev.action:<9} {ev.code:5d} {ev.level:<7} {ev.text}: {ev.detail}", flush=True)
+
+    def on_procedure(sample) -> None:
+        p: ProcedureState = decode(sample.payload.to_bytes(), ProcedureState)
+        if p.id and 0 <= p.step < len(p.steps):
+            print(f"[subscriber] procedure {p.title}: step {p.step + 1}/{len(p.steps)} {p.steps[p.step].text!r}: "
+                  f"{p.instruction}", flush=True)
+        elif p.id:
+            print(f"[subscriber] procedure {p.title}: {p.state}", flush=True)
+
+    subs = [session.declare_subscriber(keys.status, on_status), session.declare_subscriber(keys.event_alarm, on_alarm),
+            session.declare_subscriber(keys.procedure, on_procedure)]
     if got_one.wait(15.0):
         ready.set()
-    stop.wait(300.0)
-    sub.undeclare()
+    stop.wait(600.0)
+    for sub in subs:
+        sub.undeclare()
     session.close()
 
 
 def run_demo(machine_path: str, clock: str = "realtime") -> int:
+    from plc_link.sim_model import PlantTimes
+
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     config = load_machine(machine_path, {"zenoh.listen": [endpoint]})
     ctx = multiprocessing.get_context("spawn")
-    stop, ready, counter = ctx.Event(), ctx.Event(), ctx.Value("q", 0)
+    stop, ready, counter, alarms = ctx.Event(), ctx.Event(), ctx.Value("q", 0), ctx.Value("q", 0)
     print(f"demo: controller for {config.machine.name!r} on the {clock} clock, Zenoh at {endpoint}", flush=True)
     errors: list[str] = []
     names: set[str] = set()
-    sup = Supervisor(config, clock=clock)
     with tempfile.TemporaryDirectory() as tmp:
+        history = Path(tmp) / "history.sqlite"
+        # a brisk transport system, so that the demo spends its time cutting
+        sup = Supervisor(config, clock=clock, history_path=history,
+                         plc_sim_times=PlantTimes(feed_s=1.0, gripper_s=0.3, unload_s=1.0))
         program = Path(tmp) / "demo_nest.ngc"
         program.write_text(demo_program())
         try:
             sup.start()
             names = {sup.area.shm.name, sup.fifo.shm.name, sup.trace.shm.name}
+            print(f"demo: PLC simulator on {sup.plc_sim.device}; alarm history {history}", flush=True)
             subscriber = ctx.Process(
-                target=print_status, args=(endpoint, config.zenoh.key_prefix, config.machine.name, stop, ready, counter)
+                target=print_status, args=(endpoint, config.zenoh.key_prefix, config.machine.name, stop, ready, counter, alarms)
             )
             subscriber.start()
             if not ready.wait(20.0):
                 errors.append("the subscriber process received no status over Zenoh")
             errors += _run(sup, program)
+            errors += _check_history(history)
             stop.set()
             subscriber.join(10.0)
-            print(f"demo: the subscriber process received {counter.value} status messages over Zenoh", flush=True)
+            print(f"demo: the subscriber process received {counter.value} status messages and {alarms.value} alarm "
+                  f"events over Zenoh", flush=True)
             if counter.value == 0:
                 errors.append("no status message reached the subscriber")
         except (SupervisorError, TimeoutError) as exc:
@@ -139,47 +175,100 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
     for e in errors:
         print(f"demo: FAILED: {e}", file=sys.stderr)
     if not errors:
-        print("demo: OK: homed, the nest cut to its end, status seen over Zenoh, shared memory freed", flush=True)
+        print("demo: OK: homed, automatic cycles cut, the door fault handled and reset, alarms stored and seen over Zenoh, "
+              "shared memory freed", flush=True)
     return 1 if errors else 0
 
 
+def _ask(sup: Supervisor, what: str, command) -> None:
+    reply = sup.logic.request(command)
+    if not reply.ok:
+        raise SupervisorError(f"{what} refused: {reply.reason}")
+
+
+def _logic(sup: Supervisor) -> dict:
+    return sup.area.reader("logic").read_dict()
+
+
+def _operator(sup: Supervisor, until, timeout_s: float, what: str) -> None:
+    """Wait for `until()`, pressing the transport-station button whenever the procedure asks for it."""
+    def step() -> bool:
+        lo = _logic(sup)
+        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
+            sup.plc_sim.press_button()
+        return until()
+    sup.wait_until(step, timeout_s, what)
+
+
 def _run(sup: Supervisor, program: Path) -> list[str]:
-    """Enable, home, load, start; wait for the end; what went wrong."""
-    sup.enable()
-    sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 5.0, "the servo to close the loop")
-    for what, command in (("home", Home()), ("load", LoadProgram(str(program)))):
-        reply = sup.planner.request(command)
-        if not reply.ok:
-            return [f"{what} refused: {reply.reason}"]
-        sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE, 120.0, f"the planner to {what}")
-        if sup.motion()["error"]:
-            return [f"{what}: {sup.motion()['error']}"]
-        if what == "home":
-            print(f"demo: homed; X {sup.servo()['actual_mm'][0]:.3f} Y {sup.servo()['actual_mm'][1]:.3f}", flush=True)
+    """Reset, home, load, two automatic cycles with a door opened in the second, reset, one more."""
+    _ask(sup, "reset", Reset())
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the drives to come on")
+    _ask(sup, "home", Home())
+    sup.wait_until(lambda: _logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
+                   120.0, "homing")
+    print(f"demo: homed; X {sup.servo()['actual_mm'][0]:.3f} Y {sup.servo()['actual_mm'][1]:.3f}", flush=True)
+    _ask(sup, "load", LoadProgram(str(program)))
     m = sup.motion()
     print(f"demo: loaded {m['program_name']}: {m['program_lines']} lines, {m['total_mm']:.0f} mm of path, "
           f"planned cycle time {m['planned_s']:.2f} s", flush=True)
-    start = time.monotonic()
-    reply = sup.planner.request(Start())
-    if not reply.ok:
-        return [f"start refused: {reply.reason}"]
-    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE, 300.0, "the program to end")
+    _ask(sup, "AUTO mode", SetMode("AUTO"))
+    _ask(sup, "cycle start", CycleStart(cycles=2))
+    print("demo: cycle start, 2 cycles", flush=True)
+    t0, runs = sup.hw()["tick"], sup.motion()["run_seq"]
+
+    def second_cut_under_way() -> bool:
+        m = sup.motion()
+        return (m["run_seq"] == runs + 2 and m["state"] == PlannerState.RUNNING and m["done_mm"] > 0.3 * m["total_mm"]
+                and bool(sup.hw()["digital_out"] & DigitalOut.JET_VALVE))
+
+    _operator(sup, second_cut_under_way, 300.0, "the second cut")
+    print("demo: opening a safety door during the second cut", flush=True)
+    sup.set_sim(doors_open=1)
+    sup.wait_until(lambda: _logic(sup)["state"] == MachineState.FAULT and sup.motion()["state"] == PlannerState.IDLE
+                   and sup.servo()["state"] == ServoState.HOLDING, 30.0, "the safe stop")
+    errors = []
+    if sup.hw()["digital_out"] & DigitalOut.JET_VALVE:
+        errors.append("the jet is open after the door fault")
+    print(f"demo: stopped on the path, jet closed; state {MachineState(_logic(sup)['state']).name}; closing the door, reset",
+          flush=True)
+    sup.set_sim(doors_open=0)
+    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 10.0, "a clean reset")
+    sup.wait_until(lambda: _logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
+    _ask(sup, "cycle start", CycleStart(cycles=1))
+    _operator(sup, lambda: sup.motion()["run_seq"] == runs + 3 and _logic(sup)["phase"] == CyclePhase.NONE, 300.0,
+              "the cycle after the reset")
     m, s = sup.motion(), sup.servo()
-    took = (m["run_end_tick"] - m["run_start_tick"]) * sup.config.timing.period_s
+    took = (sup.hw()["tick"] - t0) * sup.config.timing.period_s
     print(
-        f"demo: program ended ({RunResult(m['run_result']).name}) after {took:.2f} s machine time "
-        f"({time.monotonic() - start:.1f} s wall); max following error "
+        f"demo: cycles ended ({RunResult(m['run_result']).name}) after {took:.2f} s machine time; max following error "
         f"{max(s['max_following_error_mm']) * 1000:.1f} um; underruns {s['underruns']}, overruns {s['overruns']}; "
         f"lowest FIFO fill {m['fifo_min_fill']}",
         flush=True,
     )
-    errors = []
     if m["run_result"] != RunResult.DONE:
-        errors.append(f"the program did not run to its end: {RunResult(m['run_result']).name} {m['error']}")
+        errors.append(f"the last program run did not end: {RunResult(m['run_result']).name} {m['error']}")
     if s["fault"]:
         errors.append(f"servo fault {s['fault']}")
     if s["underruns"]:
         errors.append(f"{s['underruns']} FIFO underruns")
     sup.wait_until(lambda: all(abs(p - 50.0) <= POSITION_TOLERANCE_MM for p in sup.servo()["actual_mm"]), 5.0,
                    "the table to settle at the program's end X50 Y50")
+    return errors
+
+
+def _check_history(path: Path) -> list[str]:
+    """Every alarm in the history, in sequence without a gap, the door fault raised, cleared and reset."""
+    with AlarmHistory(path, readonly=True) as history:
+        entries = history.after(0, 1000).entries
+    seqs = [e.seq for e in entries]
+    print(f"demo: history: {len(entries)} entries, sequence {seqs[0] if seqs else '-'}..{seqs[-1] if seqs else '-'}", flush=True)
+    errors = []
+    if seqs != list(range(1, len(seqs) + 1)):
+        errors.append(f"history sequence numbers have gaps: {seqs}")
+    door = [e.action for e in entries if e.code == 2292]
+    if door != ["raised", "cleared", "reset"]:
+        errors.append(f"door alarm 2292 in the history: {door}, expected raised, cleared, reset")
+    if not any(e.code == 3001 for e in entries):
+        errors.append("no 'automatic cycle finished' message in the history")
     return errors

@@ -9,7 +9,7 @@ import sys
 from .conftest import REPO
 
 
-def test_demo_homes_cuts_a_nest_through_the_planner_shows_status_over_zenoh_and_exits_0():
+def test_demo_runs_automatic_cycles_handles_a_door_fault_and_exits_0():
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     res = subprocess.run(
         [sys.executable, "-m", "cnc.cli", "demo", "--clock", "virtual"],
@@ -17,6 +17,8 @@ def test_demo_homes_cuts_a_nest_through_the_planner_shows_status_over_zenoh_and_
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     out = res.stdout
-    assert "demo: homed" in out and "demo: program ended (DONE)" in out
-    assert "RUNNING" in out and "jet ON" in out, "the subscriber saw the cut under way"
-    assert "demo: OK: homed, the nest cut to its end, status seen over Zenoh, shared memory freed" in out
+    assert "demo: homed" in out and "demo: cycles ended (DONE)" in out
+    assert "CUTTING" in out and "jet ON" in out and "PLC OK" in out, "the subscriber saw the cut under way"
+    assert "procedure TRANSPORT PHASE: step 11/11 'Button pressed'" in out
+    assert "raised     2292 error   Safety doors closed" in out
+    assert "demo: OK: homed, automatic cycles cut, the door fault handled and reset" in out
