@@ -59,7 +59,7 @@ from cnc.demo import free_port
 from cnc.fifo import SetpointFifo
 from cnc.layout import ClockKind, PlannerState, ServoFault, ServoState
 from cnc.ptp import move_setpoints
-from cnc.supervisor import DIRECT_FEED, START_ORDER, Supervisor, SupervisorError
+from cnc.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor, SupervisorError
 
 DEFAULT_MACHINE = Path(__file__).resolve().parent.parent / "machines" / "waterjet.toml"
 FEEDERS = ("direct", "planner")
@@ -278,7 +278,7 @@ class PlannerFeed:
     """The whole controller: the planner process runs a G-code program and feeds the FIFO."""
 
     name = "planner"
-    processes = START_ORDER
+    processes = MOTION_ONLY
     winding_down = "the program stopped"
 
     def __init__(self, config: MachineConfig, seconds: float) -> None:
