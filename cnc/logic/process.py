@@ -112,13 +112,14 @@ class Logic:
         self.last_event_seq = -1
         self.last_error_seq = -1
         self.message = ""
+        self.last_scan_ns = 0
         self.snap: Snapshot | None = None
         # ids of the interlock and prompt alarms whose cause is present: raised on the rising edge,
         # cleared on the falling one (a restarted logic picks up what the history says is active)
         self.present: set[str] = {a.id for a in self.book.active().alarms if a.active}
         self.drives_wanted = bool(self.command.get("servo_enable"))
         self.inhibit = int(self.command.get("output_inhibit"))
-        self._set(mode=int(self.mode), state=int(self.state), alarm_seq=self.history.last_seq(), alarm_level=-1)
+        self._set(mode=int(self.mode), state=int(self.state), alarm_seq=self.book.last_seq, alarm_level=-1)
         self._publish_procedure()
 
     # -- the loop ---------------------------------------------------------------------------
@@ -161,9 +162,10 @@ class Logic:
         self._pump(snap)
         self._derive_state(snap)
         self._write_outputs(now)
-        took = time.perf_counter_ns() - t0
-        self._record(self.scan_hist, took)
-        self._set(scans=self.out.get("scans") + 1, scan_us=took // 1000)
+        self._put(scans=self.out.get("scans") + 1, scan_us=self.last_scan_ns // 1000)
+        self.out.publish()
+        self.last_scan_ns = time.perf_counter_ns() - t0
+        self._record(self.scan_hist, self.last_scan_ns)
 
     def close(self) -> None:
         for q in (*self.queryables.values(), self.q_active, self.q_history):
@@ -588,18 +590,18 @@ class Logic:
         self.outputs.set("cnc_heartbeat", self.heartbeat)
         self.outputs.set("plc_reset", int(now < self.plc_reset_until))
         self.outputs.publish()
-        active = self.book.active()
-        level = self.book.highest_level()
+        seq = self.book.last_seq
+        if seq != self.out.get("alarm_seq") or not self.out.get("scans"):  # the alarm summary changes with the history
+            level = self.book.highest_level()
+            self._put(alarm_seq=seq, alarms_active=len(self.book.active().alarms),
+                      alarm_level=-1 if level is None else int(level), blocking=int(self.book.blocking()))
         st = self.procedures.state()
-        self._set(
+        self._put(
             mode=int(self.mode), state=int(self.state), phase=int(self.cycle.phase), cycles_done=self.cycle.done,
             cycles_target=self.cycle.target, drives_on=enable, pump_on=int(self.outputs.get("pump_on")),
             pump_set_bar=self.outputs.get("pump_pressure_set"), jet_test=int(self.jet_test),
-            alarm_seq=self.history.last_seq(), alarms_active=len(active.alarms),
-            alarm_level=-1 if level is None else int(level), blocking=int(self.book.blocking()),
             procedure_seq=st.seq, procedure=st.id, procedure_state=st.state, message=self.message,
         )
-        self.out.publish()
 
     # -- publishing -------------------------------------------------------------------------
     def _publish_alarm(self, event: AlarmEvent) -> None:
@@ -632,9 +634,13 @@ class Logic:
         self.message = text
         log.info("logic: %s", text)
 
-    def _set(self, **values: Any) -> None:
+    def _put(self, **values: Any) -> None:
+        """Stage fields of the logic block; the scan publishes them once, at its end."""
         for k, v in values.items():
             self.out.set(k, v)
+
+    def _set(self, **values: Any) -> None:
+        self._put(**values)
         self.out.publish()
 
     @staticmethod
