@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,6 +113,8 @@ class Supervisor:
         self.process_names = tuple(p for p in START_ORDER if p in processes)
         self.history_path = str(history_path) if history_path is not None else default_history_path(config)
         self.plc_sim = None  # the PLC simulator, when this controller started one
+        self.plc_sim_link = ""  # the device name the PLC link opens: a symlink to the simulator's pty
+        self._plc_dir: tempfile.TemporaryDirectory | None = None
         self.plc_sim_times = plc_sim_times  # its plant's times (plc_link.sim_model.PlantTimes; None: realistic)
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
         self.ctx = multiprocessing.get_context("spawn")
@@ -210,10 +213,23 @@ class Supervisor:
             return cfg.plc.port
         if cfg.board.kind != "sim":
             raise SupervisorError("[plc] port is empty: a real board needs the PLC's serial device")
+        # the link opens a stable name, like socat's link=: a restarted simulator gets a new pty
+        self._plc_dir = tempfile.TemporaryDirectory(prefix=f"wj-{cfg.machine.name}-plc-")
+        self.plc_sim_link = os.path.join(self._plc_dir.name, "tty")
+        self.restart_plc_sim()
+        return self.plc_sim_link
+
+    def restart_plc_sim(self) -> None:
+        """(Re)start the PLC simulator on a fresh pty pair and point the link's device name at it.
+        Stopping it closes its pty: to the PLC link that is a cut cable."""
         from plc_link.sim_server import start_simulator_process
 
-        self.plc_sim = start_simulator_process(cfg, self.ctx, times=self.plc_sim_times)
-        return self.plc_sim.device
+        if self.plc_sim is not None:
+            self.plc_sim.stop()
+        self.plc_sim = start_simulator_process(self.config, self.ctx, times=self.plc_sim_times)
+        fresh = self.plc_sim_link + ".new"
+        os.symlink(self.plc_sim.device, fresh)
+        os.replace(fresh, self.plc_sim_link)
 
     def stop(self) -> None:
         """Safe state, then stop the processes in reverse start order and free the shared memory."""
@@ -232,6 +248,9 @@ class Supervisor:
         if self.plc_sim is not None:
             self.plc_sim.stop()
             self.plc_sim = None
+        if self._plc_dir is not None:
+            self._plc_dir.cleanup()
+            self._plc_dir = None
         if self._token is not None:
             self._token.undeclare()
             self._token = None

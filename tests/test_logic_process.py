@@ -320,3 +320,26 @@ def test_alarm_history_loses_nothing_when_a_process_is_killed(plc_controller, vi
     assert set(missed) <= {e.seq for e in catch_up.entries}
     assert sup.failed is None
     events.close()
+
+
+def test_closing_the_pty_cuts_the_plc_link_mid_cut_and_a_new_simulator_is_reconnected(plc_controller, tmp_path):
+    """The cable cut for real: the simulator and its pty go away; a new one comes up under the same device name."""
+    sup = plc_controller
+    events = Events(sup)
+    ready_in_auto(sup, tmp_path)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0, "the cutting phase")
+    before = sup.area.reader("plc").read_dict()
+    sup.plc_sim.stop()  # closes the simulator's end of the pty
+    sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.LOST, 5.0, "the link to be lost")
+    assert sup.area.reader("plc").read_dict()["failed"] - before["failed"] <= sup.config.plc.lost_after_cycles
+    sup.wait_until(lambda: 1020 in events.codes(), 5.0, "alarm 1020 PLC link lost")
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and logic(sup)["state"] == MachineState.FAULT,
+                   30.0, "the safe stop")
+    assert not sup.hw()["digital_out"] & DigitalOut.JET_VALVE
+    sup.restart_plc_sim()
+    sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 15.0, "the reconnection")
+    sup.wait_until(lambda: 1020 in events.codes("cleared"), 5.0, "the link alarm to clear")
+    command(sup, Reset())
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
+    events.close()

@@ -22,23 +22,27 @@ def _ours() -> set[str]:
     return {p.name for p in SHM.glob("wjcnc_waterjet_*")}
 
 
-def test_stop_frees_every_shared_memory_segment(machine):
+def test_stop_frees_every_shared_memory_segment_and_the_plc_simulator(machine, tmp_path):
     before = _ours()
-    sup = Supervisor(machine, clock="virtual").start()
+    sup = Supervisor(machine, clock="virtual", history_path=tmp_path / "h.sqlite").start()
     names = {sup.area.shm.name, sup.fifo.shm.name, sup.trace.shm.name}
     assert names <= _ours()
+    sim, link = sup.plc_sim.process, sup.plc_sim_link
+    assert os.path.realpath(link).startswith("/dev/pts/"), "the PLC link opens the simulator's pty"
     sup.stop()
     assert not names & _ours() and _ours() <= before
+    assert not sim.is_alive() and not os.path.exists(link)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig):
+def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig, tmp_path):
     before = _ours()
     port = free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "cnc.cli", "up", "--machine", str(MACHINE_FILE), "--clock", "virtual",
          "--listen", f"tcp/127.0.0.1:{port}"],
         cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "XDG_STATE_HOME": str(tmp_path)},  # the alarm history goes here
     )
     try:
         line = proc.stdout.readline()
@@ -52,6 +56,7 @@ def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig):
             proc.kill()
     assert not created & _ours(), f"left in /dev/shm: {created & _ours()}"
     assert "stopping" in proc.stderr.read()
+    assert (tmp_path / "waterjet" / "waterjet" / "history.sqlite").exists(), "the control logic kept its history"
 
 
 def test_waterjet_up_refuses_a_bad_machine_file_naming_the_key(tmp_path):
