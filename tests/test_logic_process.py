@@ -12,8 +12,8 @@ import pytest
 from cnc.alarms import AlarmHistory
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, CycleStart, Drives, Home, HistoryPage, Jog, JetTest, LoadProgram, ProcedureConfirm,
-    ProcedureEnd, ProcedureStart, ProcedureState, ProcedureStop, Pump, Reply, Reset, SetMode, Stop, decode,
+    AlarmEvent, AlarmList, CycleStart, Drives, Hold, Home, HistoryPage, Jog, JetTest, LoadProgram, ProcedureConfirm,
+    ProcedureEnd, ProcedureStart, ProcedureState, ProcedureStop, Pump, Reply, Reset, Resume, SetMode, Stop, decode,
 )
 from cnc.hw.board import DigitalOut
 from cnc.layout import LinkState, PlannerState, RunResult, ServoState
@@ -343,3 +343,20 @@ def test_closing_the_pty_cuts_the_plc_link_mid_cut_and_a_new_simulator_is_reconn
     command(sup, Reset())
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
     events.close()
+
+
+def test_feed_hold_in_the_cutting_phase_holds_on_the_path_and_resume_finishes_the_cycle(plc_controller, tmp_path):
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING
+                            and sup.servo()["state"] == ServoState.TRACKING, 60.0, "the cut under way")
+    command(sup, Hold())
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.HELD and logic(sup)["state"] == MachineState.HOLD,
+                   10.0, "the hold")
+    held_at = sup.motion()["done_mm"]
+    assert 0.0 < held_at < sup.motion()["total_mm"]
+    assert "nothing to hold" in refusal(sup, Hold())
+    command(sup, Resume())
+    sup.wait_until(lambda: logic(sup)["cycles_done"] == 1 and logic(sup)["phase"] == CyclePhase.NONE, 60.0, "the cycle's end")
+    assert sup.motion()["run_result"] == RunResult.DONE and sup.servo()["fault"] == 0

@@ -82,7 +82,7 @@ class AutoCycle:
             return
         self.held, self.held_at = True, now
         if self.phase == CyclePhase.CUTTING:
-            self.host.send_planner(Hold())
+            self.host.send_planner(Hold(), self._on_planner)
 
     def resume(self, now: float) -> None:
         if not self.held:
@@ -90,7 +90,7 @@ class AutoCycle:
         self.held = False
         self.deadline += now - self.held_at  # timeouts stand still while held
         if self.phase == CyclePhase.CUTTING:
-            self.host.send_planner(Resume())
+            self.host.send_planner(Resume(), self._on_planner)
 
     def stop(self) -> None:
         """Operator stop: a controlled end. Cutting decelerates on the path and ends the program."""
@@ -150,6 +150,11 @@ class AutoCycle:
             self.host.outputs.set("cnc_cutting", 1)
             self.run_seq, self.start_reply, self.jet_since = snap.motion["run_seq"], None, None
             self.host.send_planner(Start(), self._on_start)
+
+    def _on_planner(self, reply: Reply) -> None:
+        """The planner refused a hold or a resume: it is not doing what the cycle believes."""
+        if not reply.ok:
+            self.host.fault("program_error", reply.reason)
 
     def _on_start(self, reply: Reply) -> None:
         self.start_reply = reply

@@ -193,10 +193,12 @@ class Planner:
         if state != PlannerState.IDLE:
             raise Refused(f"cannot {what} while {state.name}")
 
-    def _require_servo(self, what: str) -> dict:
+    def _require_servo(self, what: str, moving_ok: bool = False) -> dict:
         s = self.servo_r.read_dict()
         if s["state"] == ServoState.FAULT:
             raise Refused(f"cannot {what}: the servo is tripped ({ServoFault(s['fault']).name}); reset first")
+        if s["state"] == ServoState.TRACKING and moving_ok:
+            return s
         if s["state"] == ServoState.TRACKING:
             raise Refused(f"cannot {what}: the axes are still moving")
         if s["state"] != ServoState.HOLDING:
@@ -262,7 +264,8 @@ class Planner:
     def _cmd_resume(self, _msg) -> None:
         if self.runner is None or self.runner.state not in (RunState.HOLDING, RunState.HELD, RunState.PAUSED):
             raise Refused(f"nothing to resume ({self._state().name})")
-        self._require_servo("resume")
+        # the hold's last setpoints may still be running out: what resume adds follows them
+        self._require_servo("resume", moving_ok=True)
         self.runner.resume()
         self.track_fill = False  # the refill after a standstill starts from an empty FIFO
         self._publish_state()
