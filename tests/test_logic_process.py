@@ -360,3 +360,21 @@ def test_feed_hold_in_the_cutting_phase_holds_on_the_path_and_resume_finishes_th
     command(sup, Resume())
     sup.wait_until(lambda: logic(sup)["cycles_done"] == 1 and logic(sup)["phase"] == CyclePhase.NONE, 60.0, "the cycle's end")
     assert sup.motion()["run_result"] == RunResult.DONE and sup.servo()["fault"] == 0
+
+
+def test_an_interrupted_light_barrier_stops_the_running_cycle(plc_controller, tmp_path):
+    sup = plc_controller
+    events = Events(sup)
+    ready_in_auto(sup, tmp_path)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0, "the cutting phase")
+    sup.plc_sim.inject("barrier_rear", True)
+    sup.wait_until(lambda: 1041 in events.codes(), 5.0, "alarm 1041 safety barrier interrupted")
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT and sup.motion()["state"] == PlannerState.IDLE,
+                   30.0, "the safe stop")
+    assert [e.detail for e in events.alarms if e.code == 1041][0] == "rear barrier interrupted"
+    sup.plc_sim.inject("barrier_rear", False)
+    sup.wait_until(lambda: 1041 in events.codes("cleared"), 5.0, "the barrier alarm to clear")
+    command(sup, Reset())
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
+    events.close()

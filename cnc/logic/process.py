@@ -473,8 +473,7 @@ class Logic:
                               and self.cycle.active else None)
             c["pump_pressure_fault"] = self._pump_fault(snap, signals, cutting)
             barriers = [b for b in ("front", "rear") if link_ok and signals.get(f"plc.barrier_{b}_ok") is False]
-            c["barrier_interrupted"] = (f"{' and '.join(barriers)} barrier interrupted" if barriers and running
-                                        and self.cycle.phase in (CyclePhase.TRANSPORT, CyclePhase.UNLOAD) else None)
+            c["barrier_interrupted"] = f"{' and '.join(barriers)} barrier interrupted" if barriers and running else None
         return {k: v for k, v in c.items() if k in self.book.catalogue}
 
     def _servo_detail(self, servo: dict) -> str:
