@@ -350,14 +350,38 @@ class GatewayConfig:
     """The HMI's door on Zenoh."""
 
     status_rate_hz: float = opt(20.0, "Hz", "rate of the cyclic status publication", 0.1, 200.0)
+    position_rate_hz: float = opt(50.0, "Hz", "rate of the position stream (live path)", 1.0, 500.0)
+    on_operator_lost: str = opt(
+        "hold", doc="when the station holding the command lock disappears during a cut: hold the feed, or continue",
+        choices=("hold", "continue"),
+    )
+    program_dir: str = opt(
+        "", doc="where uploaded programs are kept (relative to the machine file); empty: beside the alarm history"
+    )
+
+
+@dataclass(frozen=True)
+class AccessConfig:
+    """Who may do what on the controller's Zenoh router (user/password authentication and
+    access-control rules): operators command and upload programs, observers only watch."""
+
+    enabled: bool = opt(False, doc="authenticate every session and apply the rules below")
+    credentials_file: str = opt(
+        "", doc="user:password lines (relative to the machine file) for every user below and the controller's own"
+    )
+    controller_user: str = opt("controller", doc="user the controller's own processes authenticate as")
+    operators: list[str] = opt([], doc="users who may query cmd/** and upload programs")
+    observers: list[str] = opt([], doc="users who may subscribe to status, events and query the history, and nothing else")
 
 
 @dataclass(frozen=True)
 class ZenohConfig:
     """Where the controller's Zenoh router listens and how keys are prefixed."""
 
-    listen: list[str] = opt(["tcp/127.0.0.1:7447"], doc="endpoints the controller's router listens on")
+    listen: list[str] = opt(["tcp/0.0.0.0:7447"], doc="endpoints the controller's router listens on")
+    connect: list[str] = opt([], doc="routers the controller's router connects to (a shop router: `waterjet router`)")
     key_prefix: str = opt("wj", doc="first element of every key: <prefix>/<machine>/...")
+    access: "AccessConfig" = field(default_factory=lambda: AccessConfig())
 
 
 @dataclass(frozen=True)
@@ -562,6 +586,7 @@ def _cross_check(cfg: MachineConfig) -> None:
         if nz.number in seen:
             raise ConfigError(src, f"[[nozzle]] #{k}", "number", f"nozzle {nz.number} is already entry #{seen[nz.number]}")
         seen[nz.number] = k
+    _check_access(cfg)
     _check_plc(cfg)
     _check_alarms(cfg)
     _check_procedures(cfg)
@@ -573,6 +598,49 @@ def _cross_check(cfg: MachineConfig) -> None:
 
 
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+
+
+def credentials_path(cfg: MachineConfig) -> Path:
+    """`[zenoh.access] credentials_file`, resolved against the machine file's directory."""
+    path = Path(cfg.zenoh.access.credentials_file)
+    if not path.is_absolute() and cfg.source not in ("<defaults>", "<string>"):
+        path = Path(cfg.source).resolve().parent / path
+    return path
+
+
+def read_credentials(path: Path) -> dict[str, str]:
+    """user -> password from `user:password` lines (blank lines and # comments ignored)."""
+    users: dict[str, str] = {}
+    for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        user, sep, password = line.partition(":")
+        if not sep or not user or not password:
+            raise ValueError(f"{path}:{n}: expected user:password")
+        users[user] = password
+    return users
+
+
+def _check_access(cfg: MachineConfig) -> None:
+    src, a = cfg.source, cfg.zenoh.access
+    if not a.enabled:
+        return
+    if not a.credentials_file:
+        raise ConfigError(src, "zenoh.access", "credentials_file", "access control needs a credentials file (user:password lines)")
+    path = credentials_path(cfg)
+    try:
+        users = read_credentials(path)
+    except OSError as exc:
+        raise ConfigError(src, "zenoh.access", "credentials_file", f"{path}: {exc.strerror}") from None
+    except ValueError as exc:
+        raise ConfigError(src, "zenoh.access", "credentials_file", str(exc)) from None
+    if not a.operators:
+        raise ConfigError(src, "zenoh.access", "operators", "name at least one operator user")
+    for key, names in (("controller_user", [a.controller_user]), ("operators", a.operators), ("observers", a.observers)):
+        missing = [u for u in names if u not in users]
+        if missing:
+            raise ConfigError(src, "zenoh.access", key, f"{', '.join(missing)}: not in {path}")
 
 
 def _check_plc(cfg: MachineConfig) -> None:

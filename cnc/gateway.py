@@ -1,9 +1,12 @@
-"""Gateway: the HMI's door. Publishes the cyclic status on Zenoh from the data server.
+"""Gateway: the HMI's door. Publishes the cyclic status and the position stream on Zenoh, and
+serves operator commands and queries (`door.py`).
 
 It reads the shared-memory blocks as any reader does (never blocking their writers) and
-puts one typed `Status` message per period on `<root>/status`: the servo and the board,
-and the planner's state and progress with the loaded program (segment, line, path done and
-remaining, ETA from the planned profile, feed commanded, actual and override).
+puts one typed `Status` message per period on `<root>/status` (the servo and the board, the
+planner's progress, the control logic's mode, state, cycle and alarms summary, the PLC link
+and the pump, the operator stations) and one `Position` per position period on
+`<root>/position` for the live path. Events (alarms, procedures) are published by the control
+logic, which owns them; the gateway answers the history queries from the same files.
 """
 
 from __future__ import annotations
@@ -11,11 +14,13 @@ from __future__ import annotations
 import math
 import os
 import time
+from pathlib import Path
 
 import zenoh
 
 from .bus.keys import Keys
-from .bus.messages import AxisStatus, ProgramProgress, Status, encode
+from .bus.messages import AxisStatus, Position, ProgramProgress, Status, encode
+from .door import Door
 from .config import MachineConfig
 from .dataserver import SharedArea
 from .fifo import SetpointFifo
@@ -31,7 +36,10 @@ _CLOCK_NAMES = {ClockKind.VIRTUAL: "virtual", ClockKind.REALTIME: "realtime", Cl
 class Gateway:
     """Cyclic status publisher; later issues add events, commands and queries here."""
 
-    def __init__(self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, session: zenoh.Session, clock: str):
+    def __init__(
+        self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, session: zenoh.Session, clock: str,
+        history_path: str = "", program_dir: str = "",
+    ):
         self.config, self.area, self.fifo = config, area, fifo
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
         self.hw, self.servo, self.motion = area.reader("hw"), area.reader("servo"), area.reader("motion")
@@ -47,7 +55,18 @@ class Gateway:
         self.publisher = session.declare_publisher(
             self.keys.status, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=zenoh.CongestionControl.DROP
         )
+        self.position_pub = session.declare_publisher(
+            self.keys.position, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=zenoh.CongestionControl.DROP
+        )
         self.period_s = 1.0 / config.gateway.status_rate_hz
+        self.position_period_s = 1.0 / config.gateway.position_rate_hz
+        self.position_seq = 0
+        self.door = None
+        if history_path:
+            self.door = Door(
+                config, session, self.keys, history_path, program_dir or str(Path(history_path).parent / "programs"),
+                machine_state=lambda: MachineState(self.logic.read_dict()["state"]).name, motion=self.motion.read_dict,
+            )
         self.seq = 0
 
     def status(self) -> Status:
@@ -121,7 +140,14 @@ class Gateway:
             alarm_seq=lo["alarm_seq"],
             procedure=lo["procedure"],
             logic_message=lo["message"],
+            **self._stations(),
         )
+
+    def _stations(self) -> dict:
+        if self.door is None:
+            return {}
+        lock = self.door.lock.state()
+        return {"operator": lock.holder, "stations": lock.stations, "network_alive": bool(lock.holder) and lock.holder in lock.stations}
 
     def _program(self, mo: dict) -> ProgramProgress | None:
         if not mo["program_name"]:
@@ -142,18 +168,41 @@ class Gateway:
         self._last_actual, self._last_tick = list(actual), tick
         return speed
 
+    def position(self) -> Position:
+        sv, mo = self.servo.read_dict(), self.motion.read_dict()
+        self.position_seq += 1
+        return Position(
+            seq=self.position_seq, stamp_ns=time.time_ns(), tick=sv["tick"], position_mm=list(sv["actual_mm"]),
+            commanded_mm=list(sv["commanded_mm"]), velocity_mm_s=list(sv["commanded_velocity_mm_s"]),
+            segment=mo["segment"], line=mo["line"], jet_on=bool(sv["digital_out"] & DigitalOut.JET_VALVE),
+        )
+
     def run(self) -> None:
-        next_t = time.monotonic()
+        """Status every status period, position every position period, on absolute deadlines."""
+        now = time.monotonic()
+        next_status, next_position = now, now
         while not self.shutdown[0] & (1 << Proc.GATEWAY):
-            self.publisher.put(encode(self.status()))
-            self.beat[Proc.GATEWAY] += 1
-            next_t += self.period_s
-            delay = next_t - time.monotonic()
+            now = time.monotonic()
+            if now >= next_status:
+                self.publisher.put(encode(self.status()))
+                self.beat[Proc.GATEWAY] += 1
+                next_status = _next(next_status, self.period_s, now)
+            if now >= next_position:
+                self.position_pub.put(encode(self.position()))
+                next_position = _next(next_position, self.position_period_s, now)
+            delay = min(next_status, next_position) - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            else:
-                next_t = time.monotonic()
 
     def close(self) -> None:
+        if self.door is not None:
+            self.door.close()
         self.publisher.undeclare()
+        self.position_pub.undeclare()
         self.token.undeclare()
+
+
+def _next(deadline: float, period: float, now: float) -> float:
+    """The next deadline; after a stall, start again from now rather than bursting to catch up."""
+    deadline += period
+    return deadline if deadline > now else now + period

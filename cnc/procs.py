@@ -120,6 +120,18 @@ def run_planner(rt: Runtime, ready) -> None:
         area.close()
 
 
+def program_dir(config, history_path: str) -> str:
+    """`[gateway] program_dir` beside the machine file, or `programs/` beside the alarm history."""
+    from pathlib import Path
+
+    if not config.gateway.program_dir:
+        return str(Path(history_path).parent / "programs") if history_path else ""
+    path = Path(config.gateway.program_dir)
+    if not path.is_absolute() and config.source not in ("<defaults>", "<string>"):
+        path = Path(config.source).resolve().parent / path
+    return str(path)
+
+
 def run_gateway(rt: Runtime, ready) -> None:
     from .gateway import Gateway
 
@@ -127,7 +139,7 @@ def run_gateway(rt: Runtime, ready) -> None:
     area = _attach(rt)
     fifo = SetpointFifo.attach(rt.fifo_name)
     session = open_client(rt.zenoh_connect)
-    gateway = Gateway(rt.config, area, fifo, session, rt.clock)
+    gateway = Gateway(rt.config, area, fifo, session, rt.clock, rt.history_path, program_dir(rt.config, rt.history_path))
     set_ready(ready)
     try:
         gateway.run()

@@ -56,6 +56,10 @@ class PlcExceptionResponse(PlcLinkError):
         self.code = code
 
 
+class PlcBadResponse(PlcLinkError):
+    """The answer does not fit the request."""
+
+
 class PlcPortError(PlcLinkError):
     """The serial port could not be opened or failed."""
 
@@ -173,9 +177,16 @@ class PlcMaster:
         kw = {"count": request.count, "device_id": self.config.unit_id}
         if request.function == rtu.READ_DISCRETE_INPUTS:
             response = self._call(request.describe(), client.read_discrete_inputs, request.address, **kw)
-            return [1 if b else 0 for b in response.bits[: request.count]]
+            return self._complete(request, [1 if b else 0 for b in response.bits[: request.count]])
         response = self._call(request.describe(), client.read_input_registers, request.address, **kw)
-        return list(response.registers[: request.count])
+        return self._complete(request, list(response.registers[: request.count]))
+
+    def _complete(self, request: ReadRequest, values: list[int]) -> list[int]:
+        """A response of the wrong size (a late answer to an earlier request, a confused PLC) is a failure."""
+        if len(values) < request.count:
+            self.close()  # reopen: whatever else is in flight on the line goes with the old port
+            raise PlcBadResponse(f"{request.describe()}: {len(values)} values in the answer, {request.count} asked")
+        return values
 
     def _write(self, client: ModbusSerialClient, request: WriteRequest) -> None:
         f, a, v, unit = request.function, request.address, request.values, self.config.unit_id
@@ -196,6 +207,7 @@ class PlcMaster:
         except ConnectionException as exc:
             raise PlcPortError(f"{what}: serial port {self.port!r} failed ({exc})") from None
         except ModbusException:
+            self.close()  # a late answer must not be taken for the next request's: start the port afresh
             raise PlcTimeout(
                 f"{what}: no valid response within {self.config.timeout_ms:g} ms (no answer, or bad CRC)"
             ) from None

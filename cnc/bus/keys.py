@@ -48,6 +48,30 @@ class Keys:
     def alarms_history(self) -> str:
         return f"{self.root}/alarms/history"
 
+    def cmd(self, verb: str) -> str:
+        """An operator command (the gateway answers; the command lock applies)."""
+        return f"{self.root}/cmd/{verb}"
+
+    @property
+    def lock(self) -> str:
+        return f"{self.root}/lock"
+
+    @property
+    def program(self) -> str:
+        return f"{self.root}/program"
+
+    @property
+    def jobs_history(self) -> str:
+        return f"{self.root}/jobs/history"
+
+    def station(self, station: str) -> str:
+        """Liveliness token of an operator station (HMI): its presence is the station's "network alive"."""
+        return f"{self.root}/hmi/{station}"
+
+    @property
+    def stations(self) -> str:
+        return f"{self.root}/hmi/*"
+
     def alive(self, process: str) -> str:
         """Liveliness token of one controller process (or HMI station)."""
         return f"{self.root}/alive/{process}"

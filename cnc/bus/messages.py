@@ -93,6 +93,82 @@ class Status(msgspec.Struct, frozen=True):
     alarm_seq: int = 0  # newest history entry: a subscriber that missed one catches up from here
     procedure: str = ""  # id of the procedure shown
     logic_message: str = ""  # last refusal or notice of the control logic
+    operator: str = ""  # the station holding the command lock ("" none)
+    stations: list[str] = msgspec.field(default_factory=list)  # operator stations whose liveliness token is alive
+    network_alive: bool = False  # the lock holder's station is connected
+    version: int = SCHEMA_VERSION
+
+
+class Position(msgspec.Struct, frozen=True):
+    """The head for the live path (`<root>/position`, 50 Hz by default)."""
+
+    seq: int
+    stamp_ns: int
+    tick: int
+    position_mm: list[float]  # measured, per axis in machine order
+    commanded_mm: list[float]
+    velocity_mm_s: list[float]  # commanded
+    segment: int  # program segment (-1 none)
+    line: int
+    jet_on: bool
+    version: int = SCHEMA_VERSION
+
+
+# -- the operator's door: lock, programs, jobs ----------------------------------------------
+
+
+class LockRequest(msgspec.Struct, frozen=True):
+    """Take (or release) the command lock for the station named in the query's attachment."""
+
+    take: bool = True
+    version: int = SCHEMA_VERSION
+
+
+class LockState(msgspec.Struct, frozen=True):
+    """Who holds the command lock (`<root>/lock`, on change and queryable)."""
+
+    holder: str  # station id ("" nobody)
+    since_ns: int
+    stations: list[str]  # operator stations alive (their liveliness tokens)
+    seq: int
+    version: int = SCHEMA_VERSION
+
+
+class UploadProgram(msgspec.Struct, frozen=True):
+    """A program sent over Zenoh: checked (size, encoding), interpreted, and loaded when valid."""
+
+    name: str  # file name, e.g. "nest.ngc"
+    text: str
+    version: int = SCHEMA_VERSION
+
+
+class ProgramInfo(msgspec.Struct, frozen=True):
+    """The loaded program for the preview (`<root>/program`): its text when uploaded over Zenoh."""
+
+    name: str
+    hash: str
+    bytes: int
+    lines: int
+    planned_s: float
+    text: str = ""
+    version: int = SCHEMA_VERSION
+
+
+class JobRecord(msgspec.Struct, frozen=True):
+    """One program run: what ran, when, how it ended, how long it took."""
+
+    seq: int
+    program: str
+    hash: str
+    start_ns: int
+    end_ns: int
+    result: str  # RunResult name
+    cycle_time_s: float  # machine time from start to end
+
+
+class JobPage(msgspec.Struct, frozen=True):
+    entries: list[JobRecord]
+    more: bool
     version: int = SCHEMA_VERSION
 
 
@@ -242,11 +318,21 @@ class Home(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
+class ProgramDiagnostic(msgspec.Struct, frozen=True):
+    """Where a program is wrong: its line and column (1-based) and what is wrong there."""
+
+    line: int
+    column: int
+    message: str
+    source_line: str = ""
+
+
 class Reply(msgspec.Struct, frozen=True):
-    """A command's answer: ok, or refused with the reason."""
+    """A command's answer: ok, or refused with the reason (a program's errors with line and column)."""
 
     ok: bool
     reason: str = ""
+    errors: list[ProgramDiagnostic] = msgspec.field(default_factory=list)
     version: int = SCHEMA_VERSION
 
 

@@ -35,7 +35,8 @@ from ..bus.messages import (
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
 from ..dataserver import SharedArea
 from ..hw.board import AxisIn, DigitalOut
-from ..layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, ServoFault, ServoState
+from ..jobs import JobHistory, jobs_path
+from ..layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
 from .cycle import AutoCycle
 from .procedures import ProcedureRefused, ProcedureRunner
 from .requests import PlannerLink
@@ -101,7 +102,9 @@ class Logic:
         self.cycle = AutoCycle(self)
         self.queryables = {verb: session.declare_queryable(self.keys.logic(verb)) for verb in LOGIC_COMMANDS}
         self.q_active = session.declare_queryable(self.keys.alarms_active)
-        self.q_history = session.declare_queryable(self.keys.alarms_history)
+        self.jobs = JobHistory(jobs_path(history_path))
+        self.run_seen = (-1, -1)  # (run_seq, run_result) of the last run recorded or seen starting
+        self.run_started_ns = 0
         self.token = session.liveliness().declare_token(self.keys.alive("logic"))
         self.mode = Mode.MANUAL
         self.state = MachineState.IDLE
@@ -155,6 +158,7 @@ class Logic:
         signals = self.reader.signals(snap, self.state.name, self.mode.name)
         self._interlocks(snap, signals)
         self._program_events(snap)
+        self._record_jobs(snap)
         self.cycle.step(snap, now)
         if self.procedures.scan(signals, now):
             self._publish_procedure()
@@ -168,8 +172,9 @@ class Logic:
         self._record(self.scan_hist, self.last_scan_ns)
 
     def close(self) -> None:
-        for q in (*self.queryables.values(), self.q_active, self.q_history):
+        for q in (*self.queryables.values(), self.q_active):
             q.undeclare()
+        self.jobs.close()
         self.alarm_pub.undeclare()
         self.procedure_pub.undeclare()
         self.token.undeclare()
@@ -618,16 +623,23 @@ class Logic:
     def _serve_queries(self) -> None:
         while (query := self.q_active.try_recv()) is not None:
             _reply(query, self.book.active())
-        while (query := self.q_history.try_recv()) is not None:
-            params = dict(query.selector.parameters)
-            try:
-                after = int(params.get("after", -1))
-                limit = min(int(params.get("limit", 500)), 1000)
-            except ValueError:
-                query.reply_err(zenoh.ZBytes(f"alarms/history: after and limit must be integers, got {params}".encode()))
-                query.drop()
-                continue
-            _reply(query, self.history.after(after, limit))
+
+    def _record_jobs(self, snap: Snapshot) -> None:
+        """Each program run into the job history when it ends (the planner's run counters say when)."""
+        m = snap.motion
+        seen = (m["run_seq"], m["run_result"])
+        if seen == self.run_seen:
+            return
+        if self.run_seen[0] < 0:  # first scan: what ran before this process started is not ours to record
+            self.run_seen = seen
+            return
+        if m["run_seq"] != self.run_seen[0]:
+            self.run_started_ns = time.time_ns()
+        self.run_seen = seen
+        if m["run_result"] != RunResult.NONE:
+            ticks = max(0, m["run_end_tick"] - m["run_start_tick"])
+            self.jobs.append(m["program_name"], m["program_hash"], self.run_started_ns or time.time_ns(), time.time_ns(),
+                             RunResult(m["run_result"]).name, ticks * self.config.timing.period_s)
 
     def _note(self, text: str) -> None:
         self.message = text

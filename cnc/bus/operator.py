@@ -1,0 +1,50 @@
+"""An operator station's handle on the controller: its liveliness token, the command lock, typed
+commands and program upload over `<root>/cmd/<verb>` (what an HMI or a script uses)."""
+
+from __future__ import annotations
+
+import json
+
+import msgspec
+import zenoh
+
+from .keys import Keys
+from .messages import LOGIC_COMMANDS, LockRequest, Reply, UploadProgram, decode, encode
+
+OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {**LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram}
+_VERBS = {kind: verb for verb, kind in OPERATOR_COMMANDS.items()}
+
+
+class OperatorStation:
+    """One station (`station` id, letters, digits, - and _): it is "alive" while this object is open."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, station: str, timeout_s: float = 60.0) -> None:
+        self.session, self.keys, self.station, self.timeout_s = session, keys, station, timeout_s
+        self.token = session.liveliness().declare_token(keys.station(station))
+        self.attachment = json.dumps({"station": station}).encode()
+
+    def request(self, command: msgspec.Struct, verb: str | None = None) -> Reply:
+        """Send one command; the reply says ok or why not."""
+        verb = verb or _VERBS[type(command)]
+        replies = self.session.get(
+            self.keys.cmd(verb), payload=encode(command), encoding=zenoh.Encoding.APPLICATION_JSON,
+            attachment=self.attachment, timeout=self.timeout_s,
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                return decode(reply.ok.payload.to_bytes(), Reply)
+            return Reply(False, f"{verb}: the gateway answered with an error: {reply.err.payload.to_string()}")
+        return Reply(False, f"{verb}: no answer from the controller within {self.timeout_s:g} s")
+
+    def take_lock(self) -> Reply:
+        return self.request(LockRequest(take=True))
+
+    def release_lock(self) -> Reply:
+        return self.request(LockRequest(take=False))
+
+    def upload(self, name: str, text: str) -> Reply:
+        """Send a program; it is checked, interpreted and loaded, or refused with line and column."""
+        return self.request(UploadProgram(name, text))
+
+    def close(self) -> None:
+        self.token.undeclare()

@@ -1,0 +1,275 @@
+"""The gateway's doors on Zenoh: operator commands behind the command lock, program upload, and
+the read-only queries (alarm history with filters, job history, the loaded program, the lock).
+
+Commands arrive as queries on `<root>/cmd/<verb>` with the sending station's id in the
+query's attachment (`{"station": "..."}`). Each is decoded into its typed message (a
+malformed payload is refused, never a crash), checked against the command lock, and
+forwarded to the control logic, whose answer (ok, or refused with the reason) is the reply.
+Uploaded programs are checked (size, text encoding), interpreted with the machine's dialect
+(errors with line and column), stored, then loaded. Commands and queries are served by two
+worker threads, so that a long program load never delays a history query, and no Zenoh
+callback thread ever waits.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import queue
+import re
+import threading
+from pathlib import Path
+from typing import Any, Callable
+
+import msgspec
+import zenoh
+
+from .alarms import AlarmHistory, AlarmLevel, HistoryError
+from .bus.keys import Keys
+from .bus.messages import (
+    LOGIC_COMMANDS, Hold, JobPage, LoadProgram, LockRequest, ProgramDiagnostic, ProgramInfo, Reply, SchemaVersionError,
+    UploadProgram, decode, encode,
+)
+from .config import MachineConfig
+from .jobs import JobHistory, jobs_path
+from .lock import LockRefused, OperatorLock
+from .logic.client import LogicClient
+from .machine_dialect import dialect_for
+
+log = logging.getLogger(__name__)
+
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}\Z")
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")  # tab, LF, FF, CR are text; the rest is not
+_QUERY_KEYS = ("history", "jobs", "program", "lock")
+
+
+def station_of(query: Any) -> str:
+    """The sending station's id, from the query's attachment (JSON {"station": ...}); "" when absent."""
+    att = query.attachment
+    if att is None:
+        return ""
+    try:
+        station = json.loads(att.to_bytes()).get("station", "")
+    except (ValueError, AttributeError):
+        return ""
+    return station if isinstance(station, str) else ""
+
+
+class Door:
+    """Command and query queryables of the gateway; `close()` undeclares them and stops the workers."""
+
+    def __init__(
+        self, config: MachineConfig, session: zenoh.Session, keys: Keys, history_path: str, program_dir: str,
+        machine_state: Callable[[], str], motion: Callable[[], dict], logic_timeout_s: float = 60.0,
+    ) -> None:
+        self.config, self.session, self.keys = config, session, keys
+        self.history_path = history_path
+        self.program_dir = Path(program_dir)
+        self.machine_state, self.motion = machine_state, motion
+        self.lock = OperatorLock()
+        self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
+        self.uploaded: dict[str, tuple[str, str]] = {}  # program hash -> (name, text)
+        self.commands: queue.Queue = queue.Queue()
+        self.queries: queue.Queue = queue.Queue()
+        verbs = [*LOGIC_COMMANDS, "lock", "program"]
+        self.declared = [
+            session.declare_queryable(keys.cmd(verb), lambda q, v=verb: self.commands.put((v, q))) for verb in verbs
+        ]
+        self.declared += [
+            session.declare_queryable(keys.alarms_history, lambda q: self.queries.put(("history", q))),
+            session.declare_queryable(keys.jobs_history, lambda q: self.queries.put(("jobs", q))),
+            session.declare_queryable(keys.program, lambda q: self.queries.put(("program", q))),
+            session.declare_queryable(keys.lock, lambda q: self.queries.put(("lock", q))),
+        ]
+        self.lock_pub = session.declare_publisher(keys.lock, encoding=zenoh.Encoding.APPLICATION_JSON)
+        self.stations = session.liveliness().declare_subscriber(keys.stations, self._on_station, history=True)
+        self.workers = [threading.Thread(target=self._serve, args=(q, h), name=f"door-{n}", daemon=True)
+                        for n, q, h in (("cmd", self.commands, self._command), ("query", self.queries, self._query))]
+        for w in self.workers:
+            w.start()
+
+    def close(self) -> None:
+        self.stations.undeclare()
+        for q in self.declared:
+            q.undeclare()
+        self.lock_pub.undeclare()
+        for q in (self.commands, self.queries):
+            q.put(None)
+        for w in self.workers:
+            w.join(2.0)
+
+    # -- workers ----------------------------------------------------------------------------
+    def _serve(self, items: queue.Queue, handle: Callable[[str, Any], None]) -> None:
+        while (item := items.get()) is not None:
+            what, query = item
+            try:
+                handle(what, query)
+            except Exception as exc:  # a bug: the door stays open, the station learns what happened
+                log.exception("gateway: %s failed", what)
+                _reply(query, Reply(False, f"{what}: internal error in the gateway: {exc!r}"))
+
+    def _command(self, verb: str, query: Any) -> None:
+        if verb == "lost-operator":  # an internal item: the lock holder's station disappeared
+            self._operator_lost(query)
+            return
+        station = station_of(query)
+        payload = query.payload.to_bytes() if query.payload is not None else b"{}"
+        try:
+            if verb == "lock":
+                reply = self._lock(station, decode(payload, LockRequest))
+            else:
+                self.lock.require(station)
+                if verb == "program":
+                    reply = self._upload(decode(payload, UploadProgram))
+                else:
+                    reply = self.logic.request(decode(payload, LOGIC_COMMANDS[verb]))
+        except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
+            reply = Reply(False, f"{verb}: malformed command: {exc}")
+        except LockRefused as exc:
+            reply = Reply(False, f"{verb}: {exc}")
+        _reply(query, reply)
+
+    def _query(self, what: str, query: Any) -> None:
+        params = dict(query.selector.parameters)
+        try:
+            answer = {"history": self._history, "jobs": self._jobs, "program": self._program,
+                      "lock": lambda p: self.lock.state()}[what](params)
+        except (ValueError, KeyError, HistoryError) as exc:
+            query.reply_err(zenoh.ZBytes(f"{what}: {exc}".encode()))
+            query.drop()
+            return
+        _reply(query, answer)
+
+    # -- the lock ---------------------------------------------------------------------------
+    def _lock(self, station: str, msg: LockRequest) -> Reply:
+        if msg.take and station not in self.lock.state().stations and self._token_alive(station):
+            self.lock.station_alive(station)  # a token declared just now: the subscriber has not seen it yet
+        if msg.take:
+            self.lock.take(station)
+        else:
+            self.lock.release(station)
+        self._publish_lock()
+        return Reply(True)
+
+    def _token_alive(self, station: str) -> bool:
+        try:
+            OperatorLock.check_station(station)
+        except LockRefused:
+            return False
+        replies = self.session.liveliness().get(self.keys.station(station), timeout=1.0)
+        return any(r.ok is not None for r in replies)
+
+    def _on_station(self, sample: Any) -> None:
+        station = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.lock.station_alive(station)
+        elif self.lock.station_lost(station):
+            self.commands.put(("lost-operator", station))
+        self._publish_lock()
+
+    def _operator_lost(self, station: str) -> None:
+        state = self.machine_state()
+        log.warning("gateway: operator station %r lost (machine %s)", station, state)
+        if self.config.gateway.on_operator_lost == "hold" and state == "RUNNING":
+            reply = self.logic.request(Hold())
+            log.warning("gateway: feed hold after the operator was lost: %s", "ok" if reply.ok else reply.reason)
+
+    def _publish_lock(self) -> None:
+        self.lock_pub.put(encode(self.lock.state()))
+
+    # -- programs ---------------------------------------------------------------------------
+    def _upload(self, msg: UploadProgram) -> Reply:
+        if not _NAME.match(msg.name):
+            return Reply(False, f"program: name {msg.name!r} must be a plain file name (letters, digits, . _ -)")
+        data = msg.text.encode("utf-8")
+        limit = self.config.gcode.max_program_bytes
+        if len(data) > limit:
+            return Reply(False, f"program: {msg.name} is {len(data)} bytes; this machine accepts at most {limit}")
+        bad = _CONTROL.search(msg.text)
+        if bad:
+            line = msg.text.count("\n", 0, bad.start()) + 1
+            column = bad.start() - (msg.text.rfind("\n", 0, bad.start()) + 1) + 1
+            why = f"not text: control character {bad.group()!r} (a binary file?)"
+            return Reply(False, f"program: {msg.name}:{line}:{column}: {why}", [ProgramDiagnostic(line, column, why)])
+        diagnostic = self._interpret(msg.name, data)
+        if diagnostic is not None:
+            return Reply(False, f"program: {msg.name}:{diagnostic.line}:{diagnostic.column}: {diagnostic.message}",
+                         [diagnostic])
+        self.program_dir.mkdir(parents=True, exist_ok=True)
+        path = self.program_dir / msg.name
+        tmp = path.with_name(f".{msg.name}.part")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+        digest = hashlib.sha256(data).hexdigest()
+        self.uploaded[digest] = (msg.name, msg.text)
+        reply = self.logic.request(LoadProgram(str(path)))
+        if not reply.ok:
+            return reply
+        return Reply(True, f"loaded {msg.name} ({len(data)} bytes, sha256 {digest[:12]})")
+
+    def _interpret(self, name: str, data: bytes) -> ProgramDiagnostic | None:
+        from gcode.errors import GCodeError
+        from gcode.interp import Interpreter
+
+        try:
+            Interpreter(dialect_for(self.config), name).run(data)
+        except GCodeError as exc:
+            return ProgramDiagnostic(exc.line, exc.column, exc.message, (exc.source_line or "").rstrip("\r\n"))
+        return None
+
+    def _program(self, params: dict) -> ProgramInfo:
+        m = self.motion()
+        name, text = self.uploaded.get(m["program_hash"], (m["program_name"], ""))
+        want_text = params.get("text", "1") not in ("0", "false", "no")
+        return ProgramInfo(
+            name=m["program_name"], hash=m["program_hash"], bytes=len(text.encode()) if text else 0,
+            lines=m["program_lines"], planned_s=m["planned_s"], text=text if want_text else "",
+        )
+
+    # -- histories --------------------------------------------------------------------------
+    def _history(self, params: dict) -> Any:
+        """Filters: after (catch-up, oldest first), since_ns, until_ns, level, code (comma lists), text,
+        before_seq, offset, limit, order=newest|oldest."""
+        with AlarmHistory(self.history_path, readonly=True) as history:
+            limit = _int(params, "limit", 500)
+            if "after" in params:
+                return history.after(_int(params, "after", 0), limit)
+            levels = [AlarmLevel.parse(x) for x in params["level"].split(",")] if params.get("level") else None
+            codes = [int(x) for x in params["code"].split(",")] if params.get("code") else None
+            order = params.get("order", "newest")
+            if order not in ("newest", "oldest"):
+                raise ValueError(f"order {order!r} is not newest or oldest")
+            return history.query(
+                since_ns=_opt_int(params, "since_ns"), until_ns=_opt_int(params, "until_ns"), levels=levels, codes=codes,
+                text=params.get("text", ""), before_seq=_opt_int(params, "before_seq"), offset=_int(params, "offset", 0),
+                limit=limit, newest_first=order == "newest",
+            )
+
+    def _jobs(self, params: dict) -> Any:
+        path = jobs_path(self.history_path)
+        if not path.exists():
+            return JobPage([], False)
+        jobs = JobHistory(path, readonly=True)
+        try:
+            return jobs.page(_int(params, "offset", 0), _int(params, "limit", 100), params.get("order", "newest") != "oldest",
+                             params.get("program", ""))
+        finally:
+            jobs.close()
+
+
+def _int(params: dict, key: str, default: int) -> int:
+    try:
+        return int(params.get(key, default))
+    except ValueError:
+        raise ValueError(f"parameter {key}={params[key]!r} is not an integer") from None
+
+
+def _opt_int(params: dict, key: str) -> int | None:
+    return _int(params, key, 0) if key in params else None
+
+
+def _reply(query: Any, message: msgspec.Struct) -> None:
+    query.reply(query.key_expr, encode(message), encoding=zenoh.Encoding.APPLICATION_JSON)
+    query.drop()

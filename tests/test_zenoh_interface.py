@@ -1,0 +1,214 @@
+"""The controller's Zenoh interface seen from operator stations and observers in other sessions:
+the command lock, every command's refusals, program upload, history and job queries, the
+position stream, and what happens when the operator station is lost during a cut."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from cnc.bus.keys import Keys
+from cnc.bus.messages import (
+    CycleStart, HistoryPage, Home, JobPage, LockState, Position, ProgramInfo, Reset, SetMode, Status, decode,
+)
+from cnc.bus.operator import OperatorStation
+from cnc.bus.session import open_client
+from cnc.layout import LinkState, PlannerState, RunResult
+from cnc.logic.states import CyclePhase, MachineState
+from cnc.supervisor import Supervisor
+from plc_link.sim_model import PlantTimes
+
+from .conftest import machine_config
+
+FAST_PLANT = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.1, ramp_bar_s=20000.0)
+NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0,
+             # the virtual clock runs the controller flat out on this 2-core machine; the serial link
+             # lives in wall time: a slower cycle and a longer timeout keep it from being starved
+             "plc.cycle_ms": 100.0, "plc.timeout_ms": 250.0}
+PART = """(square part)
+G21 G90 G64 P0.05 F6000
+G0 X100 Y100
+M3
+G1 X140
+G1 Y140
+G1 X100
+G1 Y100
+M5
+G0 X60 Y60
+M2
+"""
+
+
+@pytest.fixture
+def controller(tmp_path):
+    config = machine_config(**NEAR_HOME)
+    with Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=FAST_PLANT) as sup:
+        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
+        yield sup
+
+
+@pytest.fixture
+def keys(controller) -> Keys:
+    return Keys(controller.config.zenoh.key_prefix, controller.config.machine.name)
+
+
+@pytest.fixture
+def session(controller):
+    s = open_client([controller.config.zenoh.listen[0]])
+    yield s
+    s.close()
+
+
+def get(session, key: str, kind, timeout: float = 10.0):
+    replies = list(session.get(key, timeout=timeout))
+    assert replies and replies[0].ok is not None, replies[0].err.payload.to_string() if replies else f"no answer on {key}"
+    return decode(replies[0].ok.payload.to_bytes(), kind)
+
+
+def logic(sup: Supervisor) -> dict:
+    return sup.area.reader("logic").read_dict()
+
+
+def test_only_the_station_holding_the_lock_commands_and_observers_are_refused(controller, session, keys):
+    sup = controller
+    alice, bob = OperatorStation(session, keys, "alice"), OperatorStation(session, keys, "bob")
+    sup.wait_until(lambda: get(session, keys.lock, LockState).stations == ["alice", "bob"], 5.0, "both stations seen")
+    assert "nobody holds the command lock; take it first" in alice.request(Reset()).reason
+    assert alice.take_lock().ok
+    assert "station 'alice' holds the command lock" in bob.take_lock().reason
+    assert "read-only: station 'alice' holds the command lock" in bob.request(Reset()).reason
+    assert alice.request(Reset()).ok
+    observer = list(session.get(keys.cmd("reset"), payload=b"{}", timeout=5.0))
+    assert "no station id" in decode(observer[0].ok.payload.to_bytes(), type(alice.request(Reset()))).reason
+    assert "does not hold" in bob.release_lock().reason
+    assert alice.release_lock().ok and bob.take_lock().ok
+    assert get(session, keys.lock, LockState).holder == "bob"
+    alice.close()
+    bob.close()
+    sup.wait_until(lambda: get(session, keys.lock, LockState).holder == "", 10.0, "the lock released with bob's token")
+
+
+def test_malformed_and_refused_commands_get_a_reason_and_never_crash_the_gateway(controller, session, keys):
+    op = OperatorStation(session, keys, "op")
+    assert op.take_lock().ok
+    for verb, payload, expected in [
+        ("start", b'{"cycles": "many", "version": 1}', "malformed command"),
+        ("start", b"not json", "malformed command"),
+        ("start", b"{}", "message schema version None is not the supported version 1"),
+        ("mode", b'{"mode": 3, "version": 1}', "malformed command"),
+        ("jog", b'{"axis": "x", "version": 99}', "schema version 99"),
+        ("mode", b'{"mode": "TURBO", "version": 1}', "mode 'TURBO' is not one of: MANUAL, AUTO"),
+        ("start", b'{"version": 1}', "wrong operation mode: cycle start needs AUTO"),
+        ("pump", b'{"on": true, "pressure_bar": 99999, "version": 1}', "out of range"),
+        ("jog", b'{"axis": "q", "version": 1}', "jog"),
+    ]:
+        replies = list(session.get(keys.cmd(verb), payload=payload, attachment=op.attachment, timeout=10.0))
+        reply = decode(replies[0].ok.payload.to_bytes(), type(op.request(Reset())))
+        assert not reply.ok and expected in reply.reason, (verb, payload, reply.reason)
+    assert controller.children["gateway"].process.is_alive() and controller.failed is None
+    op.close()
+
+
+def test_a_program_is_uploaded_checked_and_loaded_or_refused_with_line_and_column(controller, session, keys):
+    sup = controller
+    op = OperatorStation(session, keys, "op")
+    assert op.take_lock().ok
+    bad = op.upload("bad.ngc", "G21 G90\nG1 X10 Y10 F100\nG2 X20 Y10 R2\n")
+    assert not bad.ok and bad.errors and bad.errors[0].line == 3, bad
+    assert "bad.ngc:3:" in bad.reason
+    binary = op.upload("blob.ngc", "G0 X1\n\x00\x01binary")
+    assert not binary.ok and binary.errors[0].line == 2 and binary.errors[0].column == 1 and "not text" in binary.reason
+    assert "plain file name" in op.upload("../etc/passwd", "G0 X1").reason
+    big = "G0 X1\n" * (sup.config.gcode.max_program_bytes // 6 + 1)
+    assert "this machine accepts at most" in op.upload("big.ngc", big).reason
+    assert sup.motion()["program_name"] == "", "nothing was loaded"
+    good = op.upload("part.ngc", PART)
+    assert good.ok, good.reason
+    info = get(session, keys.program, ProgramInfo)
+    assert info.name == "part.ngc" and info.text == PART and info.lines == PART.count("\n") and info.planned_s > 0
+    op.close()
+
+
+def test_position_stream_and_status_carry_what_the_operator_sees(controller, session, keys):
+    sup = controller
+    positions, statuses = [], []
+    got = threading.Event()
+
+    def on_position(sample):
+        positions.append(decode(sample.payload.to_bytes(), Position))
+        if len(positions) >= 20 and statuses:
+            got.set()
+
+    subs = [session.declare_subscriber(keys.position, on_position),
+            session.declare_subscriber(keys.status, lambda s: statuses.append(decode(s.payload.to_bytes(), Status)))]
+    op = OperatorStation(session, keys, "panel-1")
+    assert op.take_lock().ok
+    assert got.wait(10.0)
+    st = statuses[-1]
+    assert len(positions[-1].position_mm) == 2 and positions[-1].seq > positions[0].seq
+    sup.wait_until(lambda: statuses[-1].network_alive and statuses[-1].operator == "panel-1", 5.0, "the operator in the status")
+    st = statuses[-1]
+    assert st.plc_link == "OK" and st.mode == "MANUAL" and st.stations == ["panel-1"]
+    stamps = [p.stamp_ns for p in positions[-20:]]
+    rate = (len(stamps) - 1) / ((stamps[-1] - stamps[0]) / 1e9)
+    assert 0.5 * sup.config.gateway.position_rate_hz < rate < 1.5 * sup.config.gateway.position_rate_hz
+    for s in subs:
+        s.undeclare()
+    op.close()
+
+
+def test_history_queries_filter_and_page_and_every_run_is_a_job(controller, session, keys, tmp_path):
+    sup = controller
+    op = OperatorStation(session, keys, "op")
+    assert op.take_lock().ok
+    for _ in range(3):
+        op.request(CycleStart())  # refused in MANUAL: message 37 each time
+    assert op.request(Reset()).ok and op.request(Home()).ok
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
+                   60.0, "homing")
+    assert op.upload("part.ngc", PART).ok and op.request(SetMode("AUTO")).ok and op.request(CycleStart(1)).ok
+
+    def press() -> bool:
+        lo = logic(sup)
+        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
+            sup.plc_sim.press_button()
+        return lo["cycles_done"] == 1 and lo["phase"] == CyclePhase.NONE
+    sup.wait_until(press, 60.0, "one automatic cycle")
+    wrong = get(session, f"{keys.alarms_history}?code=37", HistoryPage)
+    assert [e.code for e in wrong.entries] == [37, 37, 37] and not wrong.more
+    page1 = get(session, f"{keys.alarms_history}?level=info;limit=2", HistoryPage)
+    assert len(page1.entries) == 2 and page1.more and page1.entries[0].seq > page1.entries[1].seq
+    page2 = get(session, f"{keys.alarms_history}?level=info;limit=2;before_seq={page1.entries[-1].seq}", HistoryPage)
+    assert page2.entries[0].seq < page1.entries[-1].seq
+    text = get(session, f"{keys.alarms_history}?text=CYCLE", HistoryPage)
+    assert text.entries and all("cycle" in (e.text + e.detail).lower() for e in text.entries)
+    errors = list(session.get(f"{keys.alarms_history}?limit=lots", timeout=5.0))
+    assert errors[0].err is not None and "not an integer" in errors[0].err.payload.to_string()
+    sup.wait_until(lambda: get(session, keys.jobs_history, JobPage).entries, 5.0, "the job record")
+    job = get(session, keys.jobs_history, JobPage).entries[0]
+    assert job.program == "part.ngc" and job.result == RunResult.DONE.name and job.cycle_time_s > 0
+    assert job.hash == get(session, keys.program, ProgramInfo).hash and job.end_ns >= job.start_ns
+    op.close()
+
+
+def test_losing_the_operator_station_during_a_cut_holds_the_feed(controller, keys):
+    sup = controller
+    hmi = open_client([sup.config.zenoh.listen[0]])
+    op = OperatorStation(hmi, keys, "panel")
+    assert op.take_lock().ok and op.request(Reset()).ok and op.request(Home()).ok
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
+                   60.0, "homing")
+    long_cut = PART.replace("G1 X140\nG1 Y140\nG1 X100\nG1 Y100", "G1 X900\nG1 Y900\nG1 X100\nG1 Y100")
+    assert op.upload("long.ngc", long_cut).ok and op.request(SetMode("AUTO")).ok and op.request(CycleStart(1)).ok
+
+    def cutting() -> bool:
+        lo = logic(sup)
+        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
+            sup.plc_sim.press_button()
+        return lo["phase"] == CyclePhase.CUTTING and sup.motion()["state"] == PlannerState.RUNNING
+    sup.wait_until(cutting, 60.0, "the cut")
+    hmi.close()  # the station's host goes away: its liveliness token with it
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.HOLD and sup.motion()["state"] == PlannerState.HELD,
+                   20.0, "the feed hold")
+    assert sup.area.reader("logic").read_dict()["phase"] == CyclePhase.CUTTING
