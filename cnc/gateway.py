@@ -44,6 +44,7 @@ class Gateway:
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
         self.hw, self.servo, self.motion = area.reader("hw"), area.reader("servo"), area.reader("motion")
         self.logic, self.plc = area.reader("logic"), area.reader("plc")
+        self.plc_ids = [v.id for v in config.plc.inputs()]
         self.pressure_index = next((k for k, v in enumerate(config.plc.inputs()) if v.id == "pump_pressure"), -1)
         self._last_actual: list[float] | None = None
         self._last_tick = 0
@@ -140,6 +141,7 @@ class Gateway:
             alarm_seq=lo["alarm_seq"],
             procedure=lo["procedure"],
             logic_message=lo["message"],
+            plc_inputs=dict(zip(self.plc_ids, plc["inputs"])) if plc["state"] == LinkState.OK else {},
             **self._stations(),
         )
 

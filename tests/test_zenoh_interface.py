@@ -10,7 +10,8 @@ import pytest
 
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    CycleStart, HistoryPage, Home, JobPage, LockState, Position, ProgramInfo, Reset, SetMode, Status, decode,
+    AlarmEvent, AlarmList, CycleStart, HistoryPage, Home, JobPage, LockState, Position, ProgramInfo, Reset, SetMode,
+    Status, decode,
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
@@ -150,6 +151,7 @@ def test_position_stream_and_status_carry_what_the_operator_sees(controller, ses
     sup.wait_until(lambda: statuses[-1].network_alive and statuses[-1].operator == "panel-1", 5.0, "the operator in the status")
     st = statuses[-1]
     assert st.plc_link == "OK" and st.mode == "MANUAL" and st.stations == ["panel-1"]
+    assert st.plc_inputs["mains_on"] == 1.0 and st.plc_inputs["pneumatic_ready"] == 1.0 and "transport_ready" in st.plc_inputs
     stamps = [p.stamp_ns for p in positions[-20:]]
     rate = (len(stamps) - 1) / ((stamps[-1] - stamps[0]) / 1e9)
     assert 0.5 * sup.config.gateway.position_rate_hz < rate < 1.5 * sup.config.gateway.position_rate_hz
@@ -212,3 +214,35 @@ def test_losing_the_operator_station_during_a_cut_holds_the_feed(controller, key
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.HOLD and sup.motion()["state"] == PlannerState.HELD,
                    20.0, "the feed hold")
     assert sup.area.reader("logic").read_dict()["phase"] == CyclePhase.CUTTING
+
+
+def test_a_subscriber_that_reconnects_catches_up_on_every_alarm_it_missed(controller, keys):
+    sup = controller
+    endpoint = [sup.config.zenoh.listen[0]]
+    op_session = open_client(endpoint)
+    op = OperatorStation(op_session, keys, "op")
+    assert op.take_lock().ok
+    seen: list[int] = []
+    first = open_client(endpoint)
+    sub = first.declare_subscriber(keys.event_alarm, lambda s: seen.append(decode(s.payload.to_bytes(), AlarmEvent).seq))
+    op.request(CycleStart())
+    sup.wait_until(lambda: len(seen) >= 1, 5.0, "the first alarm live")
+    sub.undeclare()
+    first.close()  # the observer's host drops off the network
+    for _ in range(4):
+        op.request(CycleStart())  # messages it does not see
+    again = open_client(endpoint)
+    live: list[int] = []
+    sub = again.declare_subscriber(keys.event_alarm, lambda s: live.append(decode(s.payload.to_bytes(), AlarmEvent).seq))
+    page = get(again, f"{keys.alarms_history}?after={max(seen)}", HistoryPage)
+    op.request(CycleStart())
+    sup.wait_until(lambda: live, 5.0, "a live alarm after the reconnect")
+    got = sorted(set(seen) | {e.seq for e in page.entries} | set(live))
+    assert got == list(range(1, max(got) + 1)), "no sequence number missed"
+    assert len(page.entries) >= 4
+    st = get(again, keys.alarms_active, AlarmList)
+    assert st.last_seq >= max(got) - 1
+    sub.undeclare()
+    again.close()
+    op.close()
+    op_session.close()

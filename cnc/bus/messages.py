@@ -93,6 +93,7 @@ class Status(msgspec.Struct, frozen=True):
     alarm_seq: int = 0  # newest history entry: a subscriber that missed one catches up from here
     procedure: str = ""  # id of the procedure shown
     logic_message: str = ""  # last refusal or notice of the control logic
+    plc_inputs: dict[str, float] = msgspec.field(default_factory=dict)  # the PLC's input image by id (mains, air, transport...); empty while the link is not OK
     operator: str = ""  # the station holding the command lock ("" none)
     stations: list[str] = msgspec.field(default_factory=list)  # operator stations whose liveliness token is alive
     network_alive: bool = False  # the lock holder's station is connected
