@@ -102,6 +102,12 @@ def build_parser() -> argparse.ArgumentParser:
     sim_cli.add_arguments(plc_sim)
     plc_sim.set_defaults(func=sim_cli.run)
 
+    watch_p = sub.add_parser("watch", help="observe a running controller: live status, alarms and procedures (read-only)")
+    from . import watch
+
+    watch.add_arguments(watch_p)
+    watch_p.set_defaults(func=watch.run)
+
     demo = sub.add_parser("demo", help="run the simulated machine end to end and exit 0 when it behaved")
     _machine_arg(demo)
     demo.add_argument("--clock", choices=("realtime", "virtual"), default="realtime")
