@@ -102,6 +102,12 @@ def build_parser() -> argparse.ArgumentParser:
     sim_cli.add_arguments(plc_sim)
     plc_sim.set_defaults(func=sim_cli.run)
 
+    router_p = sub.add_parser("router", help="a Zenoh router for a shop network (controllers and HMIs connect to it)")
+    from . import router
+
+    router.add_arguments(router_p)
+    router_p.set_defaults(func=router.run)
+
     watch_p = sub.add_parser("watch", help="observe a running controller: live status, alarms and procedures (read-only)")
     from . import watch
 

@@ -27,7 +27,7 @@ def _attach(rt: Runtime) -> SharedArea:
 
 
 def _token(rt: Runtime, name: str):
-    session = open_client(rt.zenoh_connect)
+    session = open_client(rt.zenoh_connect, rt.zenoh_credentials)
     keys = Keys(rt.config.zenoh.key_prefix, rt.config.machine.name)
     return session, session.liveliness().declare_token(keys.alive(name))
 
@@ -101,7 +101,7 @@ def run_planner(rt: Runtime, ready) -> None:
     child_setup(rt, "planner")
     area = _attach(rt)
     fifo = SetpointFifo.attach(rt.fifo_name)
-    session = open_client(rt.zenoh_connect)
+    session = open_client(rt.zenoh_connect, rt.zenoh_credentials)
     planner = Planner(rt.config, area, fifo, session, rt.timer_clients["planner"])
     if rt.clock == "realtime":
         # below the servo, above the rest: setpoints must be there when the servo needs them
@@ -138,7 +138,7 @@ def run_gateway(rt: Runtime, ready) -> None:
     child_setup(rt, "gateway")
     area = _attach(rt)
     fifo = SetpointFifo.attach(rt.fifo_name)
-    session = open_client(rt.zenoh_connect)
+    session = open_client(rt.zenoh_connect, rt.zenoh_credentials)
     gateway = Gateway(rt.config, area, fifo, session, rt.clock, rt.history_path, program_dir(rt.config, rt.history_path))
     set_ready(ready)
     try:
@@ -156,7 +156,7 @@ def run_logic(rt: Runtime, ready) -> None:
 
     child_setup(rt, "logic")
     area = _attach(rt)
-    session = open_client(rt.zenoh_connect)
+    session = open_client(rt.zenoh_connect, rt.zenoh_credentials)
     logic = Logic(rt.config, area, session, rt.timer_clients["logic"], rt.history_path)
     if rt.clock == "realtime":
         # below the planner: the soft-PLC's 4 ms scan has slack, the FIFO refills have less

@@ -26,6 +26,7 @@ class Runtime:
     log_level: int = logging.INFO
     plc_port: str = ""  # serial device of the PLC link: the machine file's, or the simulator's pty
     history_path: str = ""  # the alarm and message history (SQLite)
+    zenoh_credentials: tuple[str, str] | None = None  # the controller user's, when access control is on
 
 
 def child_setup(rt: Runtime, name: str) -> None:

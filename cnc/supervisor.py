@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .bus.keys import Keys
+from .bus.access import controller_credentials
 from .bus.session import connect_endpoints, open_router
 from .config import MachineConfig
 from .dataserver import BlockWriter, SharedArea, unique_name
@@ -157,7 +158,7 @@ class Supervisor:
         self._beats = hb["beat"]
         hb["pid"][Proc.SUPERVISOR] = os.getpid()
         try:
-            self.router = open_router(cfg.zenoh.listen)
+            self.router = open_router(cfg)  # listen, connect, and the access rules of the machine file
             self._token = self.router.liveliness().declare_token(self.keys.alive("supervisor"))
             plc_port = self._plc_port()
             clients = {}
@@ -178,6 +179,7 @@ class Supervisor:
                 log_level=self.log_level,
                 plc_port=plc_port,
                 history_path=self.history_path,
+                zenoh_credentials=controller_credentials(cfg),
             )
             self.planner = PlannerClient(self.router, self.keys)
             self.logic = LogicClient(self.router, self.keys)

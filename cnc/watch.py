@@ -335,12 +335,14 @@ class Watcher:
             sub.undeclare()
 
 
-def open_session(endpoints: list[str], timeout_s: float = CONNECT_TIMEOUT_S) -> zenoh.Session:
+def open_session(
+    endpoints: list[str], timeout_s: float = CONNECT_TIMEOUT_S, credentials: tuple[str, str] | None = None
+) -> zenoh.Session:
     """A client session on `endpoints`, retrying until `timeout_s`; WatchError when none accepts."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            return open_client(endpoints)
+            return open_client(endpoints, credentials)
         except zenoh.ZError:
             if time.monotonic() > deadline:
                 raise WatchError(f"no controller at {', '.join(endpoints)}: is it running?") from None
@@ -360,6 +362,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prefix", help="key prefix (default: the machine file's [zenoh] key_prefix)")
     parser.add_argument("--json", action="store_true", help="every message as one JSON object per line")
     parser.add_argument("--seconds", type=float, metavar="N", help="stop after N seconds (default: until SIGINT/SIGTERM)")
+    parser.add_argument("--credentials", metavar="FILE",
+                        help="a user:password line to log in with, when the controller has access control on")
+
+
+def _credentials(path: str | None) -> tuple[str, str] | None:
+    """The first user:password of the file (the station's own login), or None."""
+    if not path:
+        return None
+    from .config import read_credentials
+
+    try:
+        users = read_credentials(Path(path))
+    except (OSError, ValueError) as exc:
+        raise WatchError(f"--credentials {path}: {exc}") from None
+    if not users:
+        raise WatchError(f"--credentials {path}: no user:password line")
+    return next(iter(users.items()))
 
 
 def _machine_file(path: str) -> Path:
@@ -391,7 +410,7 @@ def run(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        session = open_session(endpoints)
+        session = open_session(endpoints, credentials=_credentials(args.credentials))
         try:
             watcher = Watcher(session, keys, output, with_position=args.json)
             try:

@@ -246,3 +246,39 @@ def test_a_subscriber_that_reconnects_catches_up_on_every_alarm_it_missed(contro
     again.close()
     op.close()
     op_session.close()
+
+
+def test_with_access_control_only_authenticated_operators_command_the_running_controller(tmp_path):
+    creds = tmp_path / "users.txt"
+    creds.write_text("controller:c-secret\nop1:op-secret\nobs1:obs-secret\n")
+    config = machine_config(**NEAR_HOME, **{
+        "zenoh.access.enabled": True, "zenoh.access.credentials_file": str(creds),
+        "zenoh.access.operators": ["op1"], "zenoh.access.observers": ["obs1"],
+    })
+    keys = Keys(config.zenoh.key_prefix, config.machine.name)
+    endpoint = [config.zenoh.listen[0]]
+    with Supervisor(config, clock="virtual", history_path=tmp_path / "h.sqlite", plc_sim_times=FAST_PLANT) as sup:
+        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
+        with pytest.raises(Exception):
+            open_client(endpoint)  # no credentials: refused at the door
+        with pytest.raises(Exception):
+            open_client(endpoint, ("op1", "wrong"))
+        observer = open_client(endpoint, ("obs1", "obs-secret"))
+        operator = open_client(endpoint, ("op1", "op-secret"))
+        statuses = []
+        sub = observer.declare_subscriber(keys.status, lambda s: statuses.append(s))
+        sup.wait_until(lambda: statuses, 10.0, "status at the observer")
+        watcher = OperatorStation(observer, keys, "watcher", timeout_s=2.0)
+        refused = watcher.take_lock()
+        assert not refused.ok and "no answer" in refused.reason, "an observer's command never reaches the gateway"
+        op = OperatorStation(operator, keys, "panel")
+        assert op.take_lock().ok and op.request(Reset()).ok
+        sup.wait_until(lambda: logic(sup)["drives_on"] == 1, 5.0, "the operator's reset")
+        assert get(observer, f"{keys.alarms_history}?after=0", HistoryPage).last_seq >= 0, "observers read the history"
+        assert not watcher.upload("x.ngc", PART).ok
+        assert op.upload("part.ngc", PART).ok
+        sub.undeclare()
+        for s in (watcher, op):
+            s.close()
+        observer.close()
+        operator.close()

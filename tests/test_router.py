@@ -1,0 +1,123 @@
+"""`waterjet router`: a shop router in its own process relays between stations and controllers."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from cnc.bus.keys import Keys
+from cnc.bus.session import open_client, open_router
+from cnc.config import load_machine
+
+from .conftest import MACHINE_FILE, REPO, free_port
+from .test_access_control import CREDENTIALS, PASSWORDS, put_until_received, reached, replies
+
+
+class ShopRouter:
+    """`python -m cnc.router ...` in a subprocess, started when it has printed where it listens."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "cnc.router", *args], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        self.banner = self.proc.stdout.readline()  # blocks until the router is open (or has failed)
+        if " listening on " not in self.banner:
+            self.proc.kill()
+            raise AssertionError(f"router did not start: {self.banner!r} {self.proc.stderr.read()!r}")
+
+    def stop(self) -> tuple[int, str]:
+        """SIGTERM, as a service manager would; the exit code and the rest of its output."""
+        self.proc.send_signal(signal.SIGTERM)
+        out, _err = self.proc.communicate(timeout=10)
+        return self.proc.returncode, out
+
+
+@pytest.fixture
+def sessions():
+    opened: list[zenoh.Session] = []
+    yield opened
+    for s in reversed(opened):
+        s.close()
+
+
+def test_router_relays_between_clients_on_different_endpoints_and_stops_on_sigterm(sessions):
+    a, b = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
+    router = ShopRouter("--listen", a, "--listen", b)
+    try:
+        assert a in router.banner and b in router.banner and "no access control" in router.banner
+        publisher, subscriber = open_client([a]), open_client([b])
+        sessions += [publisher, subscriber]
+        got: list[str] = []
+        received = threading.Event()
+        _sub = subscriber.declare_subscriber("wj/shop/status", lambda s: (got.append(s.payload.to_string()), received.set()))
+        assert put_until_received(lambda: publisher.put("wj/shop/status", "idle"), received)
+        assert got[0] == "idle"
+    finally:
+        code, out = router.stop()
+    assert code == 0 and "stopped" in out
+
+
+def test_controller_router_connected_to_the_shop_router_reaches_its_stations(sessions):
+    shop_ep, controller_ep = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
+    router = ShopRouter("--listen", shop_ep)
+    try:
+        controller = open_router([controller_ep], connect=[shop_ep])
+        station = open_client([shop_ep])
+        sessions += [controller, station]
+        _cmd = controller.declare_queryable("wj/m1/cmd/**", lambda q: q.reply(q.key_expr, "ok"))
+        received = threading.Event()
+        _sub = station.declare_subscriber("wj/m1/status", lambda s: received.set())
+        assert put_until_received(lambda: controller.put("wj/m1/status", "{}"), received)
+        reached(controller, station, Keys("wj", "m1"))
+        assert replies(station, "wj/m1/cmd/start") == ["ok"]
+    finally:
+        assert router.stop()[0] == 0
+
+
+def shop_machine(tmp_path: Path) -> Path:
+    """The shipped machine with access control on, written where the shop router can read it."""
+    (tmp_path / "credentials.txt").write_text(CREDENTIALS, encoding="utf-8")
+    text = MACHINE_FILE.read_text(encoding="utf-8") + (
+        '\n[zenoh.access]\nenabled = true\ncredentials_file = "credentials.txt"\n'
+        'operators = ["operator1"]\nobservers = ["observer1"]\n'
+    )
+    path = tmp_path / "machine.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_shop_router_with_a_machine_applies_its_access_rules_to_stations(tmp_path, sessions):
+    machine = shop_machine(tmp_path)
+    shop_ep, controller_ep = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
+    router = ShopRouter("--listen", shop_ep, "--machine", str(machine))
+    try:
+        assert "access control of machine" in router.banner
+        cfg = load_machine(machine, {"zenoh.listen": [controller_ep], "zenoh.connect": [shop_ep]})
+        keys = Keys(cfg.zenoh.key_prefix, cfg.machine.name)
+        controller = open_router(cfg)  # authenticates to the shop router as the controller user
+        sessions.append(controller)
+        seen: list[str] = []
+        _cmd = controller.declare_queryable(
+            f"{keys.root}/cmd/**", lambda q: (seen.append(str(q.key_expr)), q.reply(q.key_expr, "ok"))
+        )
+
+        with pytest.raises(zenoh.ZError):
+            sessions.append(open_client([shop_ep]))
+        observer = open_client([shop_ep], ("observer1", PASSWORDS["observer1"]))
+        operator = open_client([shop_ep], ("operator1", PASSWORDS["operator1"]))
+        sessions += [observer, operator]
+        received = threading.Event()
+        _sub = observer.declare_subscriber(keys.status, lambda s: received.set())
+        assert put_until_received(lambda: controller.put(keys.status, "{}"), received)
+        reached(controller, observer, keys)
+        assert replies(observer, f"{keys.root}/cmd/start") == []
+        assert replies(operator, f"{keys.root}/cmd/hold") == ["ok"]
+        assert seen == [f"{keys.root}/cmd/hold"]
+    finally:
+        assert router.stop()[0] == 0
