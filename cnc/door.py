@@ -29,7 +29,7 @@ import zenoh
 from .alarms import AlarmHistory, AlarmLevel, HistoryError
 from .bus.keys import Keys
 from .bus.messages import (
-    LOGIC_COMMANDS, Hold, JobPage, LoadProgram, LockRequest, ProgramDiagnostic, ProgramInfo, Reply, SchemaVersionError,
+    LOGIC_COMMANDS, Hold, JobPage, LoadProgram, LockRequest, ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SchemaVersionError,
     UploadProgram, decode, encode,
 )
 from .config import MachineConfig
@@ -70,7 +70,7 @@ class Door:
         self.machine_state, self.motion = machine_state, motion
         self.lock = OperatorLock()
         self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
-        self.uploaded: dict[str, tuple[str, str]] = {}  # program hash -> (name, text)
+        self.uploaded: dict[str, tuple[str, str, Any]] = {}  # program hash -> (name, text, interpreted Program)
         self.commands: queue.Queue = queue.Queue()
         self.queries: queue.Queue = queue.Queue()
         verbs = [*LOGIC_COMMANDS, "lock", "program"]
@@ -193,7 +193,7 @@ class Door:
             column = bad.start() - (msg.text.rfind("\n", 0, bad.start()) + 1) + 1
             why = f"not text: control character {bad.group()!r} (a binary file?)"
             return Reply(False, f"program: {msg.name}:{line}:{column}: {why}", [ProgramDiagnostic(line, column, why)])
-        diagnostic = self._interpret(msg.name, data)
+        program, diagnostic = self._interpret(msg.name, data)
         if diagnostic is not None:
             return Reply(False, f"program: {msg.name}:{diagnostic.line}:{diagnostic.column}: {diagnostic.message}",
                          [diagnostic])
@@ -203,29 +203,30 @@ class Door:
         tmp.write_bytes(data)
         os.replace(tmp, path)
         digest = hashlib.sha256(data).hexdigest()
-        self.uploaded[digest] = (msg.name, msg.text)
+        self.uploaded = {digest: (msg.name, msg.text, program)}  # the latest only: programs can be large
         reply = self.logic.request(LoadProgram(str(path)))
         if not reply.ok:
             return reply
         return Reply(True, f"loaded {msg.name} ({len(data)} bytes, sha256 {digest[:12]})")
 
-    def _interpret(self, name: str, data: bytes) -> ProgramDiagnostic | None:
+    def _interpret(self, name: str, data: bytes) -> tuple[Any, ProgramDiagnostic | None]:
         from gcode.errors import GCodeError
         from gcode.interp import Interpreter
 
         try:
-            Interpreter(dialect_for(self.config), name).run(data)
+            return Interpreter(dialect_for(self.config), name).run(data), None
         except GCodeError as exc:
-            return ProgramDiagnostic(exc.line, exc.column, exc.message, (exc.source_line or "").rstrip("\r\n"))
-        return None
+            return None, ProgramDiagnostic(exc.line, exc.column, exc.message, (exc.source_line or "").rstrip("\r\n"))
 
     def _program(self, params: dict) -> ProgramInfo:
         m = self.motion()
-        name, text = self.uploaded.get(m["program_hash"], (m["program_name"], ""))
+        name, text, program = self.uploaded.get(m["program_hash"], (m["program_name"], "", None))
         want_text = params.get("text", "1") not in ("0", "false", "no")
+        want_path = params.get("path", "0") not in ("0", "false", "no")
         return ProgramInfo(
             name=m["program_name"], hash=m["program_hash"], bytes=len(text.encode()) if text else 0,
             lines=m["program_lines"], planned_s=m["planned_s"], text=text if want_text else "",
+            path=program_path(program) if want_path and program is not None else None,
         )
 
     # -- histories --------------------------------------------------------------------------
@@ -257,6 +258,18 @@ class Door:
                              params.get("program", ""))
         finally:
             jobs.close()
+
+
+def program_path(program: Any) -> ProgramPath:
+    """The motions of an interpreted program as columns (dwells left out)."""
+    from gcode.canon import DWELL
+
+    seg = program.segments[program.segments["kind"] != DWELL]
+    return ProgramPath(
+        kind=seg["kind"].tolist(), start_x=seg["start"][:, 0].tolist(), start_y=seg["start"][:, 1].tolist(),
+        end_x=seg["end"][:, 0].tolist(), end_y=seg["end"][:, 1].tolist(), center_x=seg["center"][:, 0].tolist(),
+        center_y=seg["center"][:, 1].tolist(), cw=seg["cw"].astype(bool).tolist(), line=seg["line"].tolist(),
+    )
 
 
 def _int(params: dict, key: str, default: int) -> int:

@@ -128,6 +128,9 @@ def test_a_program_is_uploaded_checked_and_loaded_or_refused_with_line_and_colum
     assert good.ok, good.reason
     info = get(session, keys.program, ProgramInfo)
     assert info.name == "part.ngc" and info.text == PART and info.lines == PART.count("\n") and info.planned_s > 0
+    assert info.path is None, "the path only when asked for"
+    path = get(session, f"{keys.program}?path=1;text=0", ProgramInfo).path
+    assert path.kind == [0, 1, 1, 1, 1, 0] and path.end_x[:2] == [100.0, 140.0] and path.line[1] == 5
     op.close()
 
 

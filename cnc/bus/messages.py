@@ -143,8 +143,24 @@ class UploadProgram(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
+class ProgramPath(msgspec.Struct, frozen=True):
+    """The interpreted path of a program, one column per field, one row per motion (machine mm).
+    kind: 0 rapid, 1 line, 2 arc (gcode.program's numbering); arcs have a centre and a direction."""
+
+    kind: list[int]
+    start_x: list[float]
+    start_y: list[float]
+    end_x: list[float]
+    end_y: list[float]
+    center_x: list[float]
+    center_y: list[float]
+    cw: list[bool]
+    line: list[int]
+
+
 class ProgramInfo(msgspec.Struct, frozen=True):
-    """The loaded program for the preview (`<root>/program`): its text when uploaded over Zenoh."""
+    """The loaded program for the preview (`<root>/program`): its text and interpreted path when it
+    was uploaded over Zenoh (`?text=0` leaves the text out, `?path=1` adds the path)."""
 
     name: str
     hash: str
@@ -152,6 +168,7 @@ class ProgramInfo(msgspec.Struct, frozen=True):
     lines: int
     planned_s: float
     text: str = ""
+    path: ProgramPath | None = None
     version: int = SCHEMA_VERSION
 
 
