@@ -285,3 +285,50 @@ def test_with_access_control_only_authenticated_operators_command_the_running_co
             s.close()
         observer.close()
         operator.close()
+
+
+def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_allow_it(controller, session, keys):
+    from cnc.bus.messages import (
+        Acknowledge, Drives, GoTo, Hold, Jog, JogStop, JetTest, LoadProgram, Override, ProcedureConfirm, ProcedureEnd,
+        ProcedureStart, ProcedureStop, Pump, Resume, Stop,
+    )
+    from cnc.bus.operator import OPERATOR_COMMANDS
+
+    op = OperatorStation(session, keys, "op")
+    assert op.take_lock().ok
+    refusals = {
+        "mode": (SetMode("SEMI"), "is not one of"),
+        "start": (CycleStart(), "wrong operation mode"),
+        "hold": (Hold(), "nothing to hold"),
+        "resume": (Resume(), "nothing to resume"),
+        "stop": (Stop(), "nothing to stop"),
+        "reset": None,  # always accepted: it says what is still present
+        "drives": None,
+        "home": (Home(["q"]), "drives are not enabled"),
+        "jog": (Jog("x", 10.0), "drives"),
+        "jog_stop": (JogStop(), "not jogging"),
+        "goto": (GoTo({"x": 100.0}), "drives"),
+        "load": (LoadProgram("/nonexistent/part.ngc"), "cannot read the program"),
+        "override": (Override(250.0), "out of range: 0 to 200"),
+        "pump": (Pump(True, pressure_bar=-5.0), "out of range"),
+        "jet_test": (JetTest(True), "jet test"),
+        "acknowledge": (Acknowledge(4242), "alarm 4242 is not active"),
+        "procedure_start": (ProcedureStart("nope"), "nope"),
+        "procedure_confirm": (ProcedureConfirm(), "procedure"),
+        "procedure_stop": (ProcedureStop(), "procedure"),
+        "procedure_end": (ProcedureEnd(), "procedure"),
+        "lock": None,
+        "program": None,  # refusals covered by the upload test
+    }
+    assert set(refusals) == set(OPERATOR_COMMANDS), "every verb has its case"
+    wrong = []
+    for verb, case in refusals.items():
+        if case is None:
+            continue
+        msg, expected = case
+        reply = op.request(msg)
+        if reply.ok or not reply.reason.startswith(f"{verb}: ") or expected not in reply.reason:
+            wrong.append((verb, reply.ok, reply.reason))
+    assert not wrong, wrong
+    assert op.request(Drives(True)).ok and op.request(Reset()).ok
+    op.close()
