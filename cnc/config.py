@@ -600,12 +600,17 @@ def _cross_check(cfg: MachineConfig) -> None:
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 
 
-def credentials_path(cfg: MachineConfig) -> Path:
-    """`[zenoh.access] credentials_file`, resolved against the machine file's directory."""
-    path = Path(cfg.zenoh.access.credentials_file)
+def beside(cfg: MachineConfig, value: str) -> Path:
+    """A path from the machine file, relative paths taken from the machine file's directory."""
+    path = Path(value)
     if not path.is_absolute() and cfg.source not in ("<defaults>", "<string>"):
         path = Path(cfg.source).resolve().parent / path
     return path
+
+
+def credentials_path(cfg: MachineConfig) -> Path:
+    """`[zenoh.access] credentials_file`, resolved against the machine file's directory."""
+    return beside(cfg, cfg.zenoh.access.credentials_file)
 
 
 def read_credentials(path: Path) -> dict[str, str]:

@@ -124,12 +124,11 @@ def program_dir(config, history_path: str) -> str:
     """`[gateway] program_dir` beside the machine file, or `programs/` beside the alarm history."""
     from pathlib import Path
 
+    from .config import beside
+
     if not config.gateway.program_dir:
         return str(Path(history_path).parent / "programs") if history_path else ""
-    path = Path(config.gateway.program_dir)
-    if not path.is_absolute() and config.source not in ("<defaults>", "<string>"):
-        path = Path(config.source).resolve().parent / path
-    return str(path)
+    return str(beside(config, config.gateway.program_dir))
 
 
 def run_gateway(rt: Runtime, ready) -> None:

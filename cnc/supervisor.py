@@ -30,7 +30,7 @@ from typing import Any, Callable
 from .bus.keys import Keys
 from .bus.access import controller_credentials
 from .bus.session import connect_endpoints, open_router
-from .config import MachineConfig
+from .config import MachineConfig, beside
 from .dataserver import BlockWriter, SharedArea, unique_name
 from .fifo import SetpointFifo
 from .hw.timers import TimerClient
@@ -50,10 +50,7 @@ FIFO_CAPACITY = 8192  # 8 s of setpoints at 1 kHz
 def default_history_path(config: MachineConfig) -> str:
     """`[logic] history` beside the machine file, or the user's state directory when empty."""
     if config.logic.history:
-        path = Path(config.logic.history)
-        if not path.is_absolute() and config.source not in ("<defaults>", "<string>"):
-            path = Path(config.source).resolve().parent / path
-        return str(path)
+        return str(beside(config, config.logic.history))
     state = Path(os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state")
     return str(state / "waterjet" / config.machine.name / "history.sqlite")
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tomllib
+from pathlib import Path
 
 import pytest
 
@@ -89,3 +90,23 @@ def test_reference_file_documents_every_option_and_is_in_sync():
     assert "axis" in parsed and "x" in parsed["axis"]
     for key in ("max_jerk_mm_s3", "following_error_limit_mm", "drive_time_constant_s", "watchdog_missed_ticks", "status_rate_hz"):
         assert f"# {key} = " in committed
+
+
+def test_paths_in_the_machine_file_are_taken_from_its_directory_and_the_history_defaults_to_the_state_dir(tmp_path, monkeypatch):
+    from cnc.config import beside
+    from cnc.procs import program_dir
+    from cnc.supervisor import default_history_path
+
+    machine = tmp_path / "m" / "machine.toml"
+    machine.parent.mkdir()
+    machine.write_text(MINIMAL + '[logic]\nhistory = "var/h.sqlite"\n[gateway]\nprogram_dir = "/srv/nc"\n')
+    cfg = load_machine(machine)
+    assert default_history_path(cfg) == str(tmp_path / "m" / "var" / "h.sqlite")
+    assert program_dir(cfg, default_history_path(cfg)) == "/srv/nc"
+    assert beside(cfg, "/abs/x") == Path("/abs/x")
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path / "state"))
+    plain_file = machine.with_name("plain.toml")
+    plain_file.write_text(MINIMAL)
+    plain = load_machine(plain_file)
+    assert default_history_path(plain) == str(tmp_path / "state" / "waterjet" / plain.machine.name / "history.sqlite")
+    assert program_dir(plain, default_history_path(plain)) == str(tmp_path / "state" / "waterjet" / plain.machine.name / "programs")
