@@ -270,7 +270,7 @@ def test_guided_procedure_walks_its_steps_publishes_each_change_and_can_be_stopp
     sup.wait_until(lambda: events.procedures[-1].step == 1, 5.0, "the confirm to count")
     command(sup, ProcedureStop())
     sup.wait_until(lambda: 2131 in events.codes(), 5.0, "alarm 2131 procedure stop")
-    assert events.procedures[-1].state == "stopped"
+    sup.wait_until(lambda: events.procedures[-1].state == "stopped", 5.0, "the procedure window to say stopped")
     events.close()
 
 
