@@ -101,7 +101,8 @@ def test_a_progress_bar_is_drawn_on_a_terminal_for_long_programs(tmp_path):
     import pty
 
     prog = tmp_path / "long.ngc"
-    body = "".join(f"G1 X{k % 1000}.5 Y{(k * 7) % 900}.25\n" for k in range(100_000))
+    # one straight run of short chords: long to interpret, quick to plan (the bar is the interpreter's)
+    body = "".join(f"G1 X{k * 0.01:.2f} Y{k * 0.005:.3f}\n" for k in range(1, 100_001))
     prog.write_text("G21 G90 F3000\n" + body + "M2\n")
     master, slave = pty.openpty()
     try:
