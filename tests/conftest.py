@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import time
 from pathlib import Path
@@ -11,6 +12,8 @@ import pytest
 
 from cnc.config import MachineConfig, load_machine
 from cnc.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")  # Qt tests render without a display
 
 REPO = Path(__file__).resolve().parent.parent
 MACHINE_FILE = REPO / "machines" / "waterjet.toml"

@@ -1,0 +1,278 @@
+"""The HMI's one Zenoh session to the controller: subscriptions into the model, catch-up, watchdog, commands."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import msgspec
+import zenoh
+
+from cnc.bus.keys import Keys
+from cnc.bus.messages import (
+    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, Position, ProcedureState, ProgramInfo, Reply,
+    Status, decode,
+)
+from cnc.bus.operator import OperatorStation
+from cnc.bus.session import open_client
+
+from .model import MachineModel
+
+log = logging.getLogger(__name__)
+
+STATUS_TIMEOUT_S = 1.5  # no status for this long: the controller is unreachable
+QUERY_TIMEOUT_S = 3.0  # how long a catch-up query may wait for its answer
+PAGE_SIZE = 500  # history entries per query (the controller caps a page at 1000)
+POLL_PERIOD_S = 0.1  # the worker's watchdog and catch-up period
+GAP_GRACE_S = 0.5  # a status may announce an entry before its event arrives: wait this long
+ACTIVE_RECHECK_S = 1.0  # a status whose alarm count differs from the model's re-reads the list this often
+
+_DECODE_ERRORS = (msgspec.ValidationError, msgspec.DecodeError)  # SchemaVersionError is a ValueError: below
+
+
+class NoAnswer(RuntimeError):
+    """A catch-up query got no usable answer (the controller is away or answered with an error)."""
+
+
+class Connection:
+    """One operator station's link: a client session, the station's liveliness token, the live
+    subscriptions feeding `model`, and a worker thread that watches the status, catches up on
+    what was missed (at start and after every reconnect) and fills alarm sequence gaps.
+
+    Zenoh callbacks only decode and apply (never block, never raise); every query runs on the
+    worker thread. The model's observers therefore run on Zenoh's threads or on the worker.
+    """
+
+    def __init__(
+        self, model: MachineModel, endpoints: list[str], keys: Keys, station: str,
+        credentials: tuple[str, str] | None = None, status_timeout_s: float = STATUS_TIMEOUT_S,
+    ) -> None:
+        self.model, self.endpoints, self.keys, self.station = model, endpoints, keys, station
+        self.credentials, self.status_timeout_s = credentials, status_timeout_s
+        self.session: zenoh.Session | None = None
+        self.operator: OperatorStation | None = None
+        self._subscribers: list[zenoh.Subscriber] = []
+        self._lock = threading.Lock()
+        self._last_status_at: float | None = None  # monotonic time of the last status decoded
+        self._contiguous_seq = 0  # every history entry up to here is in the model
+        self._gap = threading.Event()  # an event skipped sequence numbers: read the history
+        self._ahead_since: float | None = None
+        self._next_active_check = 0.0
+        self._caught_up = False
+        self._error_key: str | None = None  # the key whose unreadable message set the model's error
+        self._stop = threading.Event()
+        self._worker: threading.Thread | None = None
+
+    # -- life --------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Open the session, declare the station, subscribe, and start the worker. The first
+        status (or the next after a loss) triggers the catch-up; until then the model is offline."""
+        self.session = open_client(self.endpoints, self.credentials)
+        self.operator = OperatorStation(self.session, self.keys, self.station)
+        handlers: dict[str, tuple[type[msgspec.Struct], Callable[[msgspec.Struct], None]]] = {
+            self.keys.status: (Status, self._on_status),
+            self.keys.position: (Position, self.model.apply_position),
+            self.keys.event_alarm: (AlarmEvent, self._on_alarm),
+            self.keys.procedure: (ProcedureState, self.model.apply_procedure),
+            self.keys.lock: (LockState, self.model.apply_lock),
+        }
+        self._subscribers = [
+            self.session.declare_subscriber(key, self._handler(key, kind, apply))
+            for key, (kind, apply) in handlers.items()
+        ]
+        self._stop.clear()
+        self._worker = threading.Thread(target=self._run, name=f"hmi-connection-{self.station}", daemon=True)
+        self._worker.start()
+
+    def close(self) -> None:
+        """Stop the worker, drop the subscriptions and the station's token, close the session."""
+        self._stop.set()
+        if self._worker is not None:
+            self._worker.join(timeout=QUERY_TIMEOUT_S * 3)
+        for sub in self._subscribers:
+            sub.undeclare()
+        self._subscribers = []
+        if self.operator is not None:
+            self.operator.close()
+        if self.session is not None:
+            self.session.close()
+        self.session = self.operator = None
+        self.model.set_reachable(False)
+
+    def __enter__(self) -> Connection:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- commands ------------------------------------------------------------------------------
+
+    def command(self, msg: msgspec.Struct) -> Reply:
+        """Send one operator command through the station; refused here, with the reason, when this
+        station does not hold the command lock (a LockRequest always goes: it is how one takes it).
+        Blocks until the controller answers: call it off the GUI thread or accept the wait."""
+        if self.operator is None:
+            return Reply(False, f"{type(msg).__name__}: not connected to the controller")
+        holder = self.model.lock_holder
+        if self.model.read_only and not isinstance(msg, LockRequest):
+            who = f"station {holder!r} holds the command lock" if holder else "nobody holds the command lock"
+            return Reply(False, f"read-only: {who}; take the lock first")
+        reply = self.operator.request(msg)
+        if isinstance(msg, LockRequest) and reply.ok:
+            self._refresh(self.keys.lock, LockState, self.model.apply_lock)
+        return reply
+
+    # -- callbacks (Zenoh's threads) -------------------------------------------------------------
+
+    def _handler(self, key: str, kind: type[msgspec.Struct], apply: Callable[[msgspec.Struct], None]
+                 ) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            msg = self._decode(key, sample.payload.to_bytes(), kind)
+            if msg is None:
+                return
+            try:
+                apply(msg)
+            except Exception:  # a bug: logged with its traceback, never raised into Zenoh
+                log.exception("%s: applying %s failed", key, kind.__name__)
+                self.model.set_error(f"{key}: internal error applying {kind.__name__} (see the log)")
+        return on_sample
+
+    def _decode(self, key: str, payload: bytes, kind: type[msgspec.Struct]) -> msgspec.Struct | None:
+        """Decode or set the model's error text (another schema version, malformed JSON): None.
+        The text stays until a message on the same key is read again."""
+        try:
+            msg = decode(payload, kind)
+        except (*_DECODE_ERRORS, ValueError) as exc:
+            with self._lock:
+                self._error_key = key
+            self.model.set_error(f"{key}: cannot read the controller's {kind.__name__}: {exc}")
+            return None
+        with self._lock:
+            recovered = self._error_key == key
+            if recovered:
+                self._error_key = None
+        if recovered:
+            self.model.set_error("")
+        return msg
+
+    def _on_status(self, status: Status) -> None:
+        with self._lock:
+            self._last_status_at = time.monotonic()
+        self.model.apply_status(status)
+
+    def _on_alarm(self, event: AlarmEvent) -> None:
+        self.model.apply_alarm(event)
+        with self._lock:
+            if not self._caught_up:
+                return  # the catch-up reads the history anyway
+            if event.seq == self._contiguous_seq + 1:
+                self._contiguous_seq = event.seq
+            elif event.seq > self._contiguous_seq + 1:
+                self._gap.set()
+
+    # -- the worker ------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while not self._stop.wait(POLL_PERIOD_S):
+            try:
+                self.poll()
+            except Exception:  # a bug: logged, shown, and the watchdog keeps running
+                log.exception("the HMI connection's worker failed")
+                self.model.set_error("connection: internal error (see the log)")
+
+    def poll(self) -> None:
+        """One round of the watchdog and the catch-up (the worker calls it every POLL_PERIOD_S)."""
+        with self._lock:
+            heard = self._last_status_at is not None and time.monotonic() - self._last_status_at < self.status_timeout_s
+        if not heard:
+            with self._lock:
+                self._caught_up = False  # whatever comes back is caught up with first
+            self.model.set_reachable(False)
+            return
+        self.model.set_reachable(True)  # status flows
+        if not self._caught_up:
+            done = self.catch_up()  # a failed one is retried next round
+            with self._lock:
+                self._caught_up = done
+            return
+        self._keep_up()
+
+    def catch_up(self) -> bool:
+        """Read what the subscriptions may have missed: the history after the last entry seen, the
+        active alarms, the lock and the program. Returns whether every query answered."""
+        try:
+            self._read_history()
+            self._read(self.keys.alarms_active, AlarmList, self.model.apply_active)
+            self._read(self.keys.lock, LockState, self.model.apply_lock)
+            self._read(f"{self.keys.program}?path=1", ProgramInfo, self.model.apply_program)
+        except NoAnswer as exc:
+            log.info("catch-up incomplete: %s", exc)
+            return False
+        return True
+
+    def _keep_up(self) -> None:
+        """Fill alarm gaps, notice entries a status announces but no event brought, re-read the
+        active list when its count disagrees, and fetch a program the status names but we lack."""
+        status = self.model.status
+        now = time.monotonic()
+        behind = status is not None and status.alarm_seq > self._contiguous_seq
+        if behind and self._ahead_since is None:
+            self._ahead_since = now
+        elif not behind:
+            self._ahead_since = None
+        try:
+            if self._gap.is_set() or (behind and now - self._ahead_since >= GAP_GRACE_S):
+                self._gap.clear()
+                self._ahead_since = None
+                self._read_history()
+                self._read(self.keys.alarms_active, AlarmList, self.model.apply_active)
+            elif status is not None and status.alarms_active != len(self.model.active_alarms) \
+                    and now >= self._next_active_check:
+                self._next_active_check = now + ACTIVE_RECHECK_S
+                self._read(self.keys.alarms_active, AlarmList, self.model.apply_active)
+            if self.model.program_outdated:
+                self._read(f"{self.keys.program}?path=1", ProgramInfo, self.model.apply_program)
+        except NoAnswer as exc:
+            log.info("keeping up: %s", exc)
+
+    def _read_history(self) -> None:
+        """Every history entry after the last contiguous one, page by page, into the model."""
+        while True:
+            with self._lock:
+                after = self._contiguous_seq
+            page = self._query(f"{self.keys.alarms_history}?after={after};limit={PAGE_SIZE}", HistoryPage)
+            self.model.apply_history(page)
+            newest = page.entries[-1].seq if page.entries else page.last_seq
+            with self._lock:
+                self._contiguous_seq = max(self._contiguous_seq, newest)
+            if not page.more or not page.entries:
+                return
+
+    def _read(self, selector: str, kind: type[msgspec.Struct], apply: Callable[[msgspec.Struct], None]) -> None:
+        apply(self._query(selector, kind))
+
+    def _refresh(self, selector: str, kind: type[msgspec.Struct], apply: Callable[[msgspec.Struct], None]) -> None:
+        """Like `_read`, but an unanswered query only leaves the model as it is."""
+        try:
+            self._read(selector, kind, apply)
+        except NoAnswer as exc:
+            log.info("refresh: %s", exc)
+
+    def _query(self, selector: str, kind: type[msgspec.Struct]) -> msgspec.Struct:
+        """One query's decoded answer; NoAnswer when nobody answers, the answer is an error, or it
+        cannot be read (the model's error then says why)."""
+        session = self.session
+        if session is None:
+            raise NoAnswer(f"{selector}: not connected")
+        for reply in session.get(selector, timeout=QUERY_TIMEOUT_S):
+            if reply.ok is None:
+                raise NoAnswer(f"{selector}: the controller answered with an error: {reply.err.payload.to_string()}")
+            msg = self._decode(selector, reply.ok.payload.to_bytes(), kind)
+            if msg is None:
+                raise NoAnswer(f"{selector}: unreadable answer")
+            return msg
+        raise NoAnswer(f"{selector}: no answer within {QUERY_TIMEOUT_S:g} s")

@@ -1,0 +1,359 @@
+"""The operator screen's state in pure Python: what the controller last said, kept for the views."""
+
+from __future__ import annotations
+
+import enum
+import logging
+import threading
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Protocol
+
+import msgspec
+
+from cnc.bus.messages import (
+    ActiveAlarm, AlarmEvent, AlarmList, HistoryPage, LockState, Position, ProcedureState, ProgramInfo, ProgramPath,
+    Status,
+)
+
+log = logging.getLogger(__name__)
+
+TOPICS = ("status", "position", "alarms", "history", "procedure", "lock", "program", "connection", "screen", "error")
+HISTORY_KEPT = 20000  # entries of the message history held in memory (the oldest go first)
+LATCHED_LEVELS = ("warning", "error", "fatal")  # levels that stay listed, cleared, until reset (the alarm book's rule)
+
+
+class Screen(enum.Enum):
+    """The page the operator screen shows, derived from the machine state (the window structure)."""
+
+    OFFLINE = "offline"  # no controller heard from
+    MANUAL = "manual"
+    AUTO = "auto"
+    PROCEDURE = "procedure"  # a guided procedure runs
+    FAULT = "fault"  # FAULT or ESTOP: the alarms and the reset come first
+
+
+class _AxisTravel(Protocol):
+    travel_min_mm: float
+    travel_max_mm: float
+
+
+class TravelSource(Protocol):
+    """What the model reads of a machine configuration (cnc.config.MachineConfig fits): the axes'
+    travel. A protocol, not an import: the HMI reaches the controller only through cnc.bus."""
+
+    axis: Mapping[str, _AxisTravel]
+
+
+@dataclass(frozen=True)
+class LoadedProgram:
+    """The program the controller has loaded, as the preview shows it."""
+
+    name: str
+    hash: str
+    text: str
+    path: ProgramPath | None  # the interpreted path, when it was asked for (?path=1)
+    segments: int  # rows of the interpreted path (0 when the path is not known)
+
+
+def _unstamped(msg: msgspec.Struct) -> msgspec.Struct:
+    """The message without its sequence number and stamps: what a view shows of it."""
+    return msgspec.structs.replace(msg, seq=0, stamp_ns=0, tick=0)
+
+
+class MachineModel:
+    """Everything an operator screen shows, updated by `apply_*` from bus messages.
+
+    Observers `subscribe(topic, callback)`; a callback runs only when what its topic shows
+    changed, after the model's lock is released, on the thread that applied the message: Zenoh
+    callbacks arrive on Zenoh's threads, so a Qt view must marshal to its own thread (a queued
+    signal). All reads and writes hold one lock, so any thread may read the model at any time.
+    """
+
+    def __init__(self, station: str, config: TravelSource | None = None) -> None:
+        self.station = station
+        self.travel_mm: dict[str, tuple[float, float]] = (
+            {} if config is None else {name: (a.travel_min_mm, a.travel_max_mm) for name, a in config.axis.items()}
+        )
+        self._lock = threading.RLock()
+        self._observers: dict[str, list[Callable[[], None]]] = {t: [] for t in TOPICS}
+        self._status: Status | None = None
+        self._position: Position | None = None
+        self._active: dict[tuple[str, str], ActiveAlarm] = {}
+        self._history: dict[int, AlarmEvent] = {}
+        self._procedure: ProcedureState | None = None
+        self._holder = ""
+        self._stations: list[str] = []
+        self._program: LoadedProgram | None = None
+        self._reachable = False
+        self._error = ""
+
+    # -- observers ---------------------------------------------------------------------------
+
+    def subscribe(self, topic: str, callback: Callable[[], None]) -> Callable[[], None]:
+        """Call `callback()` whenever `topic` (one of TOPICS) changes; returns the unsubscribe."""
+        if topic not in self._observers:
+            raise ValueError(f"topic {topic!r} is not one of: {', '.join(TOPICS)}")
+        with self._lock:
+            self._observers[topic].append(callback)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if callback in self._observers[topic]:
+                    self._observers[topic].remove(callback)
+        return unsubscribe
+
+    def _notify(self, topics: Iterable[str]) -> None:
+        """Run the callbacks of the changed topics (outside the lock: a callback may read the model).
+        A view's exception is logged with its traceback and does not stop the other views."""
+        for topic in dict.fromkeys(topics):
+            with self._lock:
+                callbacks = list(self._observers[topic])
+            for callback in callbacks:
+                try:
+                    callback()
+                except Exception:
+                    log.exception("the %r observer %r failed", topic, callback)
+
+    def _update(self, change: Callable[[], Iterable[str]]) -> None:
+        """Apply `change` under the lock; it returns the topics it changed. The screen topic
+        follows whenever the derived screen name moves."""
+        with self._lock:
+            screen = self._screen()
+            changed = list(change())
+            if self._screen() != screen:
+                changed.append("screen")
+        self._notify(changed)
+
+    # -- applying what the controller says -----------------------------------------------------
+
+    def apply_status(self, status: Status) -> None:
+        """The cyclic status; also names the lock holder (a missed lock message is corrected here)."""
+        def change() -> list[str]:
+            changed = []
+            if self._status is None or _unstamped(self._status) != _unstamped(status):
+                changed.append("status")
+            self._status = status
+            if status.operator != self._holder:
+                self._holder = status.operator
+                changed.append("lock")
+            return changed
+        self._update(change)
+
+    def apply_position(self, position: Position) -> None:
+        def change() -> list[str]:
+            old, self._position = self._position, position
+            return ["position"] if old is None or _unstamped(old) != _unstamped(position) else []
+        self._update(change)
+
+    def apply_alarm(self, event: AlarmEvent) -> None:
+        """One live alarm event: into the history, and its effect on the active list (the alarm
+        book's rules: an alarm is its id and detail; warnings and worse stay listed, cleared, until
+        reset). Info-level entries are one-shot messages or prompts: they leave the list when
+        cleared and enter it only through `apply_active` (an event cannot tell the two apart)."""
+        def change() -> list[str]:
+            changed = self._add_history([event])
+            if self._apply_to_active(event):
+                changed.append("alarms")
+            return changed
+        self._update(change)
+
+    def _apply_to_active(self, e: AlarmEvent) -> bool:
+        key = (e.id, e.detail)
+        old = self._active.get(key)
+        if e.action == "raised":
+            if e.level not in LATCHED_LEVELS:
+                return False
+            self._active[key] = ActiveAlarm(e.code, e.id, e.level, e.text, e.detail, e.source, e.seq, e.stamp_ns,
+                                            active=True, acknowledged=False)
+        elif old is None:
+            return False
+        elif e.action == "reset" or (e.action == "cleared" and old.level not in LATCHED_LEVELS):
+            del self._active[key]
+        elif e.action == "cleared":
+            self._active[key] = msgspec.structs.replace(old, active=False)
+        elif e.action == "acknowledged":
+            self._active[key] = msgspec.structs.replace(old, acknowledged=True)
+        return self._active.get(key) != old
+
+    def apply_active(self, alarms: AlarmList) -> None:
+        """The controller's active list (a query's answer): it replaces what the events built."""
+        def change() -> list[str]:
+            new = {(a.id, a.detail): a for a in alarms.alarms}
+            old, self._active = self._active, new
+            return ["alarms"] if new != old else []
+        self._update(change)
+
+    def apply_history(self, page: HistoryPage) -> None:
+        """History entries (a query's page): merged by sequence number, repeats ignored."""
+        self._update(lambda: self._add_history(page.entries))
+
+    def _add_history(self, entries: Iterable[AlarmEvent]) -> list[str]:
+        new = [e for e in entries if e.seq not in self._history]
+        for e in new:
+            self._history[e.seq] = e
+        if len(self._history) > HISTORY_KEPT:
+            for seq in sorted(self._history)[: len(self._history) - HISTORY_KEPT]:
+                del self._history[seq]
+        return ["history"] if new else []
+
+    def apply_procedure(self, procedure: ProcedureState) -> None:
+        def change() -> list[str]:
+            old, self._procedure = self._procedure, procedure
+            return ["procedure"] if old != procedure else []
+        self._update(change)
+
+    def apply_lock(self, lock: LockState) -> None:
+        def change() -> list[str]:
+            old = (self._holder, self._stations)
+            self._holder, self._stations = lock.holder, list(lock.stations)
+            return ["lock"] if old != (self._holder, self._stations) else []
+        self._update(change)
+
+    def apply_program(self, info: ProgramInfo) -> None:
+        """The loaded program (name, hash, text, and the interpreted path when it came with it)."""
+        def change() -> list[str]:
+            segments = len(info.path.kind) if info.path is not None else 0
+            new = LoadedProgram(info.name, info.hash, info.text, info.path, segments)
+            old, self._program = self._program, new
+            return ["program"] if old != new else []
+        self._update(change)
+
+    def set_reachable(self, reachable: bool) -> None:
+        """Whether the controller is heard from (the connection's watchdog decides)."""
+        def change() -> list[str]:
+            old, self._reachable = self._reachable, reachable
+            return ["connection"] if old != reachable else []
+        self._update(change)
+
+    def set_error(self, text: str) -> None:
+        """A problem the operator must see that is not an alarm (a message this HMI cannot read)."""
+        def change() -> list[str]:
+            old, self._error = self._error, text
+            return ["error"] if old != text else []
+        self._update(change)
+
+    # -- reading -------------------------------------------------------------------------------
+
+    @property
+    def status(self) -> Status | None:
+        with self._lock:
+            return self._status
+
+    @property
+    def position(self) -> Position | None:
+        with self._lock:
+            return self._position
+
+    @property
+    def active_alarms(self) -> list[ActiveAlarm]:
+        """The alarms raised and not reset, oldest first."""
+        with self._lock:
+            return sorted(self._active.values(), key=lambda a: a.raised_seq)
+
+    @property
+    def last_seq(self) -> int:
+        """The newest history entry held (0 when none): where a catch-up query starts."""
+        with self._lock:
+            return max(self._history, default=0)
+
+    @property
+    def procedure(self) -> ProcedureState | None:
+        with self._lock:
+            return self._procedure
+
+    @property
+    def lock_holder(self) -> str:
+        """The station holding the command lock ("" nobody)."""
+        with self._lock:
+            return self._holder
+
+    @property
+    def stations(self) -> list[str]:
+        with self._lock:
+            return list(self._stations)
+
+    @property
+    def holds_lock(self) -> bool:
+        with self._lock:
+            return self._holder == self.station
+
+    @property
+    def read_only(self) -> bool:
+        """This station only watches: another station, or nobody, holds the command lock."""
+        return not self.holds_lock
+
+    @property
+    def program(self) -> LoadedProgram | None:
+        with self._lock:
+            return self._program
+
+    @property
+    def program_outdated(self) -> bool:
+        """The status names a program other than the one held: the connection fetches it."""
+        with self._lock:
+            running = self._status.program if self._status is not None else None
+            if running is None or not running.hash:
+                return False
+            return self._program is None or self._program.hash != running.hash
+
+    @property
+    def reachable(self) -> bool:
+        with self._lock:
+            return self._reachable
+
+    @property
+    def error(self) -> str:
+        """The last problem that is not an alarm ("" none), e.g. a schema version mismatch."""
+        with self._lock:
+            return self._error
+
+    @property
+    def screen(self) -> Screen:
+        with self._lock:
+            return self._screen()
+
+    def _screen(self) -> Screen:
+        st = self._status
+        if st is None or not self._reachable:
+            return Screen.OFFLINE
+        if st.machine_state in ("FAULT", "ESTOP"):
+            return Screen.FAULT
+        procedure = self._procedure
+        if (procedure is not None and procedure.id and procedure.state == "running") or st.procedure:
+            return Screen.PROCEDURE
+        return Screen.AUTO if st.mode == "AUTO" else Screen.MANUAL
+
+    def segment_states(self) -> int:
+        """The index of the segment being cut: [0, index) are cut, index is being cut, the rest
+        are to cut. -1 before the first segment; the segment count when the run ended DONE.
+        The latest position's segment is used (50 Hz), else the status's."""
+        with self._lock:
+            segments = self._program.segments if self._program is not None else 0
+            progress = self._status.program if self._status is not None else None
+            if self._position is not None:
+                current = self._position.segment
+            elif progress is not None:
+                current = progress.segment
+            else:
+                return -1
+            if current < 0 and progress is not None and progress.result == "DONE":
+                return segments
+            return min(current, segments) if segments else current
+
+    def history_view(
+        self, text: str = "", levels: Iterable[str] | None = None, codes: Iterable[int] | None = None
+    ) -> list[AlarmEvent]:
+        """The message history, newest first, filtered: `text` (any case) in the text, detail, id
+        or code; `levels` and `codes` restrict to those (None: all)."""
+        needle = text.strip().lower()
+        level_set = None if levels is None else {lv.lower() for lv in levels}
+        code_set = None if codes is None else set(codes)
+        with self._lock:
+            entries = [self._history[s] for s in sorted(self._history, reverse=True)]
+        return [
+            e for e in entries
+            if (level_set is None or e.level in level_set)
+            and (code_set is None or e.code in code_set)
+            and (not needle or needle in f"{e.text}\n{e.detail}\n{e.id}\n{e.code}".lower())
+        ]

@@ -1,0 +1,297 @@
+"""The HMI's model (alarm lifecycle, history filter, segments, lock, screen) and its Zenoh connection
+to a real controller on the virtual clock (catch-up, live status, lock and commands, reconnection)."""
+
+from __future__ import annotations
+
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from cnc.bus.keys import Keys
+from cnc.bus.messages import (
+    ActiveAlarm, AlarmEvent, AlarmList, CycleStart, HistoryPage, LockRequest, LockState, Position, ProcedureState,
+    ProcedureStep, ProgramInfo, ProgramPath, ProgramProgress, Reset, Status, UploadProgram, encode,
+)
+from cnc.bus.operator import OperatorStation
+from cnc.bus.session import open_client
+from cnc.alarms.catalogue import AlarmAction, AlarmLevel
+from cnc.alarms.history import AlarmHistory
+from cnc.layout import LinkState
+from cnc.supervisor import Supervisor
+from hmi.connection import Connection
+from hmi.model import MachineModel, Screen
+
+from .conftest import machine_config
+from .test_zenoh_interface import FAST_PLANT, NEAR_HOME, PART
+
+
+# -- hand-built messages -----------------------------------------------------------------------
+
+
+def status(seq: int = 1, **fields) -> Status:
+    base = dict(machine="wj", seq=seq, stamp_ns=seq * 1000, tick=seq, clock="virtual", servo_state="RUNNING",
+                fault="NONE", fault_axis="", watchdog_tripped=False, safe_state=False, estop_ok=True,
+                doors_closed=True, jet_on=False, axes=[], overruns=0, underruns=0, late_ticks=0,
+                servo_missed_ticks=0, fifo_fill=0)
+    return Status(**{**base, **fields})
+
+
+def event(seq: int, action: str, code: int = 10, level: str = "error", detail: str = "x", text: str = "Following error",
+          id: str = "following_error") -> AlarmEvent:
+    return AlarmEvent(seq, seq * 1_000_000, code, id, level, action, text, detail)
+
+
+def position(seq: int, segment: int) -> Position:
+    return Position(seq, seq, seq, [1.0, 2.0], [1.0, 2.0], [0.0, 0.0], segment, 5, False)
+
+
+def program(n_segments: int = 4, hash: str = "h1") -> ProgramInfo:
+    zeros = [0.0] * n_segments
+    path = ProgramPath([1] * n_segments, zeros, zeros, zeros, zeros, zeros, zeros, [False] * n_segments,
+                       list(range(n_segments)))
+    return ProgramInfo("part.ngc", hash, 100, 10, 12.0, text="G1 X1\n", path=path)
+
+
+def progress(segment: int, result: str = "RUNNING", hash: str = "h1") -> ProgramProgress:
+    return ProgramProgress("part.ngc", hash, 10, segment, 5, 0.0, 1.0, 0.5, 3.0, 12.0, 1, result)
+
+
+class Recorder:
+    """Counts the callbacks of each topic."""
+
+    def __init__(self, model: MachineModel, *topics: str) -> None:
+        self.calls = {t: 0 for t in topics}
+        for t in topics:
+            model.subscribe(t, lambda t=t: self.calls.__setitem__(t, self.calls[t] + 1))
+
+
+# -- the model -------------------------------------------------------------------------------
+
+
+def test_alarm_lifecycle_raised_acknowledged_cleared_latched_then_reset_leaves_the_list():
+    model = MachineModel("panel")
+    rec = Recorder(model, "alarms", "history")
+    model.apply_alarm(event(1, "raised"))
+    [alarm] = model.active_alarms
+    assert alarm.code == 10 and alarm.active and not alarm.acknowledged and alarm.raised_seq == 1
+    model.apply_alarm(event(2, "acknowledged"))
+    assert model.active_alarms[0].acknowledged
+    model.apply_alarm(event(3, "cleared"))
+    [latched] = model.active_alarms
+    assert not latched.active and latched.acknowledged, "a cleared error stays listed until reset"
+    model.apply_alarm(event(4, "reset"))
+    assert model.active_alarms == []
+    assert rec.calls == {"alarms": 4, "history": 4}
+    model.apply_alarm(event(4, "reset"))  # a repeat changes nothing and calls nobody
+    assert rec.calls == {"alarms": 4, "history": 4}
+    assert [e.seq for e in model.history_view()] == [4, 3, 2, 1] and model.last_seq == 4
+
+
+def test_the_same_alarm_on_two_axes_is_two_alarms_and_info_messages_never_enter_the_list():
+    model = MachineModel("panel")
+    model.apply_alarm(event(1, "raised", detail="axis x"))
+    model.apply_alarm(event(2, "raised", detail="axis y"))
+    model.apply_alarm(event(3, "raised", code=37, level="info", id="wrong_mode", text="Wrong operation mode"))
+    assert [a.detail for a in model.active_alarms] == ["axis x", "axis y"]
+    model.apply_alarm(event(4, "cleared", detail="axis y"))
+    model.apply_alarm(event(5, "reset", detail="axis y"))
+    assert [a.detail for a in model.active_alarms] == ["axis x"]
+    prompt = ActiveAlarm(40, "press_button", "info", "Press the button", "", "logic", 6, 6, True, False)
+    model.apply_active(AlarmList([model.active_alarms[0], prompt], last_seq=6))
+    assert [a.code for a in model.active_alarms] == [10, 40]
+    model.apply_alarm(AlarmEvent(7, 7, 40, "press_button", "info", "cleared", "Press the button"))
+    assert [a.code for a in model.active_alarms] == [10], "an info prompt leaves the list when cleared"
+
+
+def test_history_view_filters_by_text_level_and_code_newest_first():
+    model = MachineModel("panel")
+    model.apply_history(HistoryPage([
+        event(1, "raised", detail="axis X 2.5 mm"),
+        event(2, "raised", code=37, level="info", id="wrong_mode", text="Wrong operation mode", detail="cycle start"),
+        event(3, "raised", code=50, level="warning", id="pump_pressure", text="Pump pressure low", detail="1200 bar"),
+    ], last_seq=3, more=False))
+    model.apply_alarm(event(3, "raised", code=50, level="warning"))  # already in the history: not twice
+    assert [e.seq for e in model.history_view()] == [3, 2, 1]
+    assert [e.seq for e in model.history_view(text="AXIS x")] == [1]
+    assert [e.seq for e in model.history_view(text="cycle")] == [2], "the detail is searched"
+    assert [e.seq for e in model.history_view(levels=["warning", "error"])] == [3, 1]
+    assert [e.seq for e in model.history_view(codes=[37, 50], text="bar")] == [3]
+    assert model.history_view(text="nothing like this") == []
+
+
+def test_segment_states_follow_the_position_and_the_status_program():
+    model = MachineModel("panel")
+    assert model.segment_states() == -1
+    model.apply_program(program(4))
+    model.apply_status(status(1, program=progress(-1, "NONE")))
+    assert model.segment_states() == -1, "before the first segment nothing is cut"
+    model.apply_status(status(2, program=progress(1)))
+    assert model.segment_states() == 1, "the status's segment while no position came"
+    model.apply_position(position(1, 2))
+    assert model.segment_states() == 2, "the 50 Hz position wins"
+    model.apply_position(position(2, -1))
+    model.apply_status(status(3, program=progress(-1, "DONE")))
+    assert model.segment_states() == 4, "a finished run: every segment is cut"
+    assert model.program.segments == 4 and model.program.name == "part.ngc" and model.program.text == "G1 X1\n"
+    assert not model.program_outdated
+    model.apply_status(status(4, program=progress(0, hash="h2")))
+    assert model.program_outdated, "the controller loaded another program"
+
+
+def test_read_only_unless_this_station_holds_the_lock():
+    model = MachineModel("panel")
+    rec = Recorder(model, "lock")
+    assert model.read_only and model.lock_holder == ""
+    model.apply_lock(LockState("other", 1, ["other", "panel"], 1))
+    assert model.read_only and model.lock_holder == "other" and model.stations == ["other", "panel"]
+    model.apply_lock(LockState("panel", 2, ["other", "panel"], 2))
+    assert not model.read_only and model.holds_lock
+    model.apply_status(status(1, operator="panel"))  # agrees: no callback
+    assert rec.calls["lock"] == 2
+    model.apply_status(status(2, operator=""))  # the status says the lock went (a lost lock message)
+    assert model.read_only and rec.calls["lock"] == 3
+
+
+def test_screen_follows_the_machine_state_and_callbacks_run_only_on_change():
+    model = MachineModel("panel")
+    rec = Recorder(model, "screen", "status", "connection")
+    assert model.screen is Screen.OFFLINE
+    model.set_reachable(True)
+    model.apply_status(status(1))
+    assert model.screen is Screen.MANUAL
+    model.apply_status(status(2))  # only the sequence and stamps moved
+    assert rec.calls["status"] == 1
+    model.apply_status(status(3, mode="AUTO"))
+    assert model.screen is Screen.AUTO
+    running = ProcedureState("transport", "Transport", "running", 0, [ProcedureStep("Press", "awaited")], "Press", 1)
+    model.apply_procedure(running)
+    assert model.screen is Screen.PROCEDURE
+    model.apply_status(status(4, mode="AUTO", machine_state="ESTOP"))
+    assert model.screen is Screen.FAULT, "a fault comes before the procedure"
+    model.set_reachable(False)
+    assert model.screen is Screen.OFFLINE
+    assert rec.calls == {"screen": 5, "status": 3, "connection": 2}  # manual, auto, procedure, fault, offline
+
+
+def test_travel_limits_come_from_the_machine_configuration_and_a_failing_view_does_not_stop_the_others():
+    config = SimpleNamespace(axis={"x": SimpleNamespace(travel_min_mm=0.0, travel_max_mm=3000.0),
+                                   "y": SimpleNamespace(travel_min_mm=-10.0, travel_max_mm=1500.0)})
+    model = MachineModel("panel", config)
+    assert model.travel_mm == {"x": (0.0, 3000.0), "y": (-10.0, 1500.0)}
+    assert machine_config().axis["x"].travel_max_mm > 0 and MachineModel("p", machine_config()).travel_mm
+    seen = []
+    model.subscribe("position", lambda: 1 / 0)
+    unsubscribe = model.subscribe("position", lambda: seen.append(model.position.segment))
+    model.apply_position(position(1, 3))
+    unsubscribe()
+    model.apply_position(position(2, 4))
+    assert seen == [3]
+    with pytest.raises(ValueError, match="not one of"):
+        model.subscribe("weather", lambda: None)
+
+
+# -- the connection to a real controller ---------------------------------------------------------
+
+
+def wait_for(predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.05)
+
+
+def start_controller(config, tmp_path) -> Supervisor:
+    sup = Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=FAST_PLANT)
+    sup.start()
+    return sup
+
+
+@pytest.fixture
+def controller(tmp_path):
+    config = machine_config(**NEAR_HOME)
+    with Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=FAST_PLANT) as sup:
+        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
+        yield sup
+
+
+def keys_of(config) -> Keys:
+    return Keys(config.zenoh.key_prefix, config.machine.name)
+
+
+def test_the_connection_catches_up_takes_the_lock_commands_and_follows_the_program(controller):
+    sup = controller
+    keys, endpoints = keys_of(sup.config), [sup.config.zenoh.listen[0]]
+    other_session = open_client(endpoints)
+    other = OperatorStation(other_session, keys, "other")
+    assert other.take_lock().ok
+    for _ in range(3):
+        assert not other.request(CycleStart()).ok  # refused in MANUAL: message 37, before the HMI connects
+    model = MachineModel("panel", sup.config)
+    with Connection(model, endpoints, keys, "panel") as conn:
+        wait_for(lambda: len(model.history_view(codes=[37])) == 3, 10.0, "the messages from before the connection")
+        wait_for(lambda: model.reachable and model.position is not None, 5.0, "status and position")
+        assert model.status.plc_link == "OK" and model.screen is Screen.MANUAL and model.error == ""
+        assert model.lock_holder == "other" and model.read_only
+        assert model.travel_mm["x"] == (sup.config.axis["x"].travel_min_mm, sup.config.axis["x"].travel_max_mm)
+        refused = conn.command(Reset())
+        assert not refused.ok and "read-only: station 'other' holds the command lock" in refused.reason
+        assert other.request(CycleStart()).ok is False
+        wait_for(lambda: len(model.history_view(codes=[37])) == 4, 5.0, "a live message")
+        assert [e.seq for e in model.history_view()] == list(range(model.last_seq, 0, -1)), "no entry missed"
+        assert other.release_lock().ok
+        assert conn.command(LockRequest(take=True)).ok
+        wait_for(lambda: model.holds_lock and not model.read_only, 5.0, "the lock in the model")
+        assert conn.command(Reset()).ok
+        assert conn.command(UploadProgram("part.ngc", PART)).ok
+        wait_for(lambda: model.program is not None and model.program.name == "part.ngc", 5.0, "the program")
+        assert model.program.segments == 6 and model.program.text == PART and model.segment_states() <= 0
+    assert not model.reachable
+    other.close()
+    other_session.close()
+
+
+def test_a_schema_version_mismatch_sets_a_clear_error_and_the_subscription_survives(controller):
+    sup = controller
+    keys, endpoints = keys_of(sup.config), [sup.config.zenoh.listen[0]]
+    model = MachineModel("panel")
+    with Connection(model, endpoints, keys, "panel"):
+        wait_for(lambda: model.reachable, 5.0, "the first status")
+        publisher = open_client(endpoints)
+        future = encode(ProcedureState("p", "P", "running", 0, [], "", 1)).replace(b'"version":1', b'"version":2')
+        publisher.put(keys.procedure, future)
+        wait_for(lambda: "schema version 2" in model.error, 5.0, "the error text")
+        assert "ProcedureState" in model.error and model.procedure is None
+        publisher.put(keys.procedure, encode(ProcedureState("p", "P", "running", 0, [], "", 2)))
+        wait_for(lambda: model.procedure is not None, 5.0, "the next readable procedure")
+        assert model.error == "", "a readable message on that key clears the error"
+        publisher.close()
+
+
+def test_unreachable_when_the_controller_stops_and_reachable_when_a_new_one_comes_up(tmp_path):
+    config = machine_config(**NEAR_HOME)
+    keys, endpoints = keys_of(config), [config.zenoh.listen[0]]
+    model = MachineModel("panel")
+    changes: list[bool] = []
+    model.subscribe("connection", lambda: changes.append(model.reachable))
+    sup = start_controller(config, tmp_path)
+    try:
+        with Connection(model, endpoints, keys, "panel"):
+            wait_for(lambda: model.reachable, 10.0, "the first controller")
+            sup.stop()
+            lost = time.monotonic()
+            wait_for(lambda: not model.reachable, 5.0, "the loss")
+            assert time.monotonic() - lost >= 1.0 and model.screen is Screen.OFFLINE
+            with AlarmHistory(tmp_path / "history.sqlite") as history:  # written while no controller runs:
+                history.append(stamp_ns=time.time_ns(), code=9999, id="offline_entry",  # no event will ever carry it
+                               level=AlarmLevel.WARNING, action=AlarmAction.RAISED, text="Written offline")
+            sup = start_controller(config, tmp_path)  # the same endpoint and history file
+            wait_for(lambda: model.reachable and model.status is not None, 20.0, "the new controller")
+            assert changes == [True, False, True]
+            assert model.screen is Screen.MANUAL
+            wait_for(lambda: model.history_view(codes=[9999]), 5.0, "the catch-up after the reconnect")
+            assert [e.seq for e in model.history_view()] == list(range(model.last_seq, 0, -1)), "no entry missed"
+            wait_for(lambda: 9999 in [a.code for a in model.active_alarms], 5.0, "the active list read again")
+    finally:
+        sup.stop()
