@@ -94,6 +94,8 @@ class Gateway:
                     drive_ready=bool(ain & AxisIn.DRIVE_READY),
                     drive_enabled=bool(ain & AxisIn.DRIVE_ENABLED),
                     homed=bool(sv["homed_mask"] >> i & 1),
+                    travel_min_mm=self.config.axes[i].travel_min_mm,
+                    travel_max_mm=self.config.axes[i].travel_max_mm,
                 )
             )
         self.seq += 1

@@ -134,6 +134,9 @@ class MachineModel:
             if self._status is None or _unstamped(self._status) != _unstamped(status):
                 changed.append("status")
             self._status = status
+            travel = {a.name: (a.travel_min_mm, a.travel_max_mm) for a in status.axes if a.travel_max_mm > a.travel_min_mm}
+            if travel and travel != self.travel_mm:
+                self.travel_mm = travel  # the controller's word on its travel replaces any local file's
             if status.operator != self._holder:
                 self._holder = status.operator
                 changed.append("lock")

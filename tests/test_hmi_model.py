@@ -228,11 +228,13 @@ def test_the_connection_catches_up_takes_the_lock_commands_and_follows_the_progr
     assert other.take_lock().ok
     for _ in range(3):
         assert not other.request(CycleStart()).ok  # refused in MANUAL: message 37, before the HMI connects
-    model = MachineModel("panel", sup.config)
+    model = MachineModel("panel")  # no machine file on the operator's host: the travel comes with the status
     with Connection(model, endpoints, keys, "panel") as conn:
         wait_for(lambda: len(model.history_view(codes=[37])) == 3, 10.0, "the messages from before the connection")
         wait_for(lambda: model.reachable and model.position is not None, 5.0, "status and position")
         assert model.status.plc_link == "OK" and model.screen is Screen.MANUAL and model.error == ""
+        x = sup.config.axis["x"]
+        assert model.travel_mm["x"] == (x.travel_min_mm, x.travel_max_mm)
         assert model.lock_holder == "other" and model.read_only
         assert model.travel_mm["x"] == (sup.config.axis["x"].travel_min_mm, sup.config.axis["x"].travel_max_mm)
         refused = conn.command(Reset())

@@ -29,6 +29,8 @@ class AxisStatus(msgspec.Struct, frozen=True):
     drive_ready: bool
     drive_enabled: bool
     homed: bool = False
+    travel_min_mm: float = 0.0  # the axis' travel (soft limits): a remote screen needs no machine file
+    travel_max_mm: float = 0.0
 
 
 class ProgramProgress(msgspec.Struct, frozen=True):
