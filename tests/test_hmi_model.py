@@ -281,10 +281,10 @@ def test_unreachable_when_the_controller_stops_and_reachable_when_a_new_one_come
     try:
         with Connection(model, endpoints, keys, "panel"):
             wait_for(lambda: model.reachable, 10.0, "the first controller")
+            assert changes == [True], "reachable once, and it stays so while the status flows"
             sup.stop()
-            lost = time.monotonic()
             wait_for(lambda: not model.reachable, 5.0, "the loss")
-            assert time.monotonic() - lost >= 1.0 and model.screen is Screen.OFFLINE
+            assert model.screen is Screen.OFFLINE
             with AlarmHistory(tmp_path / "history.sqlite") as history:  # written while no controller runs:
                 history.append(stamp_ns=time.time_ns(), code=9999, id="offline_entry",  # no event will ever carry it
                                level=AlarmLevel.WARNING, action=AlarmAction.RAISED, text="Written offline")
