@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import socket
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,37 @@ def machine_config(**overrides) -> MachineConfig:
     """The shipped machine on its own loopback port, the table switched on in the middle of its
     travel (tests have room to move either way), with optional dotted-key overrides."""
     return load_machine(MACHINE_FILE, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **overrides})
+
+
+# The whole controller with the PLC simulator: a plant that moves fast, the table switched on near
+# home (homing is short), and a slower PLC cycle: the virtual clock runs the controller flat out
+# on this 2-core machine while the serial link lives in wall time, and must not be starved.
+FAST_PLANT_TIMES = {"feed_s": 0.3, "gripper_s": 0.1, "unload_s": 0.3, "pneumatic_s": 0.1, "ramp_bar_s": 20000.0}
+NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0,
+             "plc.cycle_ms": 100.0, "plc.timeout_ms": 250.0}
+
+
+def fast_plant():
+    from plc_link.sim_model import PlantTimes
+
+    return PlantTimes(**FAST_PLANT_TIMES)
+
+
+@contextmanager
+def full_controller(config: MachineConfig, history_path: Path):
+    """Every controller process and the PLC simulator on the virtual clock, the PLC link up."""
+    from cnc.layout import LinkState
+
+    with Supervisor(config, clock="virtual", history_path=history_path, plc_sim_times=fast_plant()) as sup:
+        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
+        yield sup
+
+
+@pytest.fixture
+def plc_controller(tmp_path):
+    """The whole controller, PLC link and PLC simulator included, with a plant that moves fast."""
+    with full_controller(machine_config(**NEAR_HOME), tmp_path / "history.sqlite") as sup:
+        yield sup
 
 
 @pytest.fixture

@@ -17,13 +17,12 @@ from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.alarms.catalogue import AlarmAction, AlarmLevel
 from cnc.alarms.history import AlarmHistory
-from cnc.layout import LinkState
 from cnc.supervisor import Supervisor
 from hmi.connection import Connection
 from hmi.model import MachineModel, Screen
 
-from .conftest import machine_config
-from .test_zenoh_interface import FAST_PLANT, NEAR_HOME, PART
+from .conftest import NEAR_HOME, fast_plant, machine_config
+from .test_zenoh_interface import PART
 
 
 # -- hand-built messages -----------------------------------------------------------------------
@@ -203,17 +202,14 @@ def wait_for(predicate, timeout_s: float, what: str) -> None:
 
 
 def start_controller(config, tmp_path) -> Supervisor:
-    sup = Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=FAST_PLANT)
+    sup = Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=fast_plant())
     sup.start()
     return sup
 
 
 @pytest.fixture
-def controller(tmp_path):
-    config = machine_config(**NEAR_HOME)
-    with Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=FAST_PLANT) as sup:
-        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
-        yield sup
+def controller(plc_controller):
+    return plc_controller
 
 
 def keys_of(config) -> Keys:

@@ -19,15 +19,8 @@ from cnc.hw.board import DigitalOut
 from cnc.layout import LinkState, PlannerState, RunResult, ServoState
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.supervisor import Supervisor
-from plc_link.sim_model import PlantTimes
 
-from .conftest import machine_config
 
-FAST_PLANT = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.1, ramp_bar_s=20000.0)
-NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0,
-             # the virtual clock runs the controller flat out on this 2-core machine; the serial link
-             # lives in wall time: a slower cycle and a longer timeout keep it from being starved
-             "plc.cycle_ms": 100.0, "plc.timeout_ms": 250.0}
 PART = """(a part: pierce, a square with a rounded corner, jet off)
 G21 G90 G64 P0.05 F6000
 G0 X100 Y100
@@ -67,15 +60,6 @@ class Events:
     def close(self) -> None:
         for s in self.subs:
             s.undeclare()
-
-
-@pytest.fixture
-def plc_controller(tmp_path):
-    """The whole controller, PLC link and PLC simulator included, with a plant that moves fast."""
-    config = machine_config(**NEAR_HOME)
-    with Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=FAST_PLANT) as sup:
-        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
-        yield sup
 
 
 def logic(sup: Supervisor) -> dict:

@@ -23,8 +23,7 @@ from cnc.logic.states import CyclePhase, MachineState, Mode
 from cnc.supervisor import Supervisor
 from cnc.watch import AlarmFollower, History
 
-from .conftest import MACHINE_FILE, REPO, free_port, machine_config
-from .test_logic_process import FAST_PLANT
+from .conftest import MACHINE_FILE, REPO, free_port, full_controller, machine_config
 
 WRONG_MODE = 37  # "Wrong operation mode": a refused CycleStart in MANUAL stores one
 
@@ -47,8 +46,7 @@ def controller(tmp_path_factory):
     """The whole controller, PLC simulator included, shared by the tests that only observe it."""
     config = machine_config()
     history = tmp_path_factory.mktemp("watch") / "history.sqlite"
-    with Supervisor(config, clock="virtual", history_path=history, plc_sim_times=FAST_PLANT) as sup:
-        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
+    with full_controller(config, history) as sup:
         yield sup
 
 

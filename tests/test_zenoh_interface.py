@@ -18,15 +18,9 @@ from cnc.bus.session import open_client
 from cnc.layout import LinkState, PlannerState, RunResult
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.supervisor import Supervisor
-from plc_link.sim_model import PlantTimes
 
-from .conftest import machine_config
+from .conftest import NEAR_HOME, fast_plant, machine_config
 
-FAST_PLANT = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.1, ramp_bar_s=20000.0)
-NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0,
-             # the virtual clock runs the controller flat out on this 2-core machine; the serial link
-             # lives in wall time: a slower cycle and a longer timeout keep it from being starved
-             "plc.cycle_ms": 100.0, "plc.timeout_ms": 250.0}
 PART = """(square part)
 G21 G90 G64 P0.05 F6000
 G0 X100 Y100
@@ -42,11 +36,8 @@ M2
 
 
 @pytest.fixture
-def controller(tmp_path):
-    config = machine_config(**NEAR_HOME)
-    with Supervisor(config, clock="virtual", history_path=tmp_path / "history.sqlite", plc_sim_times=FAST_PLANT) as sup:
-        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
-        yield sup
+def controller(plc_controller):
+    return plc_controller
 
 
 @pytest.fixture
@@ -260,7 +251,7 @@ def test_with_access_control_only_authenticated_operators_command_the_running_co
     })
     keys = Keys(config.zenoh.key_prefix, config.machine.name)
     endpoint = [config.zenoh.listen[0]]
-    with Supervisor(config, clock="virtual", history_path=tmp_path / "h.sqlite", plc_sim_times=FAST_PLANT) as sup:
+    with Supervisor(config, clock="virtual", history_path=tmp_path / "h.sqlite", plc_sim_times=fast_plant()) as sup:
         sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
         with pytest.raises(Exception):
             open_client(endpoint)  # no credentials: refused at the door
