@@ -59,6 +59,22 @@ def full_controller(config: MachineConfig, history_path: Path):
         yield sup
 
 
+def logic(sup: Supervisor) -> dict:
+    """The control logic's block: mode, state, phase, cycles, procedure."""
+    return sup.area.reader("logic").read_dict()
+
+
+def press_button_when_asked(sup: Supervisor, until, timeout_s: float, what: str) -> None:
+    """Wait for `until()`, playing the operator at the transport station: press its button
+    whenever the transport procedure waits for it."""
+    def step() -> bool:
+        lo = logic(sup)
+        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
+            sup.plc_sim.press_button()
+        return until()
+    sup.wait_until(step, timeout_s, what)
+
+
 @pytest.fixture
 def plc_controller(tmp_path):
     """The whole controller, PLC link and PLC simulator included, with a plant that moves fast."""

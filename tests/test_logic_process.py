@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+
 import pytest
 
 from cnc.alarms import AlarmHistory
@@ -19,6 +20,8 @@ from cnc.hw.board import DigitalOut
 from cnc.layout import LinkState, PlannerState, RunResult, ServoState
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.supervisor import Supervisor
+
+from .conftest import logic, press_button_when_asked
 
 
 PART = """(a part: pierce, a square with a rounded corner, jet off)
@@ -62,10 +65,6 @@ class Events:
             s.undeclare()
 
 
-def logic(sup: Supervisor) -> dict:
-    return sup.area.reader("logic").read_dict()
-
-
 def command(sup: Supervisor, msg) -> str:
     """Ask the control logic; insist it accepts; returns the reply's remark."""
     reply = sup.logic.request(msg)
@@ -89,16 +88,6 @@ def ready_in_auto(sup: Supervisor, tmp_path, program: str | None = None) -> None
     path.write_text(program or PART)
     command(sup, LoadProgram(str(path)))
     command(sup, SetMode("AUTO"))
-
-
-def press_button_when_asked(sup: Supervisor, until, timeout_s: float, what: str) -> None:
-    """Play the operator at the transport station: press its button whenever the procedure waits for it."""
-    def step() -> bool:
-        lo = logic(sup)
-        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
-            sup.plc_sim.press_button()
-        return until()
-    sup.wait_until(step, timeout_s, what)
 
 
 def test_automatic_cycle_runs_transport_cutting_and_unload_for_the_cycles_asked(plc_controller, tmp_path):

@@ -19,7 +19,7 @@ from cnc.layout import LinkState, PlannerState, RunResult
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.supervisor import Supervisor
 
-from .conftest import NEAR_HOME, fast_plant, machine_config
+from .conftest import NEAR_HOME, fast_plant, logic, machine_config, press_button_when_asked
 
 PART = """(square part)
 G21 G90 G64 P0.05 F6000
@@ -56,10 +56,6 @@ def get(session, key: str, kind, timeout: float = 10.0):
     replies = list(session.get(key, timeout=timeout))
     assert replies and replies[0].ok is not None, replies[0].err.payload.to_string() if replies else f"no answer on {key}"
     return decode(replies[0].ok.payload.to_bytes(), kind)
-
-
-def logic(sup: Supervisor) -> dict:
-    return sup.area.reader("logic").read_dict()
 
 
 def test_only_the_station_holding_the_lock_commands_and_observers_are_refused(controller, session, keys):
@@ -164,13 +160,8 @@ def test_history_queries_filter_and_page_and_every_run_is_a_job(controller, sess
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
                    60.0, "homing")
     assert op.upload("part.ngc", PART).ok and op.request(SetMode("AUTO")).ok and op.request(CycleStart(1)).ok
-
-    def press() -> bool:
-        lo = logic(sup)
-        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
-            sup.plc_sim.press_button()
-        return lo["cycles_done"] == 1 and lo["phase"] == CyclePhase.NONE
-    sup.wait_until(press, 60.0, "one automatic cycle")
+    press_button_when_asked(sup, lambda: logic(sup)["cycles_done"] == 1 and logic(sup)["phase"] == CyclePhase.NONE,
+                            60.0, "one automatic cycle")
     wrong = get(session, f"{keys.alarms_history}?code=37", HistoryPage)
     assert [e.code for e in wrong.entries] == [37, 37, 37] and not wrong.more
     page1 = get(session, f"{keys.alarms_history}?level=info;limit=2", HistoryPage)
@@ -197,13 +188,8 @@ def test_losing_the_operator_station_during_a_cut_holds_the_feed(controller, key
                    60.0, "homing")
     long_cut = PART.replace("G1 X140\nG1 Y140\nG1 X100\nG1 Y100", "G1 X900\nG1 Y900\nG1 X100\nG1 Y100")
     assert op.upload("long.ngc", long_cut).ok and op.request(SetMode("AUTO")).ok and op.request(CycleStart(1)).ok
-
-    def cutting() -> bool:
-        lo = logic(sup)
-        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
-            sup.plc_sim.press_button()
-        return lo["phase"] == CyclePhase.CUTTING and sup.motion()["state"] == PlannerState.RUNNING
-    sup.wait_until(cutting, 60.0, "the cut")
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING
+                            and sup.motion()["state"] == PlannerState.RUNNING, 60.0, "the cut")
     hmi.close()  # the station's host goes away: its liveliness token with it
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.HOLD and sup.motion()["state"] == PlannerState.HELD,
                    20.0, "the feed hold")
