@@ -52,7 +52,6 @@ class Servo:
         self.out.load_current()
         self.hw = area.reader("hw")
         self.command = area.reader("command")
-        self.supervisor = area.reader("supervisor")
         self.motion = area.reader("motion")
         t = area.blocks["servo_timing"].array
         self.timing, self.hist = t, t[0]["hist"]
@@ -86,8 +85,11 @@ class Servo:
         cx = self.command.layout.index
         self._c_enable, self._c_reset = cx["servo_enable"], cx["reset_seq"]
         self._c_inhibit, self._c_force = cx["output_inhibit"], cx["output_force"]
-        sx = self.supervisor.layout.index
-        self._s_safe, self._s_trace = sx["safe_state"], sx["trace_enable"]
+        # the supervisor's safe state reaches the servo through the hardware image (the hardware
+        # server acts on it earlier in the same tick); tracing is one 4-byte read of its block
+        sup = area.blocks["supervisor"]
+        at = sup.offset + sup.layout.dtype.fields["trace_enable"][1]
+        self._trace_cell = sup.buf[at:at + 4].cast("I")
         mx = self.motion.layout.index
         self._m_ref = (mx["position_ref_seq"], mx["position_ref_mask"], mx["position_ref_counts"], mx["position_ref_mm"])
         # one 8-byte read per tick tells whether a reference waits; the block is read only then
@@ -106,7 +108,6 @@ class Servo:
         t0 = time.monotonic_ns()
         hw, _ = self.hw.read()
         cmd, _ = self.command.read()
-        sup, _ = self.supervisor.read()
         v, I, n = self.out.values, self._i, self.n
         tick = hw[self._h_tick]
         if not self.first and tick <= self.last_tick:
@@ -135,7 +136,7 @@ class Servo:
                 state = self._clear_fault(actual)
 
         if state != ServoState.FAULT:
-            fault = self._interlock(hw, cmd, sup)
+            fault = self._interlock(hw, cmd)
             if fault is not None:
                 self._trip(fault[0], fault[1], 0.0, tick)
                 state = ServoState.FAULT
@@ -162,7 +163,7 @@ class Servo:
         v[I["ticks_processed"]] += 1
         v[I["loop_ns"]] = time.monotonic_ns() - t0
         self.out.publish()
-        if sup[self._s_trace] and self.trace is not None:
+        if self._trace_cell[0] and self.trace is not None:
             self.trace.write(
                 tick, v[I["commanded_mm"]], actual, v[I["commanded_velocity_mm_s"]], v[I["speed_cmd_v"]],
                 v[I["setpoint_flags"]], v[I["setpoint_segment"]], v[I["setpoint_line"]], self.fifo.fill(),
@@ -257,14 +258,15 @@ class Servo:
     def close(self) -> None:
         """Let go of the views into shared memory (before the segment is closed)."""
         self._ref_seq_cell.release()
+        self._trace_cell.release()
 
-    def _interlock(self, hw: tuple, cmd: tuple, sup: tuple) -> tuple[ServoFault, int] | None:
+    def _interlock(self, hw: tuple, cmd: tuple) -> tuple[ServoFault, int] | None:
         """Conditions that trip the servo whatever it is doing."""
         if not hw[self._h_din] & DigitalIn.ESTOP_OK:
             return ServoFault.ESTOP, -1
         if hw[self._h_trip]:
             return ServoFault.WATCHDOG, -1
-        if sup[self._s_safe] or hw[self._h_safe]:
+        if hw[self._h_safe]:
             return ServoFault.SAFE_STATE, -1
         ain = hw[self._h_ain]
         for i in range(self.n):
