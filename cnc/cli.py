@@ -114,6 +114,12 @@ def build_parser() -> argparse.ArgumentParser:
     watch.add_arguments(watch_p)
     watch_p.set_defaults(func=watch.run)
 
+    hmi_p = sub.add_parser("hmi", help="the operator screen (Qt): connects to a controller over Zenoh")
+    from hmi import app as hmi_app
+
+    hmi_app.add_arguments(hmi_p)
+    hmi_p.set_defaults(func=hmi_app.run)
+
     demo = sub.add_parser("demo", help="run the simulated machine end to end and exit 0 when it behaved")
     _machine_arg(demo)
     demo.add_argument("--clock", choices=("realtime", "virtual"), default="realtime")

@@ -29,7 +29,8 @@ import zenoh
 from .alarms import AlarmHistory, AlarmLevel, HistoryError
 from .bus.keys import Keys
 from .bus.messages import (
-    LOGIC_COMMANDS, Hold, JobPage, LoadProgram, LockRequest, ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SchemaVersionError,
+    LOGIC_COMMANDS, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo,
+    ProgramPath, Reply, SchemaVersionError,
     UploadProgram, decode, encode,
 )
 from .config import MachineConfig
@@ -42,7 +43,7 @@ log = logging.getLogger(__name__)
 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}\Z")
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")  # tab, LF, FF, CR are text; the rest is not
-_QUERY_KEYS = ("history", "jobs", "program", "lock")
+_QUERY_KEYS = ("history", "jobs", "program", "lock", "procedures")
 
 
 def station_of(query: Any) -> str:
@@ -82,6 +83,7 @@ class Door:
             session.declare_queryable(keys.jobs_history, lambda q: self.queries.put(("jobs", q))),
             session.declare_queryable(keys.program, lambda q: self.queries.put(("program", q))),
             session.declare_queryable(keys.lock, lambda q: self.queries.put(("lock", q))),
+            session.declare_queryable(keys.procedures, lambda q: self.queries.put(("procedures", q))),
         ]
         self.lock_pub = session.declare_publisher(keys.lock, encoding=zenoh.Encoding.APPLICATION_JSON)
         self.stations = session.liveliness().declare_subscriber(keys.stations, self._on_station, history=True)
@@ -135,7 +137,7 @@ class Door:
         params = dict(query.selector.parameters)
         try:
             answer = {"history": self._history, "jobs": self._jobs, "program": self._program,
-                      "lock": lambda p: self.lock.state()}[what](params)
+                      "lock": lambda p: self.lock.state(), "procedures": self._procedures}[what](params)
         except (ValueError, KeyError, HistoryError) as exc:
             query.reply_err(zenoh.ZBytes(f"{what}: {exc}".encode()))
             query.drop()
@@ -228,6 +230,9 @@ class Door:
             lines=m["program_lines"], planned_s=m["planned_s"], text=text if want_text else "",
             path=program_path(program) if want_path and program is not None else None,
         )
+
+    def _procedures(self, _params: dict) -> ProcedureCatalogue:
+        return ProcedureCatalogue([ProcedureInfo(p.id, p.title, [s.text for s in p.step]) for p in self.config.procedure])
 
     # -- histories --------------------------------------------------------------------------
     def _history(self, params: dict) -> Any:

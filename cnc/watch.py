@@ -370,15 +370,12 @@ def _credentials(path: str | None) -> tuple[str, str] | None:
     """The first user:password of the file (the station's own login), or None."""
     if not path:
         return None
-    from .config import read_credentials
+    from .bus.access import station_login
 
     try:
-        users = read_credentials(Path(path))
-    except (OSError, ValueError) as exc:
-        raise WatchError(f"--credentials {path}: {exc}") from None
-    if not users:
-        raise WatchError(f"--credentials {path}: no user:password line")
-    return next(iter(users.items()))
+        return station_login(path)
+    except ValueError as exc:
+        raise WatchError(f"--credentials {exc}") from None
 
 
 def _machine_file(path: str) -> Path:

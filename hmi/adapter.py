@@ -25,6 +25,7 @@ class ModelAdapter(QObject):
     alarms = Signal()
     history = Signal()
     procedure = Signal()
+    catalogue = Signal()
     lock = Signal()
     program = Signal()
     connection = Signal()

@@ -12,8 +12,8 @@ import zenoh
 
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, Position, ProcedureState, ProgramInfo, Reply,
-    Status, decode,
+    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, Position, ProcedureCatalogue, ProcedureState, ProgramInfo,
+    Reply, Status, decode,
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
@@ -27,6 +27,7 @@ QUERY_TIMEOUT_S = 3.0  # how long a catch-up query may wait for its answer
 PAGE_SIZE = 500  # history entries per query (the controller caps a page at 1000)
 POLL_PERIOD_S = 0.1  # the worker's watchdog and catch-up period
 GAP_GRACE_S = 0.5  # a status may announce an entry before its event arrives: wait this long
+OPEN_RETRY_S = 1.0  # no router accepted the session: try again this often
 ACTIVE_RECHECK_S = 1.0  # a status whose alarm count differs from the model's re-reads the list this often
 
 _DECODE_ERRORS = (msgspec.ValidationError, msgspec.DecodeError)  # SchemaVersionError is a ValueError: below
@@ -62,6 +63,8 @@ class Connection:
         self._next_active_check = 0.0
         self._caught_up = False
         self._error_key: str | None = None  # the key whose unreadable message set the model's error
+        self.last_open_error = ""  # why the session could not be opened yet ("" when it is open)
+        self._next_open = 0.0
         self._stop = threading.Event()
         self._worker: threading.Thread | None = None
 
@@ -69,9 +72,22 @@ class Connection:
 
     def start(self) -> None:
         """Open the session, declare the station, subscribe, and start the worker. The first
-        status (or the next after a loss) triggers the catch-up; until then the model is offline."""
-        self.session = open_client(self.endpoints, self.credentials)
-        self.operator = OperatorStation(self.session, self.keys, self.station)
+        status (or the next after a loss) triggers the catch-up; until then the model is offline.
+        When no router answers yet (the HMI came up before the controller), the worker keeps
+        trying to open the session; meanwhile the model is offline and `last_open_error` says why."""
+        self._stop.clear()
+        self._try_open()
+        self._worker = threading.Thread(target=self._run, name=f"hmi-connection-{self.station}", daemon=True)
+        self._worker.start()
+
+    def _try_open(self) -> bool:
+        """Open the session and subscribe; False (and the reason kept) when no router accepts it."""
+        try:
+            session = open_client(self.endpoints, self.credentials)
+        except zenoh.ZError as exc:
+            self.last_open_error = f"cannot reach {', '.join(self.endpoints)}: {exc}"
+            return False
+        self.last_open_error = ""
         handlers: dict[str, tuple[type[msgspec.Struct], Callable[[msgspec.Struct], None]]] = {
             self.keys.status: (Status, self._on_status),
             self.keys.position: (Position, self.model.apply_position),
@@ -80,12 +96,11 @@ class Connection:
             self.keys.lock: (LockState, self.model.apply_lock),
         }
         self._subscribers = [
-            self.session.declare_subscriber(key, self._handler(key, kind, apply))
-            for key, (kind, apply) in handlers.items()
+            session.declare_subscriber(key, self._handler(key, kind, apply)) for key, (kind, apply) in handlers.items()
         ]
-        self._stop.clear()
-        self._worker = threading.Thread(target=self._run, name=f"hmi-connection-{self.station}", daemon=True)
-        self._worker.start()
+        self.operator = OperatorStation(session, self.keys, self.station)
+        self.session = session
+        return True
 
     def close(self) -> None:
         """Stop the worker, drop the subscriptions and the station's token, close the session."""
@@ -186,6 +201,11 @@ class Connection:
 
     def poll(self) -> None:
         """One round of the watchdog and the catch-up (the worker calls it every POLL_PERIOD_S)."""
+        if self.session is None:
+            if time.monotonic() >= self._next_open and not self._try_open():
+                self._next_open = time.monotonic() + OPEN_RETRY_S
+            if self.session is None:
+                return
         with self._lock:
             heard = self._last_status_at is not None and time.monotonic() - self._last_status_at < self.status_timeout_s
         if not heard:
@@ -203,12 +223,13 @@ class Connection:
 
     def catch_up(self) -> bool:
         """Read what the subscriptions may have missed: the history after the last entry seen, the
-        active alarms, the lock and the program. Returns whether every query answered."""
+        active alarms, the lock, the program and the procedure catalogue. Returns whether every query answered."""
         try:
             self._read_history()
             self._read(self.keys.alarms_active, AlarmList, self.model.apply_active)
             self._read(self.keys.lock, LockState, self.model.apply_lock)
             self._read(f"{self.keys.program}?path=1", ProgramInfo, self.model.apply_program)
+            self._read(self.keys.procedures, ProcedureCatalogue, self.model.apply_catalogue)
         except NoAnswer as exc:
             log.info("catch-up incomplete: %s", exc)
             return False

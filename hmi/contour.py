@@ -37,7 +37,7 @@ def _pens() -> dict[str, QPen]:
     """The styles per category. Rapids are faint and thin rather than dashed: a dashed cosmetic pen
     costs Qt a dash pattern per stroke, a third of the frame on a nesting program."""
     return {
-        CUT: _pen("#50705a"), CURRENT: _pen("#ffb000", 3.0), TO_CUT: _pen("#e8f4ff"),
+        CUT: _pen("#4caf50"), CURRENT: _pen("#ffb000", 3.0), TO_CUT: _pen("#e8f4ff"),
         RAPIDS: _pen("#4a5866"), TRAVEL: _pen("#c04040", 1.0, Qt.PenStyle.DashLine),
         HEAD: _pen("#ff40ff", 2.0),
     }

@@ -12,13 +12,14 @@ from typing import Protocol
 import msgspec
 
 from cnc.bus.messages import (
-    ActiveAlarm, AlarmEvent, AlarmList, HistoryPage, LockState, Position, ProcedureState, ProgramInfo, ProgramPath,
-    Status,
+    ActiveAlarm, AlarmEvent, AlarmList, HistoryPage, LockState, Position, ProcedureCatalogue, ProcedureInfo,
+    ProcedureState, ProgramInfo, ProgramPath, Status,
 )
 
 log = logging.getLogger(__name__)
 
-TOPICS = ("status", "position", "alarms", "history", "procedure", "lock", "program", "connection", "screen", "error")
+TOPICS = ("status", "position", "alarms", "history", "procedure", "catalogue", "lock", "program", "connection", "screen",
+          "error")
 HISTORY_KEPT = 20000  # entries of the message history held in memory (the oldest go first)
 LATCHED_LEVELS = ("warning", "error", "fatal")  # levels that stay listed, cleared, until reset (the alarm book's rule)
 
@@ -82,6 +83,7 @@ class MachineModel:
         self._active: dict[tuple[str, str], ActiveAlarm] = {}
         self._history: dict[int, AlarmEvent] = {}
         self._procedure: ProcedureState | None = None
+        self._catalogue: list[ProcedureInfo] = []
         self._holder = ""
         self._stations: list[str] = []
         self._program: LoadedProgram | None = None
@@ -206,6 +208,13 @@ class MachineModel:
             return ["procedure"] if old != procedure else []
         self._update(change)
 
+    def apply_catalogue(self, catalogue: ProcedureCatalogue) -> None:
+        """The guided procedures the operator may start."""
+        def change() -> list[str]:
+            old, self._catalogue = self._catalogue, list(catalogue.procedures)
+            return ["catalogue"] if old != self._catalogue else []
+        self._update(change)
+
     def apply_lock(self, lock: LockState) -> None:
         def change() -> list[str]:
             old = (self._holder, self._stations)
@@ -266,6 +275,11 @@ class MachineModel:
             return self._procedure
 
     @property
+    def catalogue(self) -> list[ProcedureInfo]:
+        with self._lock:
+            return list(self._catalogue)
+
+    @property
     def lock_holder(self) -> str:
         """The station holding the command lock ("" nobody)."""
         with self._lock:
@@ -322,15 +336,25 @@ class MachineModel:
             return Screen.OFFLINE
         if st.machine_state in ("FAULT", "ESTOP"):
             return Screen.FAULT
-        procedure = self._procedure
-        if (procedure is not None and procedure.id and procedure.state == "running") or st.procedure:
+        if self._procedure_shown(st):
             return Screen.PROCEDURE
         return Screen.AUTO if st.mode == "AUTO" else Screen.MANUAL
 
+    def _procedure_shown(self, st: Status) -> bool:
+        """A procedure takes the screen while it runs, and afterwards until the operator ends it,
+        unless the automatic cycle started it and carries on by itself once it is done."""
+        p = self._procedure
+        if p is None or not p.id:
+            return False
+        if p.state == "running":
+            return True
+        return bool(st.procedure) and not (p.by_cycle and p.state == "done")
+
     def segment_states(self) -> int:
         """The index of the segment being cut: [0, index) are cut, index is being cut, the rest
-        are to cut. -1 before the first segment; the segment count when the run ended DONE.
-        The latest position's segment is used (50 Hz), else the status's."""
+        are to cut. -1 before the first segment; the segment count once the run ended DONE and the
+        planner is idle (the position may still name the last segment). The latest position's
+        segment is used (50 Hz), else the status's."""
         with self._lock:
             segments = self._program.segments if self._program is not None else 0
             progress = self._status.program if self._status is not None else None
@@ -340,7 +364,8 @@ class MachineModel:
                 current = progress.segment
             else:
                 return -1
-            if current < 0 and progress is not None and progress.result == "DONE":
+            if progress is not None and progress.result == "DONE" and (
+                    current < 0 or self._status.planner_state == "IDLE"):
                 return segments
             return min(current, segments) if segments else current
 
@@ -360,3 +385,74 @@ class MachineModel:
             and (code_set is None or e.code in code_set)
             and (not needle or needle in f"{e.text}\n{e.detail}\n{e.id}\n{e.code}".lower())
         ]
+
+    # -- what the status panels derive --------------------------------------------------------
+
+    def plc_state(self) -> PlcState:
+        """The external PLC's automatic operation as the paper's screen names it: STOPPED (link
+        down or the PLC not in automatic operation), STARTED (automatic operation, idle) or
+        RUNNING (its transport sequence, or the automatic cycle, is under way)."""
+        with self._lock:
+            st = self._status
+            if st is None or st.plc_link != "OK" or not st.plc_inputs.get("plc_running", 0.0):
+                return PlcState.STOPPED
+            busy = st.plc_inputs.get("transport_step", 0.0) > 0 or st.cycle_phase not in ("NONE", "PROCEDURE")
+            return PlcState.RUNNING if busy else PlcState.STARTED
+
+    def needs_reset(self) -> bool:
+        """A fault waits for the operator's reset: the machine is in FAULT or ESTOP, the servo
+        tripped, or an alarm is latched (its condition gone, the reset still owed)."""
+        with self._lock:
+            st = self._status
+            if st is not None and (st.machine_state in ("FAULT", "ESTOP") or st.fault != "NONE"):
+                return True
+            return any(a.level in LATCHED_LEVELS for a in self._active.values())
+
+    def faults(self) -> list[str]:
+        """What is wrong right now, one line each: the conditions the status shows (e-stop, doors,
+        servo fault, drives, limits, PLC link and alarms, pump) and the error alarms still active.
+        Unlike the alarm list, a fault leaves this list as soon as its cause is gone."""
+        with self._lock:
+            st = self._status
+            found: list[str] = []
+            if st is not None:
+                found += _status_faults(st)
+            found += [f"{a.code} {a.text}" + (f": {a.detail}" if a.detail else "")
+                      for a in sorted(self._active.values(), key=lambda a: a.raised_seq)
+                      if a.active and a.level in ("error", "fatal")]
+            return found
+
+
+class PlcState(enum.Enum):
+    """The external PLC's automatic operation (the paper's PLC state field)."""
+
+    STOPPED = "stopped"
+    STARTED = "started"
+    RUNNING = "running"
+
+
+def _status_faults(st: Status) -> list[str]:
+    found = []
+    if not st.estop_ok:
+        found.append("Emergency stop pressed (or the safety circuit is open)")
+    if not st.doors_closed:
+        found.append("Safety door open")
+    if st.fault != "NONE":
+        found.append(f"Servo fault {st.fault}" + (f" on axis {st.fault_axis.upper()}" if st.fault_axis else ""))
+    if st.watchdog_tripped:
+        found.append("Drive watchdog tripped")
+    for a in st.axes:
+        if not a.drive_ready:
+            found.append(f"Axis {a.name.upper()}: drive not ready")
+        if a.limit_min or a.limit_max:
+            found.append(f"Axis {a.name.upper()}: {'minimum' if a.limit_min else 'maximum'} limit switch")
+    if st.plc_link != "OK":
+        found.append(f"PLC link {st.plc_link}")
+    else:
+        if st.plc_inputs.get("plc_alarm", 0.0):
+            found.append(f"PLC alarm {int(st.plc_inputs['plc_alarm'])}")
+        if st.plc_inputs.get("pump_fault", 0.0):
+            found.append("High-pressure pump fault")
+        if "safety_circuit_ok" in st.plc_inputs and not st.plc_inputs["safety_circuit_ok"]:
+            found.append("Safety circuit open (PLC)")
+    return found

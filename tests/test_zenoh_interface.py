@@ -10,8 +10,8 @@ import pytest
 
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, CycleStart, HistoryPage, Home, JobPage, LockState, Position, ProgramInfo, Reset, SetMode,
-    Status, decode,
+    AlarmEvent, AlarmList, CycleStart, HistoryPage, Home, JobPage, LockState, Position, ProcedureCatalogue, ProgramInfo, Reset,
+    SetMode, Status, decode,
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
@@ -145,6 +145,10 @@ def test_position_stream_and_status_carry_what_the_operator_sees(controller, ses
     stamps = [p.stamp_ns for p in positions[-20:]]
     rate = (len(stamps) - 1) / ((stamps[-1] - stamps[0]) / 1e9)
     assert 0.5 * sup.config.gateway.position_rate_hz < rate < 1.5 * sup.config.gateway.position_rate_hz
+    catalogue = get(session, keys.procedures, ProcedureCatalogue)
+    assert [p.id for p in catalogue.procedures] == [p.id for p in sup.config.procedure]
+    transport = catalogue.procedures[0]
+    assert transport.title == "TRANSPORT PHASE" and transport.steps[-1] == "Button pressed"
     for s in subs:
         s.undeclare()
     op.close()

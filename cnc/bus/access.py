@@ -6,8 +6,8 @@ being established) and the router applies access-control rules per message kind,
 key expression. Everything is denied unless a rule allows it:
 
 - the controller user may do everything;
-- observers may subscribe to status, position, events and the procedure, query the alarms, the
-  job history and the loaded program, and declare liveliness tokens and liveliness subscribers
+- observers may subscribe to status, position, events, the procedure and the lock, query the
+  alarms, the job history, the loaded program, the lock and the procedure catalogue, and declare liveliness tokens and liveliness subscribers
   under `alive/**` and `hmi/**`;
 - operators may do what observers may, plus query `cmd/**` and put/query `program/**`.
 
@@ -52,8 +52,8 @@ ALL_MESSAGES = (
 )
 
 # Key groups, relative to the machine root `<prefix>/<machine>`.
-WATCH_KEYS = ("status", "position", "event/**", "procedure")  # subscribed to
-READ_KEYS = ("alarms/**", "jobs/**", "program")  # queried, read-only
+WATCH_KEYS = ("status", "position", "event/**", "procedure", "lock")  # subscribed to
+READ_KEYS = ("alarms/**", "jobs/**", "program", "lock", "procedures")  # queried, read-only
 ALIVE_KEYS = ("alive/**", "hmi/**")  # liveliness of controller processes and stations
 COMMAND_KEYS = ("cmd/**",)  # operators only
 UPLOAD_KEYS = ("program/**",)  # operators only
@@ -193,3 +193,14 @@ def _write_dictionary(cfg: MachineConfig, users: dict[str, str]) -> Path:
         f.writelines(f"{user}:{users[user]}\n" for user in named)
     return Path(name)
 
+
+def station_login(path: str | Path) -> tuple[str, str]:
+    """The (user, password) an observer or operator station logs in with: the first user:password
+    line of its credentials file. ValueError names the file and what is wrong."""
+    try:
+        users = read_credentials(Path(path))  # its ValueError names the file and the line
+    except OSError as exc:
+        raise ValueError(f"{path}: {exc.strerror or exc}") from None
+    if not users:
+        raise ValueError(f"{path}: no user:password line")
+    return next(iter(users.items()))

@@ -41,6 +41,11 @@ class Keys:
         return f"{self.root}/procedure"
 
     @property
+    def procedures(self) -> str:
+        """The catalogue of guided procedures (queryable)."""
+        return f"{self.root}/procedures"
+
+    @property
     def alarms_active(self) -> str:
         return f"{self.root}/alarms/active"
 

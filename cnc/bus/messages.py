@@ -263,6 +263,22 @@ class ProcedureState(msgspec.Struct, frozen=True):
     steps: list[ProcedureStep]
     instruction: str  # what the operator must do now
     seq: int  # +1 at every change
+    by_cycle: bool = False  # the automatic cycle started it and goes on by itself once it is done
+    version: int = SCHEMA_VERSION
+
+
+class ProcedureInfo(msgspec.Struct, frozen=True):
+    """One guided procedure of the machine file, as an operator screen offers it."""
+
+    id: str
+    title: str
+    steps: list[str]  # the steps' texts, in order
+
+
+class ProcedureCatalogue(msgspec.Struct, frozen=True):
+    """The guided procedures an operator may start (`<root>/procedures`, queryable)."""
+
+    procedures: list[ProcedureInfo]
     version: int = SCHEMA_VERSION
 
 

@@ -69,6 +69,7 @@ class ProcedureRunner:
         self._last_run: dict[str, list[str]] = {}  # step states of each procedure's last run
         self._completed: dict[str, bool] = {}
         self._proc: ProcedureConfig | None = None  # the procedure in the window
+        self._by_cycle = False  # the automatic cycle opened the window
         self._status = IDLE
         self._step_states: list[str] = []
         self._awaited = -1
@@ -120,8 +121,9 @@ class ProcedureRunner:
 
     # -- commands --------------------------------------------------------------------------
 
-    def start(self, procedure_id: str) -> None:
-        """Open the window on this procedure, its first step awaited."""
+    def start(self, procedure_id: str, by_cycle: bool = False) -> None:
+        """Open the window on this procedure, its first step awaited (`by_cycle`: the automatic
+        cycle asked for it, and goes on by itself once it is done)."""
         self._known(procedure_id)
         if self.running:
             assert self._proc is not None
@@ -130,6 +132,7 @@ class ProcedureRunner:
                 raise ProcedureRefused(f"{running} is already running")
             raise ProcedureRefused(f"cannot start procedure {procedure_id!r}: {running} is running; stop it first")
         self._proc = self._procedures[procedure_id]
+        self._by_cycle = by_cycle
         self._step_states = [PENDING] * len(self._steps[procedure_id])
         self._last_run[procedure_id] = self._step_states
         self._completed[procedure_id] = False
@@ -264,7 +267,7 @@ class ProcedureRunner:
             instruction = cfg.instruction or cfg.text
         return ProcedureState(
             id=self._proc.id, title=self._proc.title, state=self._status, step=self._awaited,
-            steps=steps, instruction=instruction, seq=self._seq,
+            steps=steps, instruction=instruction, seq=self._seq, by_cycle=self._by_cycle,
         )
 
 

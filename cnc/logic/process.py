@@ -414,7 +414,7 @@ class Logic:
         try:
             if self.procedures.running:
                 self.procedures.stop()
-            self.procedures.start(procedure_id)
+            self.procedures.start(procedure_id, by_cycle=True)
         except ProcedureRefused as exc:
             return str(exc)
         self._publish_procedure()

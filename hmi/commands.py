@@ -1,0 +1,90 @@
+"""Operator commands sent off the GUI thread, in order, with each answer reported back on the GUI thread.
+
+A command is a round trip to the controller (the gateway checks the lock, the control logic
+answers ok or refused with the reason): the screen must never freeze on it. One worker thread
+sends the commands in the order the operator gave them, so a jog's stop can never overtake
+its start.
+"""
+
+from __future__ import annotations
+
+import logging
+from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
+
+import msgspec
+from PySide6.QtCore import QObject, Qt, Signal, Slot
+from PySide6.QtWidgets import QWidget
+
+from cnc.bus.messages import Reply
+
+if TYPE_CHECKING:
+    from .adapter import ModelAdapter
+
+log = logging.getLogger(__name__)
+
+
+class CommandSink(Protocol):
+    """What sends one command and waits for its answer (`hmi.connection.Connection` fits)."""
+
+    def command(self, msg: msgspec.Struct) -> Reply: ...
+
+
+def describe(msg: msgspec.Struct) -> str:
+    """A short label of a command for the operator: its type and the fields that say what it does."""
+    fields = {f: getattr(msg, f) for f in msg.__struct_fields__ if f not in ("version", "text")}
+    args = ", ".join(f"{k}={v}" for k, v in fields.items() if v not in (None, [], {}))
+    return f"{type(msg).__name__}({args})" if args else type(msg).__name__
+
+
+class CommandRunner(QObject):
+    """`send(msg)` queues a command; `replied(label, reply)` follows on the GUI thread."""
+
+    replied = Signal(str, object)  # label, Reply
+    _done = Signal(str, object)  # from the worker thread
+
+    def __init__(self, sink: CommandSink, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self.sink = sink
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hmi-command")
+        self._done.connect(self._on_done, Qt.ConnectionType.QueuedConnection)
+        self.last: tuple[str, Reply] | None = None  # the latest answer, for the status line and tests
+
+    def send(self, msg: msgspec.Struct, label: str | None = None) -> Future:
+        """Queue `msg`; the returned future resolves to its Reply (never raises)."""
+        text = label or describe(msg)
+        return self._executor.submit(self._run, msg, text)
+
+    def _run(self, msg: msgspec.Struct, label: str) -> Reply:
+        try:
+            reply = self.sink.command(msg)
+        except Exception as exc:  # a bug or a dead session: logged, and the operator sees it refused
+            log.exception("command %s failed", label)
+            reply = Reply(False, f"{label}: not sent: {exc}")
+        self._done.emit(label, reply)
+        return reply
+
+    @Slot(str, object)
+    def _on_done(self, label: str, reply: Reply) -> None:
+        self.last = (label, reply)
+        self.replied.emit(label, reply)
+
+    def close(self) -> None:
+        """Send what is queued, then stop the worker."""
+        self._executor.shutdown(wait=True)
+
+
+def enable_while_commanding(adapter: ModelAdapter, widgets: list[QWidget], extra: Callable[[], bool] | None = None
+                            ) -> Callable[[], None]:
+    """Keep `widgets` enabled only while this station holds the lock on a reachable controller (and
+    `extra()` allows); returns the refresh function, connected to the lock and connection signals."""
+    def refresh() -> None:
+        m = adapter.model
+        can = m.holds_lock and m.reachable and (extra is None or extra())
+        for w in widgets:
+            w.setEnabled(can)
+    adapter.lock.connect(refresh)
+    adapter.connection.connect(refresh)
+    refresh()
+    return refresh

@@ -1,0 +1,336 @@
+"""The operator's controls: the command bar every page shares (lock, mode, reset, stop, feed
+override, history), the manual page (jog by buttons and keyboard, home, drives, pump, jet test,
+go to, guided procedures) and the automatic page (program, cycle start, feed hold, resume, stop).
+
+Every control sends a typed command through the `CommandRunner` and works only while this
+station holds the command lock on a reachable controller; otherwise the controls are shown
+greyed (read-only). The controller has the last word: a refusal comes back with its reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from PySide6.QtCore import QEvent, QObject, Qt, QTimer, Signal
+from PySide6.QtGui import QKeyEvent
+from PySide6.QtWidgets import (
+    QButtonGroup, QComboBox, QDoubleSpinBox, QFormLayout, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
+    QSlider, QSpinBox, QVBoxLayout, QWidget,
+)
+
+from cnc.bus.messages import (
+    CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogStop, LockRequest, Override, ProcedureStart, Pump, Reset,
+    Resume, SetMode, Stop,
+)
+
+from .adapter import ModelAdapter
+from .commands import CommandRunner, enable_while_commanding
+from .program import ProgramPanel
+
+JOG_STEPS_MM = (None, 0.01, 0.1, 1.0, 10.0, 100.0)  # None: continuous while held
+JOG_KEYS = {Qt.Key.Key_Left: ("x", -1), Qt.Key.Key_Right: ("x", 1), Qt.Key.Key_Down: ("y", -1), Qt.Key.Key_Up: ("y", 1)}
+OVERRIDE_SEND_DELAY_MS = 120  # the slider sends its value after this pause (not a command per pixel)
+
+
+def _button(text: str, tip: str = "", checkable: bool = False) -> QPushButton:
+    b = QPushButton(text)
+    b.setToolTip(tip)
+    b.setCheckable(checkable)
+    return b
+
+
+class CommandBar(QWidget):
+    """Lock, mode, reset, stop, feed override and the history window: on every page."""
+
+    history_requested = Signal()
+
+    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.model, self.commands = adapter.model, commands
+        self.lock_button = _button("Take command lock", "Become the station that commands the machine")
+        self.lock_button.clicked.connect(self._toggle_lock)
+        self.lock_label = QLabel()
+        self.manual = _button("MANUAL", "Manual mode: jog, home, pump and jet by hand", checkable=True)
+        self.auto = _button("AUTO", "Automatic mode: the automatic cycle", checkable=True)
+        modes = QButtonGroup(self)
+        modes.setExclusive(True)
+        modes.addButton(self.manual)
+        modes.addButton(self.auto)
+        self.manual.clicked.connect(lambda: self.commands.send(SetMode("MANUAL")))
+        self.auto.clicked.connect(lambda: self.commands.send(SetMode("AUTO")))
+        self.reset = _button("Reset", "Reset the faults whose cause has gone and switch the drives on")
+        self.reset.clicked.connect(lambda: self.commands.send(Reset()))
+        self.stop = _button("STOP", "Stop the motion and the cycle (Esc)")
+        self.stop.setStyleSheet("QPushButton { background: #c62828; color: white; font-weight: bold; }"
+                                "QPushButton:disabled { background: #d9a0a0; }")
+        self.stop.clicked.connect(lambda: self.commands.send(Stop()))
+        self.override = QSlider(Qt.Orientation.Horizontal)
+        self.override.setRange(0, 200)
+        self.override.setValue(100)
+        self.override.setPageStep(10)
+        self.override.setMinimumWidth(160)
+        self.override_label = QLabel("100 %")
+        self._override_timer = QTimer(self)
+        self._override_timer.setSingleShot(True)
+        self._override_timer.setInterval(OVERRIDE_SEND_DELAY_MS)
+        self._override_timer.timeout.connect(self._send_override)
+        self.override.valueChanged.connect(self._override_moved)
+        self.history = _button("Message history…")
+        self.history.clicked.connect(self.history_requested)
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(4, 2, 4, 2)
+        for w in (self.lock_button, self.lock_label):
+            layout.addWidget(w)
+        layout.addSpacing(16)
+        for w in (self.manual, self.auto, self.reset, self.stop):
+            layout.addWidget(w)
+        layout.addSpacing(16)
+        layout.addWidget(QLabel("Feed override"))
+        layout.addWidget(self.override)
+        layout.addWidget(self.override_label)
+        layout.addStretch(1)
+        layout.addWidget(self.history)
+        enable_while_commanding(adapter, [self.manual, self.auto, self.reset, self.stop, self.override])
+        for signal in (adapter.lock, adapter.connection):
+            signal.connect(self._show_lock)
+        adapter.status.connect(self._show_status)
+        self._show_lock()
+        self._show_status()
+
+    def _toggle_lock(self) -> None:
+        self.commands.send(LockRequest(take=not self.model.holds_lock))
+
+    def _show_lock(self) -> None:
+        m = self.model
+        self.lock_button.setEnabled(m.reachable)
+        self.lock_button.setText("Release command lock" if m.holds_lock else "Take command lock")
+        holder = m.lock_holder
+        text = ("this station commands" if m.holds_lock else
+                f"read-only: {holder} commands" if holder else "read-only: no station commands")
+        self.lock_label.setText(f"Station {m.station}: {text}")
+
+    def _show_status(self) -> None:
+        st = self.model.status
+        if st is None:
+            return
+        self.manual.setChecked(st.mode == "MANUAL")
+        self.auto.setChecked(st.mode == "AUTO")
+        if not self.override.isSliderDown() and not self._override_timer.isActive():
+            self.override.blockSignals(True)
+            self.override.setValue(int(round(st.feed_override * 100)))
+            self.override.blockSignals(False)
+            self.override_label.setText(f"{self.override.value()} %")
+
+    def _override_moved(self, value: int) -> None:
+        self.override_label.setText(f"{value} %")
+        self._override_timer.start()
+
+    def _send_override(self) -> None:
+        self.commands.send(Override(float(self.override.value())))
+
+
+class JogPad(QGroupBox):
+    """Jog buttons (held: continuous; or a step per click) and the arrow keys (`key_event`)."""
+
+    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, parent: QWidget | None = None) -> None:
+        super().__init__("Jog (arrow keys)", parent)
+        self.model, self.commands = adapter.model, commands
+        self.step = QComboBox()
+        for mm in JOG_STEPS_MM:
+            self.step.addItem("continuous" if mm is None else f"{mm:g} mm", mm)
+        self.speed = QSpinBox()
+        self.speed.setRange(60, 60000)
+        self.speed.setSingleStep(600)
+        self.speed.setValue(3000)
+        self.speed.setSuffix(" mm/min")
+        grid = QGridLayout()
+        self.buttons: dict[tuple[str, int], QPushButton] = {}
+        for (axis, sign), (row, col) in {("y", 1): (0, 1), ("x", -1): (1, 0), ("x", 1): (1, 2), ("y", -1): (2, 1)}.items():
+            b = _button(f"{axis.upper()}{'+' if sign > 0 else '−'}")
+            b.setAutoRepeat(False)
+            b.pressed.connect(lambda a=axis, s=sign: self.start(a, s))
+            b.released.connect(lambda a=axis, s=sign: self.release(a, s))
+            grid.addWidget(b, row, col)
+            self.buttons[(axis, sign)] = b
+        form = QFormLayout()
+        form.addRow("Step", self.step)
+        form.addRow("Speed", self.speed)
+        layout = QHBoxLayout(self)
+        layout.addLayout(grid)
+        layout.addLayout(form)
+        self._jogging: tuple[str, int] | None = None
+        enable_while_commanding(adapter, [*self.buttons.values()])
+
+    def start(self, axis: str, sign: int) -> None:
+        """Begin a jog of `axis` in direction `sign`: continuous until `release`, or one step."""
+        if not (self.model.holds_lock and self.model.reachable):
+            return
+        speed = self.speed.value() / 60.0
+        step = self.step.currentData()
+        if step is None:
+            self._jogging = (axis, sign)
+            self.commands.send(Jog(axis, velocity_mm_s=sign * speed))
+        else:
+            self.commands.send(Jog(axis, velocity_mm_s=speed, distance_mm=sign * step))
+
+    def release(self, axis: str, sign: int) -> None:
+        """End a continuous jog (a step ends by itself)."""
+        if self._jogging == (axis, sign):
+            self._jogging = None
+            self.commands.send(JogStop())
+
+    def stop_all(self) -> None:
+        """The window lost the keyboard or the page changed: a held jog must not run on."""
+        if self._jogging is not None:
+            self._jogging = None
+            self.commands.send(JogStop())
+
+    def key_event(self, event: QKeyEvent) -> bool:
+        """Arrow keys jog (press starts, release ends); True when the key was a jog key."""
+        target = JOG_KEYS.get(Qt.Key(event.key()))
+        if target is None:
+            return False
+        if not event.isAutoRepeat():
+            if event.type() == QEvent.Type.KeyPress:
+                self.start(*target)
+            else:
+                self.release(*target)
+        return True
+
+
+class ManualPage(QWidget):
+    """MANUAL mode: jog, home, drives, pump, jet test, go to a position, start a guided procedure."""
+
+    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.model, self.commands = adapter.model, commands
+        self.jog = JogPad(adapter, commands)
+        send = self.commands.send
+        self.home_all = _button("Home all axes")
+        self.home_all.clicked.connect(lambda: send(Home()))
+        self.home_x = _button("Home X")
+        self.home_x.clicked.connect(lambda: send(Home(["x"])))
+        self.home_y = _button("Home Y")
+        self.home_y.clicked.connect(lambda: send(Home(["y"])))
+        self.drives_on = _button("Drives on")
+        self.drives_on.clicked.connect(lambda: send(Drives(True)))
+        self.drives_off = _button("Drives off")
+        self.drives_off.clicked.connect(lambda: send(Drives(False)))
+        self.pump_on = _button("Pump on")
+        self.pump_on.clicked.connect(lambda: send(Pump(True)))
+        self.pump_off = _button("Pump off")
+        self.pump_off.clicked.connect(lambda: send(Pump(False)))
+        self.jet_on = _button("Jet test on", "Open the jet at standstill (pump at pressure)")
+        self.jet_on.clicked.connect(lambda: send(JetTest(True)))
+        self.jet_off = _button("Jet test off")
+        self.jet_off.clicked.connect(lambda: send(JetTest(False)))
+        self.goto_x, self.goto_y = self._coordinate(), self._coordinate()
+        self.goto = _button("Go to")
+        self.goto.clicked.connect(lambda: send(GoTo({"x": self.goto_x.value(), "y": self.goto_y.value()})))
+        self.procedures = QComboBox()
+        self.procedure_start = _button("Start procedure")
+        self.procedure_start.clicked.connect(self._start_procedure)
+
+        machine = QGroupBox("Machine")
+        grid = QGridLayout(machine)
+        for k, w in enumerate((self.home_all, self.home_x, self.home_y, self.drives_on, self.drives_off,
+                               self.pump_on, self.pump_off, self.jet_on, self.jet_off)):
+            grid.addWidget(w, k // 3, k % 3)
+        move = QGroupBox("Go to position (mm)")
+        row = QHBoxLayout(move)
+        for label, w in (("X", self.goto_x), ("Y", self.goto_y)):
+            row.addWidget(QLabel(label))
+            row.addWidget(w)
+        row.addWidget(self.goto)
+        guided = QGroupBox("Guided procedures")
+        g = QHBoxLayout(guided)
+        g.addWidget(self.procedures, 1)
+        g.addWidget(self.procedure_start)
+        right = QVBoxLayout()
+        right.addWidget(machine)
+        right.addWidget(move)
+        right.addWidget(guided)
+        right.addStretch(1)
+        layout = QHBoxLayout(self)
+        layout.addWidget(self.jog)
+        layout.addLayout(right, 1)
+        adapter.catalogue.connect(self._fill_procedures)
+        self._fill_procedures()
+        enable_while_commanding(adapter, [
+            self.home_all, self.home_x, self.home_y, self.drives_on, self.drives_off, self.pump_on, self.pump_off,
+            self.jet_on, self.jet_off, self.goto, self.procedure_start,
+        ])
+
+    @staticmethod
+    def _coordinate() -> QDoubleSpinBox:
+        box = QDoubleSpinBox()
+        box.setRange(-100000.0, 100000.0)
+        box.setDecimals(3)
+        box.setSuffix(" mm")
+        return box
+
+    def _fill_procedures(self) -> None:
+        self.procedures.clear()
+        for p in self.model.catalogue:
+            self.procedures.addItem(f"{p.title} ({len(p.steps)} steps)", p.id)
+
+    def _start_procedure(self) -> None:
+        procedure = self.procedures.currentData()
+        if procedure:
+            self.commands.send(ProcedureStart(procedure))
+
+
+class AutoPage(QWidget):
+    """AUTO mode: the program (load, text, block being cut) and the cycle's buttons."""
+
+    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.model, self.commands = adapter.model, commands
+        self.program = ProgramPanel(adapter, commands)
+        self.cycles = QSpinBox()
+        self.cycles.setRange(0, 9999)
+        self.cycles.setValue(1)
+        self.cycles.setSpecialValueText("until stopped")
+        self.cycle_start = _button("Cycle start")
+        self.cycle_start.setStyleSheet("QPushButton { background: #2e7d32; color: white; font-weight: bold; }"
+                                       "QPushButton:disabled { background: #9fc5a1; }")
+        self.cycle_start.clicked.connect(lambda: self.commands.send(CycleStart(self.cycles.value())))
+        self.hold = _button("Feed hold")
+        self.hold.clicked.connect(lambda: self.commands.send(Hold()))
+        self.resume = _button("Resume")
+        self.resume.clicked.connect(lambda: self.commands.send(Resume()))
+        self.stop = _button("Stop cycle")
+        self.stop.clicked.connect(lambda: self.commands.send(Stop()))
+        cycle = QGroupBox("Automatic cycle")
+        buttons = QVBoxLayout(cycle)
+        row = QHBoxLayout()
+        row.addWidget(QLabel("Cycles"))
+        row.addWidget(self.cycles)
+        buttons.addLayout(row)
+        for b in (self.cycle_start, self.hold, self.resume, self.stop):
+            b.setMinimumHeight(34)
+            buttons.addWidget(b)
+        buttons.addStretch(1)
+        layout = QHBoxLayout(self)
+        layout.addWidget(self.program, 1)
+        layout.addWidget(cycle)
+        enable_while_commanding(adapter, [self.cycle_start, self.hold, self.resume, self.stop])
+
+
+class KeyJog(QObject):
+    """An application-wide key filter: the arrow keys jog with the pad `pad()` names (None: the
+    keys are not for jogging now); the window losing focus stops a held jog on every pad."""
+
+    def __init__(self, pad: Callable[[], JogPad | None], pads: list[JogPad], parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self.pad, self.pads = pad, pads
+
+    def eventFilter(self, watched: QObject, event: QEvent) -> bool:  # noqa: N802 - Qt's override
+        kind = event.type()
+        if kind in (QEvent.Type.KeyPress, QEvent.Type.KeyRelease):
+            pad = self.pad()
+            return pad is not None and pad.key_event(event)
+        if kind == QEvent.Type.WindowDeactivate:
+            for pad in self.pads:
+                pad.stop_all()
+        return False

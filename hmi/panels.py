@@ -1,0 +1,227 @@
+"""The status panels: everything the paper's operator screen shows about the machine, live.
+
+Operation and execution mode, homed; feed commanded, actual and override; axis positions and
+status; the program's block, name, status, progress and ETA; jet; the PLC's automatic operation;
+the auxiliary devices (high-pressure pump and its pressure, mains, safety circuit); emergency
+stop, network alive, the reset a fault waits for. Each panel reads the model when the adapter
+says its topic changed.
+"""
+
+from __future__ import annotations
+
+from PySide6.QtWidgets import (
+    QFormLayout, QGridLayout, QGroupBox, QLabel, QProgressBar, QVBoxLayout, QWidget,
+)
+
+from cnc.bus.messages import Status
+
+from .adapter import ModelAdapter
+from .model import PlcState
+from .style import BAD, OFF, OK, WARN, Lamp, duration, value_label
+
+RUNNING_STATES = ("RUNNING", "HOMING", "JOGGING")
+PLC_COLOURS = {PlcState.STOPPED: OFF, PlcState.STARTED: WARN, PlcState.RUNNING: OK}
+
+
+def _form(title: str) -> tuple[QGroupBox, QFormLayout]:
+    box = QGroupBox(title)
+    form = QFormLayout(box)
+    form.setContentsMargins(6, 4, 6, 4)
+    form.setVerticalSpacing(2)
+    return box, form
+
+
+class StatusPanels(QWidget):
+    """The right-hand column of status groups; `values` maps a field name to its label (tests read it)."""
+
+    def __init__(self, adapter: ModelAdapter, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.adapter, self.model = adapter, adapter.model
+        self.values: dict[str, QLabel] = {}
+        self.lamps: dict[str, Lamp] = {}
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self._machine_group())
+        layout.addWidget(self._feed_group())
+        layout.addWidget(self._axes_group())
+        layout.addWidget(self._program_group())
+        layout.addWidget(self._devices_group())
+        layout.addWidget(self._safety_group())
+        layout.addStretch(1)
+        for signal in (adapter.status, adapter.alarms, adapter.connection):
+            signal.connect(self.refresh)
+        self.refresh()
+
+    # -- building -----------------------------------------------------------------------------
+
+    def _value(self, form: QFormLayout, name: str, caption: str) -> QLabel:
+        label = value_label()
+        form.addRow(caption, label)
+        self.values[name] = label
+        return label
+
+    def _lamp(self, layout, name: str, caption: str, *grid: int) -> Lamp:  # noqa: ANN001 - a form or a grid
+        lamp = Lamp(caption)
+        if grid:
+            layout.addWidget(lamp, *grid)
+        else:
+            layout.addRow(lamp)
+        self.lamps[name] = lamp
+        return lamp
+
+    def _machine_group(self) -> QGroupBox:
+        box, form = _form("Machine")
+        self._value(form, "mode", "Operation mode")
+        self._value(form, "execution", "Execution")
+        self._value(form, "state", "Machine state")
+        self._value(form, "phase", "Cycle phase")
+        self._value(form, "cycles", "Cycles")
+        self._lamp(form, "homed", "Homed")
+        return box
+
+    def _feed_group(self) -> QGroupBox:
+        box, form = _form("Feed")
+        self._value(form, "feed_commanded", "Commanded")
+        self._value(form, "feed_actual", "Actual")
+        self._value(form, "feed_override", "Override")
+        return box
+
+    def _axes_group(self) -> QGroupBox:
+        box = QGroupBox("Axes")
+        self._axes_grid = QGridLayout(box)
+        self._axes_grid.setContentsMargins(6, 4, 6, 4)
+        for col, head in enumerate(("", "Position mm", "Foll. err µm", "mm/s", "Status")):
+            self._axes_grid.addWidget(QLabel(f"<b>{head}</b>"), 0, col)
+        self._axis_rows: dict[str, list[QLabel]] = {}
+        return box
+
+    def _program_group(self) -> QGroupBox:
+        box, form = _form("Program")
+        self._value(form, "program", "Name")
+        self._value(form, "program_status", "Status")
+        self._value(form, "block", "Block (line)")
+        self.progress = QProgressBar()
+        self.progress.setRange(0, 1000)
+        self.progress.setFormat("%p %")
+        form.addRow("Progress", self.progress)
+        self._value(form, "eta", "ETA / planned")
+        self._lamp(form, "jet", "Jet")
+        return box
+
+    def _devices_group(self) -> QGroupBox:
+        box, form = _form("PLC and auxiliary devices")
+        self._lamp(form, "plc_link", "PLC link")
+        self._lamp(form, "plc_state", "PLC automatic operation")
+        self._lamp(form, "pump", "HP pump")
+        self._value(form, "pressure", "Pressure actual / set")
+        self._lamp(form, "mains", "Mains")
+        self._lamp(form, "safety_circuit", "Safety circuit")
+        return box
+
+    def _safety_group(self) -> QGroupBox:
+        box = QGroupBox("Safety and network")
+        grid = QGridLayout(box)
+        grid.setContentsMargins(6, 4, 6, 4)
+        self._lamp(grid, "estop", "Emergency stop", 0, 0)
+        self._lamp(grid, "doors", "Doors", 0, 1)
+        self._lamp(grid, "network", "Network alive", 1, 0)
+        self._lamp(grid, "reset", "Reset fault", 1, 1)
+        return box
+
+    # -- refreshing ---------------------------------------------------------------------------
+
+    def refresh(self) -> None:
+        st = self.model.status
+        if st is None:
+            for label in self.values.values():
+                label.setText("-")
+            for lamp in self.lamps.values():
+                lamp.set(OFF, "unknown")
+            return
+        v = self.values
+        v["mode"].setText(st.mode)
+        running = st.machine_state in RUNNING_STATES or st.planner_state not in ("IDLE", "HELD", "PAUSED")
+        v["execution"].setText("running" if running else "stopped")
+        v["state"].setText(st.machine_state + (f" ({st.logic_message})" if st.logic_message and st.machine_state in
+                                               ("FAULT", "STOPPED") else ""))
+        v["phase"].setText(st.cycle_phase)
+        target = "until stopped" if st.cycles_target == 0 and st.cycle_phase != "NONE" else str(st.cycles_target)
+        v["cycles"].setText(f"{st.cycles_done} of {target}")
+        homed = bool(st.axes) and all(a.homed for a in st.axes)
+        self.lamps["homed"].set(OK if homed else WARN, "yes" if homed else
+                                "no" + (f" (homing {st.homing_axis.upper()})" if st.homing_axis else ""))
+        v["feed_commanded"].setText(f"{st.feed_commanded_mm_s * 60:9.0f} mm/min")
+        v["feed_actual"].setText(f"{st.feed_actual_mm_s * 60:9.0f} mm/min")
+        v["feed_override"].setText(f"{st.feed_override * 100:5.0f} %")
+        self._refresh_axes(st)
+        self._refresh_program(st)
+        self._refresh_devices(st)
+        self._refresh_safety(st)
+
+    def _refresh_axes(self, st: Status) -> None:
+        for a in st.axes:
+            row = self._axis_rows.get(a.name)
+            if row is None:
+                r = len(self._axis_rows) + 1
+                row = self._axis_rows[a.name] = [QLabel(f"<b>{a.name.upper()}</b>")] + [value_label() for _ in range(4)]
+                for col, label in enumerate(row):
+                    self._axes_grid.addWidget(label, r, col)
+            flags = [("homed" if a.homed else "not homed"), ("drive on" if a.drive_enabled else "drive off")]
+            if not a.drive_ready:
+                flags.append("DRIVE FAULT")
+            if a.limit_min or a.limit_max:
+                flags.append("LIMIT " + ("-" if a.limit_min else "+"))
+            row[1].setText(f"{a.position_mm:10.3f}")
+            row[2].setText(f"{a.following_error_mm * 1000:7.1f}")
+            row[3].setText(f"{a.velocity_mm_s:7.1f}")
+            row[4].setText(", ".join(flags))
+            self.values[f"axis_{a.name}"] = row[1]
+
+    def _refresh_program(self, st: Status) -> None:
+        p, v = st.program, self.values
+        if p is None or not p.name:
+            for name in ("program", "program_status", "block", "eta"):
+                v[name].setText("-")
+            self.progress.setValue(0)
+        else:
+            v["program"].setText(f"{p.name} ({p.lines} lines)")
+            status = st.planner_state if st.planner_state != "IDLE" else (p.result if p.result != "NONE" else "loaded")
+            v["program_status"].setText(status + (f": {st.error}" if st.error and p.result == "FAULT" else ""))
+            v["block"].setText(f"N{p.line}" if p.segment >= 0 else "-")
+            self.progress.setValue(int(round(1000 * max(0.0, min(1.0, p.progress)))))
+            eta = duration(p.eta_s) if p.segment >= 0 else "-"
+            v["eta"].setText(f"{eta} / {duration(p.planned_s)}")
+        self.lamps["jet"].set(OK if st.jet_on else OFF, "ON (cutting)" if st.jet_on else "off")
+
+    def _refresh_devices(self, st: Status) -> None:
+        link_ok = st.plc_link == "OK"
+        self.lamps["plc_link"].set(OK if link_ok else BAD, st.plc_link)
+        plc = self.model.plc_state()
+        self.lamps["plc_state"].set(PLC_COLOURS[plc], plc.value)
+        inputs = st.plc_inputs
+        if inputs.get("pump_fault"):
+            self.lamps["pump"].set(BAD, "FAULT")
+        else:
+            running = bool(inputs.get("pump_running", st.pump_on))
+            self.lamps["pump"].set(OK if running else OFF, "running" if running else "off")
+        self.values["pressure"].setText(f"{st.pump_pressure_bar:6.0f} / {st.pump_set_bar:6.0f} bar")
+        self._input_lamp("mains", "mains_on", "on", "off")
+        self._input_lamp("safety_circuit", "safety_circuit_ok", "closed", "OPEN")
+
+    def _input_lamp(self, lamp: str, signal: str, yes: str, no: str) -> None:
+        inputs = self.model.status.plc_inputs
+        if signal not in inputs:
+            self.lamps[lamp].set(OFF, "unknown (PLC link)")
+        else:
+            self.lamps[lamp].set(OK if inputs[signal] else BAD, yes if inputs[signal] else no)
+
+    def _refresh_safety(self, st: Status) -> None:
+        self.lamps["estop"].set(OK if st.estop_ok else BAD, "released" if st.estop_ok else "PRESSED")
+        self.lamps["doors"].set(OK if st.doors_closed else BAD, "closed" if st.doors_closed else "OPEN")
+        reachable = self.model.reachable
+        alive = reachable and st.network_alive
+        holder = st.operator or "no operator station"
+        self.lamps["network"].set(OK if alive else (WARN if reachable else BAD),
+                                  (f"yes ({holder})" if alive else f"no ({holder})") if reachable else "NO (controller unreachable)")
+        needs = self.model.needs_reset()
+        self.lamps["reset"].set(BAD if needs else OK, "reset needed" if needs else "none")

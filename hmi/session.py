@@ -1,0 +1,74 @@
+"""One operator screen assembled: model, Zenoh connection, Qt adapter, command runner and window."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from PySide6.QtCore import QTimer
+from PySide6.QtWidgets import QApplication
+
+from cnc.bus.keys import Keys
+from cnc.bus.messages import LockRequest
+
+from .adapter import ModelAdapter
+from .commands import CommandRunner
+from .connection import Connection
+from .model import MachineModel
+from .window import MainWindow
+
+
+class OperatorScreen:
+    """The parts of a running screen, in the order they depend on each other; `close()` takes
+    them down in reverse (the station's token goes last, so the lock is released cleanly)."""
+
+    def __init__(self, endpoints: list[str], prefix: str, machine: str, station: str,
+                 credentials: tuple[str, str] | None = None) -> None:
+        self.app = QApplication.instance() or QApplication(sys.argv[:1])
+        self.model = MachineModel(station)
+        self.connection = Connection(self.model, endpoints, Keys(prefix, machine), station, credentials)
+        self.adapter = ModelAdapter(self.model)
+        self.commands = CommandRunner(self.connection)
+        self.window = MainWindow(self.adapter, self.commands, ", ".join(endpoints),
+                                 open_error=lambda: self.connection.last_open_error)
+        self.connection.start()
+
+    def __enter__(self) -> OperatorScreen:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.window.close()
+        self.commands.close()
+        self.adapter.close()
+        self.connection.close()
+
+    def take_lock_when_connected(self) -> None:
+        """Take the command lock as soon as the controller is reachable (once)."""
+        def attempt() -> None:
+            if self.model.reachable:
+                self.adapter.connection.disconnect(attempt)
+                self.commands.send(LockRequest(take=True))
+        self.adapter.connection.connect(attempt)
+        attempt()
+
+    def screenshot_after(self, seconds: float, out: Path) -> int:
+        """Show the window, render it to `out` after `seconds`, and return 0 (1 when it cannot be written)."""
+        result = {"code": 1}
+
+        def grab() -> None:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            if self.window.grab().save(str(out)):
+                result["code"] = 0
+                print(f"waterjet hmi: screen written to {out} ({self.model.screen.value}, "
+                      f"{'reachable' if self.model.reachable else 'controller unreachable'})", flush=True)
+            else:
+                print(f"waterjet hmi: cannot write {out}", file=sys.stderr)
+            self.app.quit()
+
+        self.window.show()
+        QTimer.singleShot(int(seconds * 1000), grab)
+        self.app.exec()
+        return result["code"]

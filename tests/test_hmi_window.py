@@ -1,0 +1,300 @@
+"""The operator screen against a real controller on the virtual clock (pytest-qt, offscreen): the
+automatic cycle commanded from the screen, alarms in the list and the history, a procedure walked,
+the connection lost and regained, read-only without the lock, and `waterjet hmi --screenshot`.
+
+Each test saves screenshots of the screens it passes through to tests/screenshots/ (or
+$HMI_SCREENSHOTS), not committed, for a person to look at.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import QPushButton, QWidget
+
+from cnc.alarms.catalogue import AlarmAction, AlarmLevel
+from cnc.alarms.history import AlarmHistory
+from cnc.bus.keys import Keys
+from cnc.bus.operator import OperatorStation
+from cnc.bus.session import open_client
+from hmi.model import Screen
+from hmi.session import OperatorScreen
+
+from .conftest import NEAR_HOME, REPO, logic, machine_config
+from .test_hmi_model import start_controller
+from .test_zenoh_interface import PART
+
+pytest.importorskip("pytestqt")
+SHOTS = Path(os.environ.get("HMI_SCREENSHOTS", REPO / "tests" / "screenshots"))
+WAIT_MS = 30000
+
+BAD_PART = "G21 G90\nG0 X100 Y100\nG1 X20 Y20 X30 F100\nM2\n"  # two X words on line 3, column 12
+
+
+def shot(widget: QWidget, name: str) -> Path:
+    """Save what the operator sees now."""
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    path = SHOTS / f"{name}.png"
+    assert widget.grab().save(str(path)), f"cannot write {path}"
+    return path
+
+
+def open_screen(qtbot, config, station: str = "panel") -> OperatorScreen:
+    screen = OperatorScreen([config.zenoh.listen[0]], config.zenoh.key_prefix, config.machine.name, station)
+    screen.window.show()
+    qtbot.waitExposed(screen.window)
+    return screen
+
+
+def click(qtbot, screen: OperatorScreen, button: QPushButton, ok: bool = True):
+    """Click an enabled button and wait for the controller's answer to the command it sent."""
+    qtbot.waitUntil(button.isEnabled, timeout=WAIT_MS)
+    with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as blocker:
+        qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
+    label, reply = blocker.args
+    assert reply.ok == ok, f"{label}: {reply.reason}"
+    return reply
+
+
+@pytest.fixture
+def screen(qtbot, plc_controller):
+    s = open_screen(qtbot, plc_controller.config)
+    qtbot.waitUntil(lambda: s.model.reachable and s.model.catalogue != [], timeout=WAIT_MS)
+    yield s
+    s.close()
+
+
+def take_lock(qtbot, screen: OperatorScreen) -> None:
+    click(qtbot, screen, screen.window.bar.lock_button)
+    qtbot.waitUntil(lambda: screen.model.holds_lock and screen.window.banner_text == "", timeout=WAIT_MS)
+
+
+def test_operator_runs_the_automatic_cycle_end_to_end_from_the_screen(qtbot, plc_controller, screen, tmp_path):
+    sup, w, model = plc_controller, screen.window, screen.model
+    keys = Keys(sup.config.zenoh.key_prefix, sup.config.machine.name)
+    other_session = open_client([sup.config.zenoh.listen[0]])
+    other = OperatorStation(other_session, keys, "other")
+    assert other.take_lock().ok
+    qtbot.waitUntil(lambda: "Read-only: station 'other' holds the command lock" in w.banner_text, timeout=WAIT_MS)
+    assert not w.bar.reset.isEnabled() and not w.pages[Screen.MANUAL].home_all.isEnabled(), "read-only: greyed"
+    assert w.bar.lock_button.isEnabled()
+    shot(w, "01_read_only_manual")
+    assert other.release_lock().ok
+    other.close()
+    other_session.close()
+
+    take_lock(qtbot, screen)
+    assert w.current_screen is Screen.MANUAL
+    click(qtbot, screen, w.bar.reset)
+    qtbot.waitUntil(lambda: all(a.drive_enabled for a in model.status.axes), timeout=WAIT_MS)
+    manual = w.pages[Screen.MANUAL]
+    click(qtbot, screen, manual.home_all)
+    qtbot.waitUntil(lambda: model.status.machine_state == "READY" and w.panels.lamps["homed"].state == "yes",
+                    timeout=WAIT_MS)
+
+    x0 = model.status.axes[0].commanded_mm
+    manual.jog.step.setCurrentIndex(manual.jog.step.findData(1.0))
+    click(qtbot, screen, manual.jog.buttons[("x", 1)])
+    qtbot.waitUntil(lambda: abs(model.status.axes[0].commanded_mm - (x0 + 1.0)) < 1e-3
+                    and model.status.machine_state == "READY", timeout=WAIT_MS)
+    manual.jog.step.setCurrentIndex(0)  # continuous: the arrow key held, then released
+    w.activateWindow()
+    qtbot.waitUntil(w.isActiveWindow, timeout=WAIT_MS)
+    y0 = model.status.axes[1].commanded_mm
+    sent: list[str] = []
+    screen.commands.replied.connect(lambda label, reply: sent.append(label))
+    qtbot.keyPress(w, Qt.Key.Key_Up)
+    qtbot.keyRelease(w, Qt.Key.Key_Up)
+    qtbot.waitUntil(lambda: len(sent) >= 2, timeout=WAIT_MS)
+    assert sent[0].startswith("Jog(axis=y, velocity_mm_s=50") and sent[1] == "JogStop"
+    qtbot.waitUntil(lambda: model.status.axes[1].commanded_mm > y0 and model.status.machine_state == "READY"
+                    and model.status.planner_state == "IDLE", timeout=WAIT_MS)
+
+    click(qtbot, screen, w.bar.auto)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.AUTO, timeout=WAIT_MS)
+    auto = w.pages[Screen.AUTO]
+    bad = tmp_path / "bad.ngc"
+    bad.write_text(BAD_PART)
+    with qtbot.waitSignal(auto.program.uploaded, timeout=WAIT_MS) as refused:
+        auto.program.load_file(bad)
+    assert not refused.args[0].ok
+    assert "bad.ngc:3:12" in auto.program.error.text() and "X" in auto.program.error.text()
+    assert auto.program.highlighted_line() == 3 and auto.program.text.textCursor().positionInBlock() == 11
+    shot(w, "02_program_error_highlighted")
+
+    good = tmp_path / "part.ngc"
+    good.write_text(PART)
+    with qtbot.waitSignal(auto.program.uploaded, timeout=WAIT_MS) as loaded:
+        auto.program.load_file(good)
+    assert loaded.args[0].ok, loaded.args[0].reason
+    qtbot.waitUntil(lambda: auto.program.text.toPlainText() == PART, timeout=WAIT_MS)  # the controller's copy
+    assert model.program.segments == 6 and auto.program.error.isHidden()
+    assert w.contour.path_bounds() == pytest.approx((0.0, 140.0, 0.0, 140.0), abs=1e-6)  # from the program origin
+
+    click(qtbot, screen, auto.cycle_start)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.PROCEDURE, timeout=WAIT_MS)
+    procedure = w.pages[Screen.PROCEDURE].procedure
+    qtbot.waitUntil(lambda: "Press the button at the transport station" in procedure.instruction.text(), timeout=WAIT_MS)
+    assert procedure.title.text() == "TRANSPORT PHASE"
+    lines = procedure.step_lines()
+    assert len(lines) == 11 and all("(done)" in line for line in lines[:10]) and "(awaited)" in lines[10]
+    assert not w.pages[Screen.PROCEDURE].manual.isVisible(), "in AUTO the steps are actions at the machine"
+    shot(w, "03_transport_procedure")
+    sup.plc_sim.press_button()  # the operator at the transport station
+
+    heads: list[tuple[float, float] | None] = []
+    screen.adapter.position.connect(lambda: heads.append(w.contour.head_position()))  # after the window drew it
+    qtbot.waitUntil(lambda: w.contour.progress >= 2 and w.panels.lamps["jet"].state.startswith("ON"), timeout=WAIT_MS)
+    assert w.current_screen is Screen.AUTO and w.panels.values["phase"].text() == "CUTTING"
+    assert w.panels.progress.value() > 0 and w.panels.values["block"].text().startswith("N")
+    qtbot.waitUntil(lambda: 5 <= auto.program.highlighted_line() <= 8, timeout=WAIT_MS)  # the block being cut: a G1
+    click(qtbot, screen, auto.hold)
+    qtbot.waitUntil(lambda: model.status.machine_state == "HOLD" and not model.status.jet_on, timeout=WAIT_MS)
+    shot(w, "04_cutting_held")
+    click(qtbot, screen, auto.resume)
+    qtbot.waitUntil(lambda: logic(sup)["cycles_done"] == 1 and model.status.cycle_phase == "NONE", timeout=60000)
+    qtbot.waitUntil(lambda: w.contour.progress == 6, timeout=WAIT_MS)
+    assert len({h for h in heads if h is not None}) > 1, "the head cross moved"
+    qtbot.waitUntil(lambda: w.contour.head_position() == pytest.approx((60.0, 60.0), abs=0.01), timeout=WAIT_MS)
+    qtbot.waitUntil(lambda: any("3001" in line for line in w.messages.entries()), timeout=WAIT_MS)
+    shot(w, "05_cycle_done")
+
+
+def test_an_alarm_shows_in_the_list_faults_messages_and_history_and_is_acknowledged_and_reset(
+        qtbot, plc_controller, screen):
+    sup, w, model = plc_controller, screen.window, screen.model
+    take_lock(qtbot, screen)
+    sup.set_sim(doors_open=1)
+    qtbot.waitUntil(lambda: any(r[1] == "2292" for r in w.alarms.rows()) and "Safety door open" in w.faults.entries()
+                    and w.panels.lamps["reset"].state == "reset needed", timeout=WAIT_MS)
+    [row] = [r for r in w.alarms.rows() if r[1] == "2292"]
+    assert row[0] == "ERROR" and row[5] == "present" and row[6] == "no"
+    assert w.panels.lamps["doors"].state == "OPEN"
+    qtbot.waitUntil(lambda: any("2292" in line and "raised" in line for line in w.messages.entries()), timeout=WAIT_MS)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.FAULT, timeout=WAIT_MS)
+    fault_page = w.pages[Screen.FAULT]
+    shot(w, "06_fault_door_open")
+
+    fault_page.alarms.table.selectRow(0)
+    click(qtbot, screen, fault_page.alarms.acknowledge)
+    qtbot.waitUntil(lambda: [r[6] for r in w.alarms.rows() if r[1] == "2292"] == ["yes"], timeout=WAIT_MS)
+    reply = click(qtbot, screen, w.bar.reset)
+    assert "still present: 2292" in reply.reason, "not reset while the cause is present"
+    assert "still present: 2292" in w.command_line.text()
+    sup.set_sim(doors_open=0)
+    qtbot.waitUntil(lambda: [r[5] for r in w.alarms.rows() if r[1] == "2292"] == ["cleared, reset needed"]
+                    and "Safety door open" not in w.faults.entries(), timeout=WAIT_MS)
+    click(qtbot, screen, w.bar.reset)
+    qtbot.waitUntil(lambda: model.active_alarms == [] and w.alarms.rows() == [], timeout=WAIT_MS)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.MANUAL, timeout=WAIT_MS)
+
+    w.show_history()
+    h = w.history
+    qtbot.waitExposed(h)
+    h.set_filter(codes="2292")
+    qtbot.waitUntil(lambda: [r[4] for r in reversed(h.rows())] == ["raised", "acknowledged", "cleared", "reset"],
+                    timeout=WAIT_MS)
+    h.set_filter(text="DOOR", levels=["error"])
+    assert h.rows() and all(r[3] == "ERROR" for r in h.rows())
+    h.set_filter(levels=["info"], codes="2292")
+    assert h.rows() == []
+    h.set_filter(codes="22x")
+    assert "'22x' is not an alarm code" in h.count.text()
+    h.set_filter()
+    assert len(h.rows()) == len(model.history_view())
+    shot(h, "07_message_history")
+
+
+def test_walking_a_procedure_with_confirmations_and_manual_steps_from_the_procedure_window(qtbot, screen):
+    w, model = screen.window, screen.model
+    take_lock(qtbot, screen)
+    manual = w.pages[Screen.MANUAL]
+    manual.procedures.setCurrentIndex(manual.procedures.findData("pump_warmup"))
+    click(qtbot, screen, manual.procedure_start)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.PROCEDURE, timeout=WAIT_MS)
+    page = w.pages[Screen.PROCEDURE]
+    proc = page.procedure
+    qtbot.waitUntil(lambda: proc.confirm.isEnabled(), timeout=WAIT_MS)
+    assert proc.title.text() == "PUMP WARM-UP" and "catcher" in proc.instruction.text()
+    assert page.manual.isVisible(), "in MANUAL the controls a step asks for are beside the procedure"
+    shot(w, "08_procedure_confirm_step")
+    click(qtbot, screen, proc.confirm)
+    qtbot.waitUntil(lambda: "Switch the pump on" in proc.instruction.text(), timeout=WAIT_MS)
+    assert not proc.confirm.isEnabled(), "a condition step is not confirmed by hand"
+    click(qtbot, screen, page.manual.pump_on)
+    qtbot.waitUntil(lambda: "jet test" in proc.instruction.text() and proc.confirm.isEnabled(), timeout=WAIT_MS)
+    assert [line.endswith("(done)") for line in proc.step_lines()] == [True, True, True, True, False]
+    qtbot.waitUntil(lambda: w.panels.lamps["pump"].state == "running", timeout=WAIT_MS)
+    click(qtbot, screen, proc.confirm)
+    qtbot.waitUntil(lambda: model.procedure.state == "done" and proc.end.isEnabled(), timeout=WAIT_MS)
+    assert not proc.stop.isEnabled()
+    shot(w, "09_procedure_done")
+    click(qtbot, screen, proc.end)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.MANUAL, timeout=WAIT_MS)
+    click(qtbot, screen, manual.pump_off)
+
+    manual.procedures.setCurrentIndex(manual.procedures.findData("startup"))
+    click(qtbot, screen, manual.procedure_start)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.PROCEDURE and proc.stop.isEnabled(), timeout=WAIT_MS)
+    click(qtbot, screen, proc.stop)
+    qtbot.waitUntil(lambda: proc.state.text() == "PROCEDURE STOPPED" and proc.end.isEnabled(), timeout=WAIT_MS)
+    click(qtbot, screen, proc.end)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.MANUAL, timeout=WAIT_MS)
+
+
+def test_losing_the_controller_shows_the_banner_disables_commands_and_reconnecting_catches_up(qtbot, tmp_path):
+    config = machine_config(**NEAR_HOME)
+    sup = start_controller(config, tmp_path)
+    screen = open_screen(qtbot, config)
+    w, model = screen.window, screen.model
+    try:
+        qtbot.waitUntil(lambda: model.reachable and model.catalogue != [], timeout=WAIT_MS)
+        take_lock(qtbot, screen)
+        assert w.bar.reset.isEnabled()
+        sup.stop()
+        qtbot.waitUntil(lambda: w.banner_text.startswith("CONTROLLER UNREACHABLE at tcp/127.0.0.1:"), timeout=WAIT_MS)
+        assert w.current_screen is Screen.OFFLINE and not w.bar.reset.isEnabled() and not w.bar.lock_button.isEnabled()
+        assert w.panels.lamps["network"].state == "NO (controller unreachable)"
+        shot(w, "10_controller_unreachable")
+        with AlarmHistory(tmp_path / "history.sqlite") as history:
+            history.append(stamp_ns=time.time_ns(), code=9999, id="offline_entry", level=AlarmLevel.WARNING,
+                           action=AlarmAction.RAISED, text="Written while the screen was away")
+        sup = start_controller(config, tmp_path)
+        qtbot.waitUntil(lambda: model.reachable and w.current_screen is Screen.MANUAL, timeout=WAIT_MS)
+        qtbot.waitUntil(lambda: any("9999" in line for line in w.messages.entries()), timeout=WAIT_MS)
+        assert [e.seq for e in model.history_view()] == list(range(model.last_seq, 0, -1)), "nothing missed"
+        qtbot.waitUntil(lambda: w.banner_text.startswith("Read-only"), timeout=WAIT_MS)  # a new controller: a new lock
+        take_lock(qtbot, screen)
+        out = tmp_path / "cli.png"
+        cli = subprocess.run(
+            [sys.executable, "-m", "cnc.cli", "hmi", "--connect", config.zenoh.listen[0], "--machine",
+             config.machine.name, "--station", "doc", "--screenshot", str(out), "--after", "3"],
+            capture_output=True, text=True, timeout=60, env={**os.environ, "QT_QPA_PLATFORM": "offscreen"},
+        )
+        assert cli.returncode == 0, cli.stderr
+        assert "(manual, reachable)" in cli.stdout and out.stat().st_size > 10000
+    finally:
+        screen.close()
+        sup.stop()
+
+
+def test_waterjet_hmi_refuses_bad_options_naming_them():
+    def run(*args: str) -> subprocess.CompletedProcess:
+        env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM")}
+        return subprocess.run([sys.executable, "-m", "cnc.cli", "hmi", *args], capture_output=True, text=True,
+                              timeout=60, env=env)
+
+    bad = run("--machine", "wj/../x", "--screenshot", "x.png")
+    assert bad.returncode == 2 and "--machine 'wj/../x'" in bad.stderr
+    bad = run("--station", "a b", "--screenshot", "x.png")
+    assert bad.returncode == 2 and "--station 'a b'" in bad.stderr
+    bad = run("--credentials", "/nonexistent/creds")
+    assert bad.returncode == 2 and "--credentials /nonexistent/creds" in bad.stderr
+    headless = run("--connect", "tcp/127.0.0.1:1")
+    assert headless.returncode == 2 and "no display" in headless.stderr and "--screenshot" in headless.stderr
