@@ -152,12 +152,14 @@ class JogPad(QGroupBox):
             b.released.connect(lambda a=axis, s=sign: self.release(a, s))
             grid.addWidget(b, row, col)
             self.buttons[(axis, sign)] = b
+        grid.setRowStretch(3, 1)
         form = QFormLayout()
         form.addRow("Step", self.step)
         form.addRow("Speed", self.speed)
         layout = QHBoxLayout(self)
         layout.addLayout(grid)
         layout.addLayout(form)
+        layout.addStretch(1)
         self._jogging: tuple[str, int] | None = None
         enable_while_commanding(adapter, [*self.buttons.values()])
 
@@ -201,7 +203,9 @@ class JogPad(QGroupBox):
 class ManualPage(QWidget):
     """MANUAL mode: jog, home, drives, pump, jet test, go to a position, start a guided procedure."""
 
-    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, parent: QWidget | None = None) -> None:
+    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, vertical: bool = False,
+                 parent: QWidget | None = None) -> None:
+        """`vertical`: the machine buttons above the jog pad (a narrow place, beside a procedure)."""
         super().__init__(parent)
         self.model, self.commands = adapter.model, commands
         self.jog = JogPad(adapter, commands)
@@ -246,14 +250,18 @@ class ManualPage(QWidget):
         g = QHBoxLayout(guided)
         g.addWidget(self.procedures, 1)
         g.addWidget(self.procedure_start)
-        right = QVBoxLayout()
-        right.addWidget(machine)
-        right.addWidget(move)
-        right.addWidget(guided)
-        right.addStretch(1)
-        layout = QHBoxLayout(self)
-        layout.addWidget(self.jog)
-        layout.addLayout(right, 1)
+        if vertical:
+            layout = QVBoxLayout(self)
+            for w in (machine, self.jog, move, guided):
+                layout.addWidget(w)
+        else:
+            right = QVBoxLayout()
+            for w in (machine, move, guided):
+                right.addWidget(w)
+            right.addStretch(1)
+            layout = QHBoxLayout(self)
+            layout.addWidget(self.jog)
+            layout.addLayout(right, 1)
         adapter.catalogue.connect(self._fill_procedures)
         self._fill_procedures()
         enable_while_commanding(adapter, [

@@ -9,9 +9,7 @@ says its topic changed.
 
 from __future__ import annotations
 
-from PySide6.QtWidgets import (
-    QFormLayout, QGridLayout, QGroupBox, QLabel, QProgressBar, QVBoxLayout, QWidget,
-)
+from PySide6.QtWidgets import QGridLayout, QGroupBox, QLabel, QProgressBar, QVBoxLayout, QWidget
 
 from cnc.bus.messages import Status
 
@@ -23,12 +21,31 @@ RUNNING_STATES = ("RUNNING", "HOMING", "JOGGING")
 PLC_COLOURS = {PlcState.STOPPED: OFF, PlcState.STARTED: WARN, PlcState.RUNNING: OK}
 
 
-def _form(title: str) -> tuple[QGroupBox, QFormLayout]:
-    box = QGroupBox(title)
-    form = QFormLayout(box)
-    form.setContentsMargins(6, 4, 6, 4)
-    form.setVerticalSpacing(2)
-    return box, form
+class _Group(QGroupBox):
+    """A titled group laid out in rows of one or two caption-value pairs (the panels must fit a
+    screen's height without scrolling, so two short fields share a row)."""
+
+    def __init__(self, title: str) -> None:
+        super().__init__(title)
+        self.grid = QGridLayout(self)
+        self.grid.setContentsMargins(6, 4, 6, 4)
+        self.grid.setVerticalSpacing(2)
+        self.grid.setColumnStretch(1, 1)
+        self.grid.setColumnStretch(3, 1)
+        self.row = 0
+
+    def add(self, *cells: tuple[str, QWidget] | QWidget) -> None:
+        """One row: each cell a (caption, widget) pair or a widget alone; a lone cell spans the row."""
+        col = 0
+        for cell in cells:
+            span = 4 if len(cells) == 1 else 2
+            if isinstance(cell, tuple):
+                self.grid.addWidget(QLabel(cell[0]), self.row, col)
+                self.grid.addWidget(cell[1], self.row, col + 1, 1, span - 1)
+            else:
+                self.grid.addWidget(cell, self.row, col, 1, span)
+            col += span
+        self.row += 1
 
 
 class StatusPanels(QWidget):
@@ -41,8 +58,8 @@ class StatusPanels(QWidget):
         self.lamps: dict[str, Lamp] = {}
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
+        layout.setSpacing(2)
         layout.addWidget(self._machine_group())
-        layout.addWidget(self._feed_group())
         layout.addWidget(self._axes_group())
         layout.addWidget(self._program_group())
         layout.addWidget(self._devices_group())
@@ -54,78 +71,55 @@ class StatusPanels(QWidget):
 
     # -- building -----------------------------------------------------------------------------
 
-    def _value(self, form: QFormLayout, name: str, caption: str) -> QLabel:
-        label = value_label()
-        form.addRow(caption, label)
-        self.values[name] = label
-        return label
+    def _value(self, name: str, caption: str) -> tuple[str, QLabel]:
+        label = self.values[name] = value_label()
+        return caption, label
 
-    def _lamp(self, layout, name: str, caption: str, *grid: int) -> Lamp:  # noqa: ANN001 - a form or a grid
-        lamp = Lamp(caption)
-        if grid:
-            layout.addWidget(lamp, *grid)
-        else:
-            layout.addRow(lamp)
-        self.lamps[name] = lamp
+    def _lamp(self, name: str, caption: str) -> Lamp:
+        lamp = self.lamps[name] = Lamp(caption)
         return lamp
 
     def _machine_group(self) -> QGroupBox:
-        box, form = _form("Machine")
-        self._value(form, "mode", "Operation mode")
-        self._value(form, "execution", "Execution")
-        self._value(form, "state", "Machine state")
-        self._value(form, "phase", "Cycle phase")
-        self._value(form, "cycles", "Cycles")
-        self._lamp(form, "homed", "Homed")
-        return box
-
-    def _feed_group(self) -> QGroupBox:
-        box, form = _form("Feed")
-        self._value(form, "feed_commanded", "Commanded")
-        self._value(form, "feed_actual", "Actual")
-        self._value(form, "feed_override", "Override")
+        box = _Group("Machine and feed")
+        box.add(self._value("mode", "Mode"), self._value("execution", "Execution"))
+        box.add(self._value("state", "State"), self._value("phase", "Phase"))
+        box.add(self._value("cycles", "Cycles"), self._lamp("homed", "Homed"))
+        box.add(self._value("feed_commanded", "Feed cmd."), self._value("feed_actual", "Actual"))
+        box.add(self._value("feed_override", "Override"))
         return box
 
     def _axes_group(self) -> QGroupBox:
         box = QGroupBox("Axes")
         self._axes_grid = QGridLayout(box)
         self._axes_grid.setContentsMargins(6, 4, 6, 4)
+        self._axes_grid.setVerticalSpacing(2)
         for col, head in enumerate(("", "Position mm", "Foll. err µm", "mm/s", "Status")):
             self._axes_grid.addWidget(QLabel(f"<b>{head}</b>"), 0, col)
         self._axis_rows: dict[str, list[QLabel]] = {}
         return box
 
     def _program_group(self) -> QGroupBox:
-        box, form = _form("Program")
-        self._value(form, "program", "Name")
-        self._value(form, "program_status", "Status")
-        self._value(form, "block", "Block (line)")
+        box = _Group("Program")
+        box.add(self._value("program", "Name"))
+        box.add(self._value("program_status", "Status"), self._value("block", "Block"))
         self.progress = QProgressBar()
         self.progress.setRange(0, 1000)
         self.progress.setFormat("%p %")
-        form.addRow("Progress", self.progress)
-        self._value(form, "eta", "ETA / planned")
-        self._lamp(form, "jet", "Jet")
+        box.add(("Progress", self.progress))
+        box.add(self._value("eta", "ETA / plan"), self._lamp("jet", "Jet"))
         return box
 
     def _devices_group(self) -> QGroupBox:
-        box, form = _form("PLC and auxiliary devices")
-        self._lamp(form, "plc_link", "PLC link")
-        self._lamp(form, "plc_state", "PLC automatic operation")
-        self._lamp(form, "pump", "HP pump")
-        self._value(form, "pressure", "Pressure actual / set")
-        self._lamp(form, "mains", "Mains")
-        self._lamp(form, "safety_circuit", "Safety circuit")
+        box = _Group("PLC and auxiliary devices")
+        box.add(self._lamp("plc_link", "PLC link"), self._lamp("plc_state", "PLC auto"))
+        box.add(self._lamp("pump", "HP pump"), self._value("pressure", "bar"))
+        box.add(self._lamp("mains", "Mains"), self._lamp("safety_circuit", "Safety circuit"))
         return box
 
     def _safety_group(self) -> QGroupBox:
-        box = QGroupBox("Safety and network")
-        grid = QGridLayout(box)
-        grid.setContentsMargins(6, 4, 6, 4)
-        self._lamp(grid, "estop", "Emergency stop", 0, 0)
-        self._lamp(grid, "doors", "Doors", 0, 1)
-        self._lamp(grid, "network", "Network alive", 1, 0)
-        self._lamp(grid, "reset", "Reset fault", 1, 1)
+        box = _Group("Safety and network")
+        box.add(self._lamp("estop", "Emergency stop"), self._lamp("doors", "Doors"))
+        box.add(self._lamp("network", "Network alive"), self._lamp("reset", "Reset fault"))
         return box
 
     # -- refreshing ---------------------------------------------------------------------------
@@ -142,17 +136,16 @@ class StatusPanels(QWidget):
         v["mode"].setText(st.mode)
         running = st.machine_state in RUNNING_STATES or st.planner_state not in ("IDLE", "HELD", "PAUSED")
         v["execution"].setText("running" if running else "stopped")
-        v["state"].setText(st.machine_state + (f" ({st.logic_message})" if st.logic_message and st.machine_state in
-                                               ("FAULT", "STOPPED") else ""))
+        v["state"].setText(st.machine_state)
         v["phase"].setText(st.cycle_phase)
         target = "until stopped" if st.cycles_target == 0 and st.cycle_phase != "NONE" else str(st.cycles_target)
         v["cycles"].setText(f"{st.cycles_done} of {target}")
         homed = bool(st.axes) and all(a.homed for a in st.axes)
         self.lamps["homed"].set(OK if homed else WARN, "yes" if homed else
                                 "no" + (f" (homing {st.homing_axis.upper()})" if st.homing_axis else ""))
-        v["feed_commanded"].setText(f"{st.feed_commanded_mm_s * 60:9.0f} mm/min")
-        v["feed_actual"].setText(f"{st.feed_actual_mm_s * 60:9.0f} mm/min")
-        v["feed_override"].setText(f"{st.feed_override * 100:5.0f} %")
+        v["feed_commanded"].setText(f"{st.feed_commanded_mm_s * 60:.0f} mm/min")
+        v["feed_actual"].setText(f"{st.feed_actual_mm_s * 60:.0f} mm/min")
+        v["feed_override"].setText(f"{st.feed_override * 100:.0f} %")
         self._refresh_axes(st)
         self._refresh_program(st)
         self._refresh_devices(st)
@@ -204,7 +197,7 @@ class StatusPanels(QWidget):
         else:
             running = bool(inputs.get("pump_running", st.pump_on))
             self.lamps["pump"].set(OK if running else OFF, "running" if running else "off")
-        self.values["pressure"].setText(f"{st.pump_pressure_bar:6.0f} / {st.pump_set_bar:6.0f} bar")
+        self.values["pressure"].setText(f"{st.pump_pressure_bar:.0f} of {st.pump_set_bar:.0f}")
         self._input_lamp("mains", "mains_on", "on", "off")
         self._input_lamp("safety_circuit", "safety_circuit_ok", "closed", "OPEN")
 

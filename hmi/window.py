@@ -1,7 +1,7 @@
 """The operator screen's main window: the window structure driven by the machine state.
 
-The contour field sits in the centre and the status panels on the right on every page; below
-them the page for the current screen (`model.Screen`): offline, manual, automatic, a running
+The contour field sits in the centre and the status panels, the messages and the alarms on the
+right on every page; below the contour, the page for the current screen (`model.Screen`): offline, manual, automatic, a running
 procedure, or a fault. Changing mode, entering a procedure or a fault swaps that page, as the
 paper's "window structure driven by machine state". A banner across the top says when the
 controller is unreachable (commands disabled, reconnecting by itself), when the screen is
@@ -46,6 +46,7 @@ class OfflinePage(QWidget):
                             "on every alarm and message it missed.")
         self.label.setObjectName("page_title")
         self.label.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.label.setWordWrap(True)
         layout = QVBoxLayout(self)
         layout.addWidget(self.label)
 
@@ -77,17 +78,20 @@ class ProcedurePage(QWidget):
         super().__init__(parent)
         self.model = adapter.model
         self.procedure = ProcedureWindow(adapter, commands)
-        self.manual = ManualPage(adapter, commands)
+        self.manual = ManualPage(adapter, commands, vertical=True)
+        self._manual_area = QScrollArea()  # narrower than the manual page's natural width: it scrolls
+        self._manual_area.setWidget(self.manual)
+        self._manual_area.setWidgetResizable(True)
         layout = QHBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         layout.addWidget(self.procedure, 3)
-        layout.addWidget(self.manual, 2)
+        layout.addWidget(self._manual_area, 2)
         adapter.status.connect(self._show_manual)
         self._show_manual()
 
     def _show_manual(self) -> None:
         st = self.model.status
-        self.manual.setVisible(st is not None and st.mode == "MANUAL")
+        self._manual_area.setVisible(st is not None and st.mode == "MANUAL")
 
 
 class MainWindow(QMainWindow):
@@ -128,23 +132,23 @@ class MainWindow(QMainWindow):
         self.history = HistoryWindow(adapter)
         self.bar.history_requested.connect(self.show_history)
 
-        top = QSplitter(Qt.Orientation.Horizontal)
-        top.addWidget(self.contour)
-        top.addWidget(scroll)
-        top.setStretchFactor(0, 1)
-        top.setSizes([1100, 480])
-        bottom = QSplitter(Qt.Orientation.Horizontal)
-        bottom.addWidget(self.stack)
-        bottom.addWidget(self.tabs)
-        bottom.setStretchFactor(0, 3)
-        bottom.setStretchFactor(1, 2)
-        bottom.setSizes([950, 630])
-        body = QSplitter(Qt.Orientation.Vertical)
-        body.addWidget(top)
-        body.addWidget(bottom)
-        body.setStretchFactor(0, 3)
-        body.setStretchFactor(1, 2)
-        body.setSizes([560, 380])
+        left = QSplitter(Qt.Orientation.Vertical)  # the contour above the page for the screen
+        left.addWidget(self.contour)
+        left.addWidget(self.stack)
+        left.setStretchFactor(0, 3)
+        left.setStretchFactor(1, 2)
+        left.setSizes([540, 400])
+        right = QSplitter(Qt.Orientation.Vertical)  # the status panels above the messages and alarms
+        right.addWidget(scroll)
+        right.addWidget(self.tabs)
+        right.setStretchFactor(0, 2)
+        right.setStretchFactor(1, 1)
+        right.setSizes([470, 470])
+        body = QSplitter(Qt.Orientation.Horizontal)
+        body.addWidget(left)
+        body.addWidget(right)
+        body.setStretchFactor(0, 1)
+        body.setSizes([1110, 480])
         central = QWidget()
         layout = QVBoxLayout(central)
         layout.setContentsMargins(4, 4, 4, 4)
@@ -192,7 +196,7 @@ class MainWindow(QMainWindow):
         page = self.stack.currentWidget()
         if page is self.pages[Screen.MANUAL]:
             return page.jog
-        if page is self.pages[Screen.PROCEDURE] and page.manual.isVisible():
+        if page is self.pages[Screen.PROCEDURE] and page.manual.isVisibleTo(page):
             return page.manual.jog
         return None
 

@@ -144,7 +144,7 @@ def test_operator_runs_the_automatic_cycle_end_to_end_from_the_screen(qtbot, plc
     assert procedure.title.text() == "TRANSPORT PHASE"
     lines = procedure.step_lines()
     assert len(lines) == 11 and all("(done)" in line for line in lines[:10]) and "(awaited)" in lines[10]
-    assert not w.pages[Screen.PROCEDURE].manual.isVisible(), "in AUTO the steps are actions at the machine"
+    assert not w.pages[Screen.PROCEDURE].manual.isVisibleTo(w), "in AUTO the steps are actions at the machine"
     shot(w, "03_transport_procedure")
     sup.plc_sim.press_button()  # the operator at the transport station
 
@@ -222,7 +222,7 @@ def test_walking_a_procedure_with_confirmations_and_manual_steps_from_the_proced
     proc = page.procedure
     qtbot.waitUntil(lambda: proc.confirm.isEnabled(), timeout=WAIT_MS)
     assert proc.title.text() == "PUMP WARM-UP" and "catcher" in proc.instruction.text()
-    assert page.manual.isVisible(), "in MANUAL the controls a step asks for are beside the procedure"
+    assert page.manual.isVisibleTo(w), "in MANUAL the controls a step asks for are beside the procedure"
     shot(w, "08_procedure_confirm_step")
     click(qtbot, screen, proc.confirm)
     qtbot.waitUntil(lambda: "Switch the pump on" in proc.instruction.text(), timeout=WAIT_MS)
