@@ -15,7 +15,16 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
+# Qt's X11 platform plugin needs these system libraries; a display with any of them missing gets
+# them installed (root), or the demo renders the operator screen headless and says why.
+QT_XCB_LIBS := libxcb-cursor0 libxcb-icccm4 libxcb-keysyms1 libxcb-image0 libxcb-render-util0 libxcb-randr0 \
+               libxcb-shape0 libxcb-xinerama0 libxcb-xkb1 libxkbcommon-x11-0 libegl1 libfontconfig1 libdbus-1-3
+
 demo: $(STAMP)
+	@if [ -n "$$DISPLAY" ] && ldd "$$($(PY) -c 'import PySide6, pathlib; print(pathlib.Path(PySide6.__file__).parent / "Qt/plugins/platforms/libqxcb.so")')" | grep -q "not found"; then \
+	  if [ "$$(id -u)" = 0 ]; then echo "make demo: installing Qt's X11 libraries"; \
+	    (apt-get install -y -qq $(QT_XCB_LIBS) || (apt-get update -qq && apt-get install -y -qq $(QT_XCB_LIBS))) >/dev/null 2>&1 || true; \
+	  else echo "make demo: Qt's X11 libraries are missing (sudo apt-get install $(QT_XCB_LIBS))"; fi; fi
 	$(VENV)/bin/waterjet demo
 
 test: $(STAMP)

@@ -1,4 +1,4 @@
-"""`waterjet demo`: the simulated machine end to end, headless.
+"""`waterjet demo`: the simulated machine end to end, with the operator screen when there is a display.
 
 Starts the whole controller on the simulated board, with the PLC simulator on a pty pair
 behind the PLC link, and a separate subscriber process that prints the status, the alarms
@@ -11,6 +11,12 @@ second cut a safety door is opened (fault injection): the jet closes first, the 
 the path, alarm 2292 is raised; the door is closed, the alarm reset, and one more cycle cut.
 Finally it checks the history (every alarm stored, sequence numbers without a gap), that no
 servo fault or FIFO underrun happened, and that no shared memory is left behind.
+
+The program goes to the controller the way an operator station sends it (command lock, upload
+over Zenoh). With a display, the operator screen (`waterjet hmi`) opens at the start and watches;
+once the scripted part is over the machine is the operator's until the window is closed (a
+helper presses the transport-station button when the procedure asks). Without one, the operator
+screen is rendered headless once, at the end, to a PNG.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import math
 import multiprocessing
 import os
 import socket
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -26,9 +33,10 @@ from pathlib import Path
 from .alarms import AlarmHistory
 from .bus.keys import Keys
 from .bus.messages import (
-    AlarmEvent, CycleStart, Home, LoadProgram, ProcedureState, Reset, SetMode, Status, decode,
+    AlarmEvent, CycleStart, Home, ProcedureState, Reset, SetMode, Status, decode,
 )
-from .bus.session import open_client
+from .bus.operator import OperatorStation
+from .bus.session import connect_endpoints, open_client
 from .config import load_machine
 from .hw.board import DigitalOut
 from .layout import PlannerState, RunResult, ServoState
@@ -139,6 +147,7 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
     print(f"demo: controller for {config.machine.name!r} on the {clock} clock, Zenoh at {endpoint}", flush=True)
     errors: list[str] = []
     names: set[str] = set()
+    screen: subprocess.Popen | None = None
     with tempfile.TemporaryDirectory() as tmp:
         history = Path(tmp) / "history.sqlite"
         # a brisk transport system, so that the demo spends its time cutting
@@ -154,10 +163,22 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
                 target=print_status, args=(endpoint, config.zenoh.key_prefix, config.machine.name, stop, ready, counter, alarms)
             )
             subscriber.start()
+            if _display():
+                screen = subprocess.Popen(_hmi(endpoint, config, "--station", "operator"))
+                print("demo: operator screen opened (waterjet hmi); it watches while the demo plays the operator",
+                      flush=True)
             if not ready.wait(20.0):
                 errors.append("the subscriber process received no status over Zenoh")
             errors += _run(sup, program)
             errors += _check_history(history)
+            if screen is not None and screen.poll() is not None:
+                print(f"demo: the operator screen could not open on this display (exit {screen.returncode}; its "
+                      "messages are above); rendering it headless instead", flush=True)
+                screen = None
+            if screen is None:
+                errors += _screen_headless(endpoint, config)
+            elif not errors:
+                _keep_running_with_screen(sup, screen)
             stop.set()
             subscriber.join(10.0)
             print(f"demo: the subscriber process received {counter.value} status messages and {alarms.value} alarm "
@@ -168,6 +189,9 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
             errors.append(str(exc))
         finally:
             stop.set()
+            if screen is not None and screen.poll() is None:
+                screen.terminate()
+                screen.wait(10.0)
             sup.stop()
     left = [n for n in names if os.path.exists(f"/dev/shm/{n}")]
     if left:
@@ -208,7 +232,7 @@ def _run(sup: Supervisor, program: Path) -> list[str]:
     sup.wait_until(lambda: _logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
                    120.0, "homing")
     print(f"demo: homed; X {sup.servo()['actual_mm'][0]:.3f} Y {sup.servo()['actual_mm'][1]:.3f}", flush=True)
-    _ask(sup, "load", LoadProgram(str(program)))
+    _upload(sup, program)
     m = sup.motion()
     print(f"demo: loaded {m['program_name']}: {m['program_lines']} lines, {m['total_mm']:.0f} mm of path, "
           f"planned cycle time {m['planned_s']:.2f} s", flush=True)
@@ -255,6 +279,65 @@ def _run(sup: Supervisor, program: Path) -> list[str]:
     sup.wait_until(lambda: all(abs(p - 50.0) <= POSITION_TOLERANCE_MM for p in sup.servo()["actual_mm"]), 5.0,
                    "the table to settle at the program's end X50 Y50")
     return errors
+
+
+def _upload(sup: Supervisor, program: Path) -> None:
+    """Send the program the way an operator station does (command lock, upload over Zenoh), so that
+    the operator screen gets its interpreted path for the contour; then hand the lock back."""
+    session = open_client(connect_endpoints(sup.config.zenoh.listen))
+    station = OperatorStation(session, sup.keys, "demo")
+    try:
+        for what, reply in (("take the command lock", lambda: station.take_lock()),
+                            ("upload", lambda: station.upload(program.name, program.read_text())),
+                            ("release the command lock", lambda: station.release_lock())):
+            answer = reply()
+            if not answer.ok:
+                raise SupervisorError(f"{what} refused: {answer.reason}")
+    finally:
+        station.close()
+        session.close()
+    sup.wait_until(lambda: sup.motion()["program_name"] == program.name, 10.0, "the uploaded program to be loaded")
+
+
+def _hmi(endpoint: str, config, *options: str) -> list[str]:  # noqa: ANN001 - a MachineConfig
+    """The command line of `waterjet hmi` on this controller."""
+    return [sys.executable, "-m", "cnc.cli", "hmi", "--connect", endpoint, "--machine", config.machine.name,
+            "--prefix", config.zenoh.key_prefix, *options]
+
+
+def _display() -> bool:
+    """A screen to open the operator screen on (an explicitly offscreen Qt platform is none)."""
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) and \
+        os.environ.get("QT_QPA_PLATFORM", "") != "offscreen"
+
+
+def _screen_headless(endpoint: str, config) -> list[str]:  # noqa: ANN001 - a MachineConfig
+    """Render the operator screen once without a display, as `waterjet hmi --screenshot` does."""
+    out = Path(tempfile.gettempdir()) / "waterjet-demo-hmi.png"
+    try:
+        res = subprocess.run(_hmi(endpoint, config, "--station", "demo-screen", "--screenshot", str(out), "--after", "3"),
+                             capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        return ["the operator screen did not render within 120 s"]
+    if res.returncode != 0:
+        return [f"the operator screen failed to render: {res.stderr.strip()[-500:]}"]
+    print(f"demo: operator screen rendered headless to {out} ({res.stdout.strip().rsplit('(', 1)[-1]}", flush=True)
+    return []
+
+
+def _keep_running_with_screen(sup: Supervisor, screen: subprocess.Popen) -> None:
+    """Leave the machine to the operator at the screen until its window is closed; a helper at the
+    transport station presses its button whenever the transport procedure asks for it."""
+    print("demo: the operator screen is yours: take the command lock to run cycles (the transport-station "
+          "button is pressed for you); close the window to end the demo", flush=True)
+
+    def done() -> bool:
+        lo = _logic(sup)
+        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
+            sup.plc_sim.press_button()
+        return screen.poll() is not None
+
+    sup.run(done)
 
 
 def _check_history(path: Path) -> list[str]:

@@ -374,6 +374,8 @@ class Planner:
         self._progress(self.servo_r.read_dict())
         if self.runner_kind == PlannerState.RUNNING:
             self._set(run_result=int(result), run_end_tick=self.hw_r.read_dict()["tick"], eta_s=0.0)
+            if result == RunResult.DONE:  # the last setpoints sampled may end short of the path's last mm
+                self._set(done_mm=self.out.get("total_mm"))
         self.runner, self.runner_kind = None, PlannerState.IDLE
         self._set(state=int(PlannerState.IDLE))
 
