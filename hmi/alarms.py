@@ -7,19 +7,26 @@ live events extend it); every entry keeps its level's colour wherever it is show
 
 from __future__ import annotations
 
-from PySide6.QtCore import QAbstractTableModel, QModelIndex, QPersistentModelIndex, Qt, QTimer
+import logging
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+from PySide6.QtCore import QAbstractTableModel, QModelIndex, QPersistentModelIndex, Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QAbstractItemView, QCheckBox, QHBoxLayout, QHeaderView, QLabel, QLineEdit, QListWidget, QListWidgetItem, QPushButton,
     QTableView, QTableWidget, QTableWidgetItem, QVBoxLayout, QWidget,
 )
 
-from cnc.bus.messages import Acknowledge, AlarmEvent, Reset
+from cnc.bus.messages import Acknowledge, AlarmEvent, HistoryPage, Reset
 
 from .adapter import ModelAdapter
 from .commands import CommandRunner, enable_while_commanding
 from .style import LEVEL_COLOURS, clock, level_colour
 
+log = logging.getLogger(__name__)
+
 LEVELS = ("fatal", "error", "warning", "info")
+Search = Callable[[str, list[str], "list[int] | None"], HistoryPage]  # text, levels, codes -> newest matching
 MESSAGES_SHOWN = 200  # newest history entries in the message area
 SEARCH_DELAY_MS = 200  # typing in the search field re-filters after this pause
 
@@ -200,11 +207,18 @@ def parse_codes(text: str) -> list[int] | None:
 
 
 class HistoryWindow(QWidget):
-    """The message history: search text, level boxes and codes filter the entries the controller's
-    history holds; new entries appear as they come (the filter applies to them too)."""
+    """The message history: search text, level boxes and codes filter the newest entries of the
+    controller's history (the screen keeps the last HISTORY_KEPT); new entries appear as they come,
+    the filter applying to them too. "Search the controller" runs the same filter over the whole
+    history on the controller (older entries included) through `search`."""
 
-    def __init__(self, adapter: ModelAdapter, parent: QWidget | None = None) -> None:
+    _found = Signal(object)  # a HistoryPage, or the text of why the search failed (from the worker)
+
+    def __init__(self, adapter: ModelAdapter, search: Search | None = None, parent: QWidget | None = None) -> None:
         super().__init__(parent)
+        self._search = search
+        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hmi-history-search")
+        self.searched = False  # the table shows a search of the controller, not the entries held
         self.setWindowTitle("Message history")
         self.model = adapter.model
         self.search = QLineEdit()
@@ -222,7 +236,7 @@ class HistoryWindow(QWidget):
             box.setChecked(True)
             bg, fg = LEVEL_COLOURS[lv]
             box.setStyleSheet(f"QCheckBox {{ background: {bg}; color: {fg}; padding: 2px 6px; }}")
-            box.toggled.connect(self.refresh)
+            box.toggled.connect(self._filter_changed)
             filters.addWidget(box)
         self.table_model = HistoryTable()
         self.table = QTableView()
@@ -232,31 +246,79 @@ class HistoryWindow(QWidget):
         self.table.horizontalHeader().setSectionResizeMode(5, QHeaderView.ResizeMode.Stretch)
         self.table.horizontalHeader().setSectionResizeMode(6, QHeaderView.ResizeMode.Stretch)
         self.count = QLabel()
+        self.search_button = QPushButton("Search the controller's whole history")
+        self.search_button.setEnabled(search is not None)
+        self.search_button.clicked.connect(self.search_controller)
+        foot = QHBoxLayout()
+        foot.addWidget(self.count, 1)
+        foot.addWidget(self.search_button)
         layout = QVBoxLayout(self)
         layout.addLayout(filters)
         layout.addWidget(self.table)
-        layout.addWidget(self.count)
+        layout.addLayout(foot)
+        self._found.connect(self._show_found, Qt.ConnectionType.QueuedConnection)
         self._timer = QTimer(self)
         self._timer.setSingleShot(True)
         self._timer.setInterval(SEARCH_DELAY_MS)
         self._timer.timeout.connect(self.refresh)
-        self.search.textChanged.connect(self._timer.start)
-        self.codes.textChanged.connect(self._timer.start)
-        adapter.history.connect(self.refresh)
+        self.search.textChanged.connect(self._filter_changed)
+        self.codes.textChanged.connect(self._filter_changed)
+        adapter.history.connect(self._live)
         self.resize(1000, 500)
         self.refresh()
 
-    def refresh(self) -> None:
-        """Re-filter now (the search field's pause timer calls this too)."""
+    def _filter_changed(self) -> None:
+        self.searched = False
+        self._timer.start()
+
+    def _live(self) -> None:
+        if not self.searched:  # a search's answer stays until the filter changes
+            self.refresh()
+
+    def _filter(self) -> tuple[str, list[str], list[int] | None] | None:
+        """(text, levels, codes) as typed; None (and the reason shown) when the codes are not codes."""
         try:
             codes = parse_codes(self.codes.text())
         except ValueError as exc:
             self.codes.setStyleSheet("background: #ffd0d0;")
             self.count.setText(str(exc))
-            return
+            return None
         self.codes.setStyleSheet("")
-        levels = [lv for lv, box in self.level_boxes.items() if box.isChecked()]
-        entries = self.model.history_view(self.search.text(), levels, codes)
+        return self.search.text(), [lv for lv, box in self.level_boxes.items() if box.isChecked()], codes
+
+    def search_controller(self) -> None:
+        """Run the filter on the controller's whole history (off the GUI thread)."""
+        query = self._filter()
+        if query is None or self._search is None:
+            return
+        self.count.setText("Searching the controller's history…")
+        self.search_button.setEnabled(False)
+        self._executor.submit(self._run_search, *query)
+
+    def _run_search(self, text: str, levels: list[str], codes: list[int] | None) -> None:
+        try:
+            self._found.emit(self._search(text, levels, codes))
+        except Exception as exc:  # no answer, or the controller refused the query: the operator sees why
+            log.info("history search failed: %s", exc)
+            self._found.emit(f"the search failed: {exc}")
+
+    def _show_found(self, found: HistoryPage | str) -> None:
+        self.search_button.setEnabled(self._search is not None)
+        if isinstance(found, str):
+            self.count.setText(found)
+            return
+        self.searched = True
+        self.table_model.set_entries(found.entries)
+        more = " (the newest; narrow the search for older ones)" if found.more else ""
+        self.count.setText(f"{len(found.entries)} entries found in the controller's whole history{more}")
+
+    def refresh(self) -> None:
+        """Re-filter the entries held now (the search field's pause timer calls this too)."""
+        query = self._filter()
+        if query is None:
+            return
+        self.searched = False
+        entries = self.model.history_view(*query)
         self.table_model.set_entries(entries)
         held = self.model.last_seq
         self.count.setText(f"{len(entries)} of the entries held shown (newest {held})")
@@ -271,6 +333,11 @@ class HistoryWindow(QWidget):
             box.blockSignals(False)
         self._timer.stop()
         self.refresh()
+
+    def shutdown(self) -> None:
+        """Close the window for good: a search under way is dropped."""
+        self._executor.shutdown(wait=False, cancel_futures=True)
+        self.close()
 
     def rows(self) -> list[list[str]]:
         m = self.table_model

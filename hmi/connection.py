@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -18,7 +19,7 @@ from cnc.bus.messages import (
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 
-from .model import MachineModel
+from .model import HISTORY_KEPT, MachineModel
 
 log = logging.getLogger(__name__)
 
@@ -27,6 +28,7 @@ QUERY_TIMEOUT_S = 3.0  # how long a catch-up query may wait for its answer
 PAGE_SIZE = 500  # history entries per query (the controller caps a page at 1000)
 POLL_PERIOD_S = 0.1  # the worker's watchdog and catch-up period
 GAP_GRACE_S = 0.5  # a status may announce an entry before its event arrives: wait this long
+SEARCH_LIMIT = 1000  # entries a search of the controller's history returns at most
 OPEN_RETRY_S = 1.0  # no router accepted the session: try again this often
 ACTIVE_RECHECK_S = 1.0  # a status whose alarm count differs from the model's re-reads the list this often
 
@@ -85,7 +87,8 @@ class Connection:
         try:
             session = open_client(self.endpoints, self.credentials)
         except zenoh.ZError as exc:
-            self.last_open_error = f"cannot reach {', '.join(self.endpoints)}: {exc}"
+            why = re.sub(r"\s+at /\S+$", "", str(exc).strip())  # Zenoh appends its source location
+            self.last_open_error = f"cannot reach {', '.join(self.endpoints)}: {why}"
             return False
         self.last_open_error = ""
         handlers: dict[str, tuple[type[msgspec.Struct], Callable[[msgspec.Struct], None]]] = {
@@ -265,6 +268,9 @@ class Connection:
         while True:
             with self._lock:
                 after = self._contiguous_seq
+            status = self.model.status
+            if after == 0 and status is not None and status.alarm_seq > HISTORY_KEPT:
+                after = status.alarm_seq - HISTORY_KEPT  # a long history: the newest the model keeps; older by search
             page = self._query(f"{self.keys.alarms_history}?after={after};limit={PAGE_SIZE}", HistoryPage)
             self.model.apply_history(page)
             newest = page.entries[-1].seq if page.entries else page.last_seq
@@ -272,6 +278,19 @@ class Connection:
                 self._contiguous_seq = max(self._contiguous_seq, newest)
             if not page.more or not page.entries:
                 return
+
+    def search_history(self, text: str = "", levels: list[str] | None = None, codes: list[int] | None = None,
+                       limit: int = SEARCH_LIMIT) -> HistoryPage:
+        """The controller's whole history searched there (newest first): for entries older than the
+        model keeps. Blocks for the round trip; NoAnswer when the controller does not answer."""
+        params = [f"limit={limit}", "order=newest"]
+        if text.strip():
+            params.append("text=" + re.sub(r"[;=&?]", " ", text.strip()))  # the selector's separators
+        if levels:
+            params.append("level=" + ",".join(levels))
+        if codes:
+            params.append("code=" + ",".join(str(c) for c in codes))
+        return self._query(f"{self.keys.alarms_history}?{';'.join(params)}", HistoryPage)
 
     def _read(self, selector: str, kind: type[msgspec.Struct], apply: Callable[[msgspec.Struct], None]) -> None:
         apply(self._query(selector, kind))

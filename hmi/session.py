@@ -30,7 +30,8 @@ class OperatorScreen:
         self.adapter = ModelAdapter(self.model)
         self.commands = CommandRunner(self.connection)
         self.window = MainWindow(self.adapter, self.commands, ", ".join(endpoints),
-                                 open_error=lambda: self.connection.last_open_error)
+                                 open_error=lambda: self.connection.last_open_error,
+                                 search_history=self.connection.search_history)
         self.connection.start()
 
     def __enter__(self) -> OperatorScreen:

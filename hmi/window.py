@@ -11,8 +11,10 @@ read-only, and when a message could not be read.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from PySide6.QtCore import Qt, QTimer
+from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QApplication, QHBoxLayout, QLabel, QMainWindow, QScrollArea, QSplitter, QStackedWidget, QTabWidget, QVBoxLayout, QWidget,
 )
@@ -20,7 +22,7 @@ from PySide6.QtWidgets import (
 from cnc.bus.messages import Reply
 
 from .adapter import ModelAdapter
-from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea
+from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea, Search
 from .commands import CommandRunner
 from .contour import ContourView
 from .controls import AutoPage, CommandBar, JogPad, KeyJog, ManualPage
@@ -98,7 +100,10 @@ class MainWindow(QMainWindow):
     """The whole operator screen for one controller (`where` names its endpoint for the banner)."""
 
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, where: str = "the controller",
-                 open_error=None, parent: QWidget | None = None) -> None:  # noqa: ANN001 - a callable giving "" or why
+                 open_error: Callable[[], str] | None = None, search_history: Search | None = None,
+                 parent: QWidget | None = None) -> None:
+        """`open_error()` says why the controller cannot be reached ("" when unknown);
+        `search_history` searches the controller's whole history (the history window's button)."""
         super().__init__(parent)
         self.adapter, self.model, self.commands, self.where = adapter, adapter.model, commands, where
         self._open_error = open_error or (lambda: "")
@@ -129,7 +134,7 @@ class MainWindow(QMainWindow):
         self.tabs.addTab(self.messages, "Messages")
         self.tabs.addTab(self.alarms, "Active alarms")
         self.tabs.addTab(self.faults, "Faults")
-        self.history = HistoryWindow(adapter)
+        self.history = HistoryWindow(adapter, search_history)
         self.bar.history_requested.connect(self.show_history)
 
         left = QSplitter(Qt.Orientation.Vertical)  # the contour above the page for the screen
@@ -164,6 +169,9 @@ class MainWindow(QMainWindow):
         self._pads = [self.pages[Screen.MANUAL].jog, self.pages[Screen.PROCEDURE].manual.jog]
         self._key_jog = KeyJog(self._active_pad, self._pads, self)
         QApplication.instance().installEventFilter(self._key_jog)
+        self._stop_key = QShortcut(QKeySequence(Qt.Key.Key_Escape), self)  # STOP from the keyboard, on any page
+        self._stop_key.setContext(Qt.ShortcutContext.ApplicationShortcut)
+        self._stop_key.activated.connect(self.bar.stop.click)  # a disabled button ignores the click
         self._banner_timer = QTimer(self)
         self._banner_timer.setInterval(BANNER_REFRESH_MS)
         self._banner_timer.timeout.connect(self._show_banner)
@@ -278,5 +286,5 @@ class MainWindow(QMainWindow):
         for pad in self._pads:
             pad.stop_all()
         QApplication.instance().removeEventFilter(self._key_jog)
-        self.history.close()
+        self.history.shutdown()
         super().closeEvent(event)

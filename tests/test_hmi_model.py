@@ -19,7 +19,7 @@ from cnc.alarms.catalogue import AlarmAction, AlarmLevel
 from cnc.alarms.history import AlarmHistory
 from cnc.supervisor import Supervisor
 from hmi.connection import Connection
-from hmi.model import MachineModel, Screen
+from hmi.model import MachineModel, PlcState, Screen
 
 from .conftest import NEAR_HOME, fast_plant, machine_config
 from .test_zenoh_interface import PART
@@ -293,3 +293,72 @@ def test_unreachable_when_the_controller_stops_and_reachable_when_a_new_one_come
             wait_for(lambda: 9999 in [a.code for a in model.active_alarms], 5.0, "the active list read again")
     finally:
         sup.stop()
+
+
+def test_a_long_history_is_read_from_its_newest_entries_and_searched_whole_on_the_controller(controller, monkeypatch):
+    import hmi.connection
+
+    sup = controller
+    keys, endpoints = keys_of(sup.config), [sup.config.zenoh.listen[0]]
+    other_session = open_client(endpoints)
+    other = OperatorStation(other_session, keys, "other")
+    assert other.take_lock().ok
+    for _ in range(5):
+        assert not other.request(CycleStart()).ok  # message 37 each time
+    other.close()
+    other_session.close()
+    monkeypatch.setattr(hmi.connection, "HISTORY_KEPT", 3)
+    model = MachineModel("panel")
+    with Connection(model, endpoints, keys, "panel") as conn:
+        wait_for(lambda: model.reachable and model.last_seq >= 5, 10.0, "the catch-up")
+        newest = model.status.alarm_seq
+        assert [e.seq for e in model.history_view()] == [newest, newest - 1, newest - 2], "only the newest kept are read"
+        found = conn.search_history(text="mode", codes=[37])
+        assert len(found.entries) == 5 and all(e.code == 37 for e in found.entries)
+        assert [e.seq for e in found.entries] == sorted((e.seq for e in found.entries), reverse=True), "newest first"
+        assert conn.search_history(levels=["fatal"]).entries == []
+
+
+def test_plc_state_faults_and_reset_needed_are_derived_from_the_status_and_the_alarms():
+    model = MachineModel("panel")
+    assert model.plc_state() is PlcState.STOPPED and model.faults() == [] and not model.needs_reset()
+    running = {"plc_running": 1.0, "transport_step": 0.0, "safety_circuit_ok": 1.0}
+    model.apply_status(status(1, plc_link="OK", plc_inputs=running))
+    assert model.plc_state() is PlcState.STARTED
+    model.apply_status(status(2, plc_link="OK", plc_inputs={**running, "transport_step": 3.0}))
+    assert model.plc_state() is PlcState.RUNNING
+    model.apply_status(status(3, plc_link="OK", plc_inputs=running, cycle_phase="CUTTING"))
+    assert model.plc_state() is PlcState.RUNNING
+    model.apply_status(status(4, plc_link="LOST", plc_inputs={}, estop_ok=False, doors_closed=False,
+                              fault="FOLLOWING_ERROR", fault_axis="x", machine_state="ESTOP"))
+    assert model.plc_state() is PlcState.STOPPED and model.needs_reset()
+    assert model.faults() == ["Emergency stop pressed (or the safety circuit is open)", "Safety door open",
+                              "Servo fault FOLLOWING_ERROR on axis X", "PLC link LOST"]
+    model.apply_status(status(5, plc_link="OK", plc_inputs={**running, "plc_alarm": 12.0, "pump_fault": 1.0,
+                                                             "safety_circuit_ok": 0.0}))
+    assert model.faults() == ["PLC alarm 12", "High-pressure pump fault", "Safety circuit open (PLC)"]
+    model.apply_status(status(6, plc_link="OK", plc_inputs=running))
+    assert not model.needs_reset()
+    model.apply_alarm(event(1, "raised", detail="axis x"))
+    assert model.faults() == ["10 Following error: axis x"] and model.needs_reset()
+    model.apply_alarm(event(2, "cleared", detail="axis x"))
+    assert model.faults() == [] and model.needs_reset(), "cleared but latched: no fault, the reset still owed"
+    model.apply_alarm(event(3, "reset", detail="axis x"))
+    assert not model.needs_reset()
+
+
+def test_a_done_procedure_keeps_the_screen_until_ended_unless_the_automatic_cycle_started_it():
+    model = MachineModel("panel")
+    model.set_reachable(True)
+    steps = [ProcedureStep("Press", "done")]
+    model.apply_status(status(1, mode="AUTO", procedure="transport", cycle_phase="TRANSPORT"))
+    model.apply_procedure(ProcedureState("transport", "Transport", "done", -1, steps, "", 1, by_cycle=True))
+    assert model.screen is Screen.AUTO, "the cycle goes on by itself"
+    model.apply_procedure(ProcedureState("transport", "Transport", "stopped", -1, steps, "", 2, by_cycle=True))
+    assert model.screen is Screen.PROCEDURE, "a stopped one waits for the operator to end it"
+    model.apply_status(status(2, mode="MANUAL", procedure="pump_warmup"))
+    model.apply_procedure(ProcedureState("pump_warmup", "Pump", "done", -1, steps, "", 3))
+    assert model.screen is Screen.PROCEDURE, "the operator's own procedure stays until ended"
+    model.apply_status(status(3, mode="MANUAL", procedure=""))
+    model.apply_procedure(ProcedureState("", "", "idle", -1, [], "", 4))
+    assert model.screen is Screen.MANUAL

@@ -193,6 +193,9 @@ def test_an_alarm_shows_in_the_list_faults_messages_and_history_and_is_acknowled
     click(qtbot, screen, w.bar.reset)
     qtbot.waitUntil(lambda: model.active_alarms == [] and w.alarms.rows() == [], timeout=WAIT_MS)
     qtbot.waitUntil(lambda: w.current_screen is Screen.MANUAL, timeout=WAIT_MS)
+    with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as esc:
+        qtbot.keyClick(w, Qt.Key.Key_Escape)
+    assert esc.args[0] == "Stop", "Esc is STOP on every page"
 
     w.show_history()
     h = w.history
@@ -208,6 +211,11 @@ def test_an_alarm_shows_in_the_list_faults_messages_and_history_and_is_acknowled
     assert "'22x' is not an alarm code" in h.count.text()
     h.set_filter()
     assert len(h.rows()) == len(model.history_view())
+    h.set_filter(text="door", codes="2292")
+    with qtbot.waitSignal(h._found, timeout=WAIT_MS):
+        qtbot.mouseClick(h.search_button, Qt.MouseButton.LeftButton)
+    assert h.searched and [r[4] for r in h.rows()] == ["reset", "cleared", "acknowledged", "raised"]
+    assert "found in the controller's whole history" in h.count.text()
     shot(h, "07_message_history")
 
 

@@ -216,8 +216,13 @@ def test_end_closes_a_finished_procedure_and_another_may_start(runner):
     runner.end()
     assert runner.state().state == "idle"
     runner.start("pump_warmup")
-    assert runner.state().id == "pump_warmup"
+    assert runner.state().id == "pump_warmup" and not runner.state().by_cycle
     assert runner.done("startup")  # the last run of startup still counts as completed
+
+
+def test_a_procedure_the_automatic_cycle_starts_says_so_to_the_screen(runner):
+    runner.start("transport", by_cycle=True)
+    assert runner.state().by_cycle, "its window does not keep the screen once done: the cycle goes on"
 
 
 def test_starting_again_forgets_that_the_last_run_completed(runner):
