@@ -39,13 +39,20 @@ LOAD_TARGET_S = 1.0
 
 
 def program(segments: int) -> ProgramPath:
-    """A nesting program with at least `segments` motions (about 0.93 motions per generated line)."""
+    """A nesting program's path with at least `segments` motions."""
+    return program_with_text(segments)[1]
+
+
+def program_with_text(segments: int) -> tuple[str, ProgramPath]:
+    """A nesting program with at least `segments` motions (about 0.93 motions per generated line):
+    its text and its interpreted path."""
     config = load_machine(REPO / "machines" / "waterjet.toml")
     lines = int(segments / 0.9)
     while True:
-        path = program_path(Interpreter(dialect_for(config), "nest.ngc").run(nesting_program(lines)))
+        text = nesting_program(lines)
+        path = program_path(Interpreter(dialect_for(config), "nest.ngc").run(text))
         if len(path.kind) >= segments:
-            return path
+            return text, path
         lines = int(lines * 1.1)
 
 
