@@ -37,6 +37,8 @@ bench: $(STAMP)
 	$(PY) bench/planner_throughput.py
 	$(PY) bench/linuxcnc_compare.py
 	$(PY) bench/gcode_speed.py
+	QT_QPA_PLATFORM=offscreen $(PY) bench/hmi_contour.py
+	QT_QPA_PLATFORM=offscreen $(PY) bench/hmi_window.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
