@@ -24,6 +24,7 @@ O_KEYWORDS = (
 _SIMPLE = re.compile(r"(?:[abcdfghijklmpqrstuvwxyz][-+]?(?:\d+\.?\d*|\.\d+))+")
 _PAIR = re.compile(r"([a-z])([-+]?(?:\d+\.?\d*|\.\d+))")
 MAX_O_ARGS = 30
+_DIGITS = frozenset("0123456789")  # str.isdigit() also takes '²' and other digits int() refuses
 
 
 @dataclass(slots=True)
@@ -161,7 +162,7 @@ def _parse(block: Block) -> None:
 
 def _skip_line_number(text: str, pos: int) -> int:
     start = pos
-    while pos < len(text) and (text[pos].isdigit() or text[pos] == "."):
+    while pos < len(text) and (text[pos] in _DIGITS or text[pos] == "."):
         pos += 1
     if pos == start:
         raise GCodeError("N must be followed by a line number", code="line-number", column=start)
@@ -181,7 +182,7 @@ def _parse_oword(text: str, pos: int) -> OWord:
         pos = end + 1
     else:
         digits = pos
-        while pos < len(text) and text[pos].isdigit():
+        while pos < len(text) and text[pos] in _DIGITS:
             pos += 1
         if pos == digits:
             raise GCodeError("O must be followed by a number or a <name>", code="o-word", column=pos + 1)

@@ -137,6 +137,22 @@ class MainWindow(QMainWindow):
         self.history = HistoryWindow(adapter, search_history)
         self.bar.history_requested.connect(self.show_history)
 
+        self._lay_out(scroll)
+        self.command_line = QLabel()
+        self.statusBar().addWidget(self.command_line, 1)
+
+        self._offline_since = time.time()
+        self._travel: dict[str, tuple[float, float]] = {}
+        self._wire()
+        self._show_screen()
+        self._show_banner()
+        self._show_travel()
+        self._show_program()
+        self.resize(1600, 1000)
+
+    def _lay_out(self, panels: QWidget) -> None:
+        """Banner and command bar on top; the contour above the page for the screen on the left;
+        the status panels above the messages and alarms on the right."""
         left = QSplitter(Qt.Orientation.Vertical)  # the contour above the page for the screen
         left.addWidget(self.contour)
         left.addWidget(self.stack)
@@ -144,7 +160,7 @@ class MainWindow(QMainWindow):
         left.setStretchFactor(1, 2)
         left.setSizes([540, 400])
         right = QSplitter(Qt.Orientation.Vertical)  # the status panels above the messages and alarms
-        right.addWidget(scroll)
+        right.addWidget(panels)
         right.addWidget(self.tabs)
         right.setStretchFactor(0, 2)
         right.setStretchFactor(1, 1)
@@ -161,11 +177,9 @@ class MainWindow(QMainWindow):
         layout.addWidget(self.bar)
         layout.addWidget(body, 1)
         self.setCentralWidget(central)
-        self.command_line = QLabel()
-        self.statusBar().addWidget(self.command_line, 1)
 
-        self._offline_since = time.time()
-        self._travel: dict[str, tuple[float, float]] = {}
+    def _wire(self) -> None:
+        """Keys (arrows jog, Esc stops), the banner's clock, and the model's signals to the views."""
         self._pads = [self.pages[Screen.MANUAL].jog, self.pages[Screen.PROCEDURE].manual.jog]
         self._key_jog = KeyJog(self._active_pad, self._pads, self)
         QApplication.instance().installEventFilter(self._key_jog)
@@ -176,20 +190,15 @@ class MainWindow(QMainWindow):
         self._banner_timer.setInterval(BANNER_REFRESH_MS)
         self._banner_timer.timeout.connect(self._show_banner)
         self._banner_timer.start()
-        adapter.screen.connect(self._show_screen)
-        adapter.connection.connect(self._connection_changed)
-        for signal in (adapter.connection, adapter.lock, adapter.error):
+        self.adapter.screen.connect(self._show_screen)
+        self.adapter.connection.connect(self._connection_changed)
+        for signal in (self.adapter.connection, self.adapter.lock, self.adapter.error):
             signal.connect(self._show_banner)
-        adapter.program.connect(self._show_program)
-        adapter.position.connect(self._show_position)
-        adapter.status.connect(self._show_travel)
-        adapter.status.connect(self._show_progress)  # a run's end comes with the status, not a position
-        commands.replied.connect(self._show_reply)
-        self._show_screen()
-        self._show_banner()
-        self._show_travel()
-        self._show_program()
-        self.resize(1600, 1000)
+        self.adapter.program.connect(self._show_program)
+        self.adapter.position.connect(self._show_position)
+        self.adapter.status.connect(self._show_travel)
+        self.adapter.status.connect(self._show_progress)  # a run's end comes with the status, not a position
+        self.commands.replied.connect(self._show_reply)
 
     # -- the page and the banner -------------------------------------------------------------
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from gcode.canon import DWELL
@@ -58,6 +58,8 @@ def _interpret(text: str) -> None:
 
 @SETTINGS
 @given(st.text(max_size=300))
+@example("O²")  # a character str.isdigit() accepts and int() refuses
+@example("N²G1X1")
 def test_arbitrary_text_gives_a_program_or_a_gcode_error(text):
     _interpret(text)
 

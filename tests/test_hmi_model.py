@@ -4,6 +4,7 @@ to a real controller on the virtual clock (catch-up, live status, lock and comma
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from types import SimpleNamespace
 
 import pytest
@@ -216,16 +217,27 @@ def keys_of(config) -> Keys:
     return Keys(config.zenoh.key_prefix, config.machine.name)
 
 
+@contextmanager
+def other_station(endpoints: list[str], keys: Keys, wrong_mode_messages: int):
+    """Another station that takes the lock and asks for a cycle start in MANUAL `wrong_mode_messages`
+    times (each refused, message 37 in the history)."""
+    session = open_client(endpoints)
+    station = OperatorStation(session, keys, "other")
+    try:
+        assert station.take_lock().ok
+        for _ in range(wrong_mode_messages):
+            assert not station.request(CycleStart()).ok
+        yield station
+    finally:
+        station.close()
+        session.close()
+
+
 def test_the_connection_catches_up_takes_the_lock_commands_and_follows_the_program(controller):
     sup = controller
     keys, endpoints = keys_of(sup.config), [sup.config.zenoh.listen[0]]
-    other_session = open_client(endpoints)
-    other = OperatorStation(other_session, keys, "other")
-    assert other.take_lock().ok
-    for _ in range(3):
-        assert not other.request(CycleStart()).ok  # refused in MANUAL: message 37, before the HMI connects
     model = MachineModel("panel")  # no machine file on the operator's host: the travel comes with the status
-    with Connection(model, endpoints, keys, "panel") as conn:
+    with other_station(endpoints, keys, 3) as other, Connection(model, endpoints, keys, "panel") as conn:
         wait_for(lambda: len(model.history_view(codes=[37])) == 3, 10.0, "the messages from before the connection")
         wait_for(lambda: model.reachable and model.position is not None, 5.0, "status and position")
         assert model.status.plc_link == "OK" and model.screen is Screen.MANUAL and model.error == ""
@@ -246,8 +258,6 @@ def test_the_connection_catches_up_takes_the_lock_commands_and_follows_the_progr
         wait_for(lambda: model.program is not None and model.program.name == "part.ngc", 5.0, "the program")
         assert model.program.segments == 6 and model.program.text == PART and model.segment_states() <= 0
     assert not model.reachable
-    other.close()
-    other_session.close()
 
 
 def test_a_schema_version_mismatch_sets_a_clear_error_and_the_subscription_survives(controller):
@@ -300,13 +310,8 @@ def test_a_long_history_is_read_from_its_newest_entries_and_searched_whole_on_th
 
     sup = controller
     keys, endpoints = keys_of(sup.config), [sup.config.zenoh.listen[0]]
-    other_session = open_client(endpoints)
-    other = OperatorStation(other_session, keys, "other")
-    assert other.take_lock().ok
-    for _ in range(5):
-        assert not other.request(CycleStart()).ok  # message 37 each time
-    other.close()
-    other_session.close()
+    with other_station(endpoints, keys, 5):
+        pass
     monkeypatch.setattr(hmi.connection, "HISTORY_KEPT", 3)
     model = MachineModel("panel")
     with Connection(model, endpoints, keys, "panel") as conn:
