@@ -93,7 +93,7 @@ class StatusPanels(QWidget):
         self._axes_grid = QGridLayout(box)
         self._axes_grid.setContentsMargins(6, 4, 6, 4)
         self._axes_grid.setVerticalSpacing(2)
-        for col, head in enumerate(("", "Position mm", "Foll. err µm", "mm/s", "Status")):
+        for col, head in enumerate(("", "Position mm", "Foll. err µm", "mm/s", "Homed / drive")):
             self._axes_grid.addWidget(QLabel(f"<b>{head}</b>"), 0, col)
         self._axis_rows: dict[str, list[QLabel]] = {}
         return box
@@ -159,7 +159,7 @@ class StatusPanels(QWidget):
                 row = self._axis_rows[a.name] = [QLabel(f"<b>{a.name.upper()}</b>")] + [value_label() for _ in range(4)]
                 for col, label in enumerate(row):
                     self._axes_grid.addWidget(label, r, col)
-            flags = [("homed" if a.homed else "not homed"), ("drive on" if a.drive_enabled else "drive off")]
+            flags = [f"{'yes' if a.homed else 'no'} / {'on' if a.drive_enabled else 'off'}"]
             if not a.drive_ready:
                 flags.append("DRIVE FAULT")
             if a.limit_min or a.limit_max:

@@ -93,6 +93,7 @@ class ProgramPanel(QWidget):
         try:
             text = read_program(path)
         except ProgramError as exc:
+            self.info.setText(f"{Path(path).name} was not sent" + self._kept())
             self._show_error(str(exc), "", 0, 0)
             return
         name = Path(path).name
@@ -109,6 +110,7 @@ class ProgramPanel(QWidget):
             self._shown_hash = None
         else:
             diag = reply.errors[0] if reply.errors else None
+            self.info.setText(f"{name} was not loaded" + self._kept())
             self._show_error(reply.reason, text, diag.line if diag else 0, diag.column if diag else 0)
         self.uploaded.emit(reply)
 
@@ -141,6 +143,11 @@ class ProgramPanel(QWidget):
         self._shown_hash = prog.hash
         self.text.setPlainText(prog.text or f"({prog.name} was loaded from a file on the controller: no text to show)")
         self._current_line = 0
+
+    def _kept(self) -> str:
+        """What the controller still has loaded after a refusal."""
+        prog = self.model.program
+        return f"; the controller keeps {prog.name}" if prog is not None and prog.name else ""
 
     def _planned(self) -> str:
         st = self.model.status

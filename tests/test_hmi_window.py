@@ -306,3 +306,16 @@ def test_waterjet_hmi_refuses_bad_options_naming_them():
     assert bad.returncode == 2 and "--credentials /nonexistent/creds" in bad.stderr
     headless = run("--connect", "tcp/127.0.0.1:1")
     assert headless.returncode == 2 and "no display" in headless.stderr and "--screenshot" in headless.stderr
+
+
+def test_a_program_file_that_is_not_utf8_text_is_refused_before_it_is_sent_naming_line_and_column(tmp_path):
+    from hmi.program import ProgramError, read_program
+
+    path = tmp_path / "scan.ngc"
+    path.write_bytes(b"G21 G90\nG1 X1 (caf\xe9)\n")
+    with pytest.raises(ProgramError, match=r"scan.ngc:2:11: not UTF-8 text \(byte 0xe9\)"):
+        read_program(path)
+    with pytest.raises(ProgramError, match="missing.ngc: cannot read"):
+        read_program(tmp_path / "missing.ngc")
+    path.write_text("G1 X1 (café)\n", encoding="utf-8")
+    assert read_program(path) == "G1 X1 (café)\n"
