@@ -179,7 +179,9 @@ class _FeedLayer:
         self.visible = True
 
     def split(self, i: int) -> tuple[int, int]:
-        """Vertices [0, a) are cut and [b, n) are to cut when segment i is being cut."""
+        """Vertices [0, a) are cut and [b, n) are to cut when segment i is being cut (-1: none yet)."""
+        if i < 0:
+            return 0, 0
         f, segments = self.feed, len(self.feed.first)
         cut_end = int(f.last[i - 1]) + 1 if i > 0 else 0
         todo_begin = int(f.first[i + 1]) if i + 1 < segments else len(f.x)
@@ -289,7 +291,7 @@ class ContourView(QWidget):
 
     def set_path(self, path: ProgramPath) -> None:
         """Show a new program: tessellate it, build the chunked feed paths and the rapids, and start
-        with nothing cut (progress 0). The view is not moved; call `fit()` to frame it."""
+        with nothing cut (progress -1). The view is not moved; call `fit()` to frame it."""
         for layer in (self._fine, self._overview):
             for item in layer.items if layer else ():
                 self._view.removeItem(item)
@@ -303,15 +305,16 @@ class ContourView(QWidget):
         ]).reshape(-1, 4)
         # pairs: each rapid is its own start-end stroke, rapids never join each other
         self._rapids.setPath(_qpath(self._rapid_xy[:, 0::2].ravel(), self._rapid_xy[:, 1::2].ravel(), "pairs"))
-        self._progress = -1
-        self.set_progress(0)
+        self._progress = -2
+        self.set_progress(-1)
         self._choose_layer()
 
     def set_progress(self, segment_index: int) -> None:
         """Segments [0, i) are cut, segment i is being cut, the rest are to cut (i is clamped to the
-        program; i == number of segments means all cut). Only chunk pens and the partial chunks
-        around the split change: the tessellation is reused."""
-        i = int(min(max(segment_index, 0), len(self._kind)))
+        program; -1: the run has not reached the first segment, everything is to cut; i == number
+        of segments means all cut). Only chunk pens and the partial chunks around the split
+        change: the tessellation is reused."""
+        i = int(min(max(segment_index, -1), len(self._kind)))
         if i == self._progress or self._fine is None:
             return
         self._progress = i
@@ -321,7 +324,7 @@ class ContourView(QWidget):
 
     def _segment_path(self, i: int) -> QPainterPath:
         """The fine path of the segment being cut (a rapid is drawn as its straight move)."""
-        if i >= len(self._kind):
+        if not 0 <= i < len(self._kind):
             return QPainterPath()
         if self._kind[i] == RAPID:
             sx, sy, ex, ey = self._rapid_xy[int(np.searchsorted(self._rapid_index, i))]

@@ -58,9 +58,14 @@ def test_loading_counts_vertices_per_category(view, path):
     assert path.kind == [0, 1, 1, 2, 1, 0, 1, 2]
     quarter, circle = steps(20, math.pi / 2), steps(10, 2 * math.pi)
     # part 1: 3 line vertices + quarter arc (start shared) + closing line end; part 2: line + full circle
-    # segment 0, the rapid from the origin, is the one "being cut"
+    # before the run reaches its first segment nothing is being cut: every feed vertex is to cut
+    assert view.point_counts() == {"cut": 0, "current": 0, "to_cut": (quarter + 4) + (circle + 2), "rapid": 4}
+    assert view.progress == -1
+    view.set_progress(0)  # segment 0, the rapid from the origin, is the one "being cut"
     assert view.point_counts() == {"cut": 0, "current": 2, "to_cut": (quarter + 4) + (circle + 2), "rapid": 4}
-    assert view.progress == 0
+    view.set_progress(6)
+    view.set_progress(-1)
+    assert view.point_counts()["cut"] == 0 and view.point_counts()["current"] == 0, "a new run starts all to cut"
 
 
 def test_progress_moves_segments_from_to_cut_to_cut(view):
