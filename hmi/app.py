@@ -64,6 +64,8 @@ def resolve(args: argparse.Namespace) -> tuple[list[str], str, str, tuple[str, s
         if not re.fullmatch(pattern, value):
             raise HmiArgumentError(f"{option} {value!r}: use letters, digits, _ and - (the machine file's "
                                    f"{'[machine] name' if option == '--machine' else '[zenoh] key_prefix'})")
+    if not 0.0 <= args.after <= 3600.0:
+        raise HmiArgumentError(f"--after {args.after:g}: give 0 to 3600 seconds")
     credentials = None
     if args.credentials:
         from cnc.bus.access import station_login

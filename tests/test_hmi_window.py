@@ -300,6 +300,8 @@ def test_waterjet_hmi_refuses_bad_options_naming_them():
 
     bad = run("--machine", "wj/../x", "--screenshot", "x.png")
     assert bad.returncode == 2 and "--machine 'wj/../x'" in bad.stderr
+    bad = run("--after", "-1", "--screenshot", "x.png")
+    assert bad.returncode == 2 and "--after -1: give 0 to 3600 seconds" in bad.stderr
     bad = run("--station", "a b", "--screenshot", "x.png")
     assert bad.returncode == 2 and "--station 'a b'" in bad.stderr
     bad = run("--credentials", "/nonexistent/creds")

@@ -261,6 +261,13 @@ def test_with_access_control_only_authenticated_operators_command_the_running_co
         assert get(observer, f"{keys.alarms_history}?after=0", HistoryPage).last_seq >= 0, "observers read the history"
         assert not watcher.upload("x.ngc", PART).ok
         assert op.upload("part.ngc", PART).ok
+        from hmi.connection import Connection
+        from hmi.model import MachineModel
+
+        screen = MachineModel("screen")  # an operator screen logged in as an observer catches up on everything
+        with Connection(screen, endpoint, keys, "screen", credentials=("obs1", "obs-secret")):
+            sup.wait_until(lambda: screen.reachable and screen.catalogue and screen.lock_holder == "panel"
+                           and screen.program is not None and screen.program.segments == 6, 10.0, "the catch-up")
         sub.undeclare()
         for s in (watcher, op):
             s.close()
