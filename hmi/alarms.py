@@ -243,8 +243,11 @@ class HistoryWindow(QWidget):
         self.table.setModel(self.table_model)
         self.table.verticalHeader().hide()
         self.table.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
-        self.table.horizontalHeader().setSectionResizeMode(5, QHeaderView.ResizeMode.Stretch)
-        self.table.horizontalHeader().setSectionResizeMode(6, QHeaderView.ResizeMode.Stretch)
+        header = self.table.horizontalHeader()
+        header.setResizeContentsPrecision(200)  # sized from the first rows: 20k rows must not be measured
+        for column in range(len(HistoryTable.COLUMNS)):
+            header.setSectionResizeMode(column, QHeaderView.ResizeMode.Stretch if column in (5, 6)
+                                        else QHeaderView.ResizeMode.ResizeToContents)
         self.count = QLabel()
         self.search_button = QPushButton("Search the controller's whole history")
         self.search_button.setEnabled(search is not None)
