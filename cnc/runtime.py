@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import os
 import signal
@@ -10,6 +11,8 @@ from typing import Any
 
 from .config import MachineConfig
 from .hw.timers import TimerClient
+
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 @dataclass
@@ -29,8 +32,24 @@ class Runtime:
     zenoh_credentials: tuple[str, str] | None = None  # the controller user's, when access control is on
 
 
+def die_with_parent() -> None:
+    """Have the kernel end this process (SIGTERM) when the process that started it dies, however
+    it dies (kill -9, a crash): an orphaned controller process would go on ticking, holding the
+    serial port and answering on Zenoh, with no supervisor to watch it. Linux only; elsewhere a
+    no-op. The supervisor starts its processes from its main thread, whose end is the trigger."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() == 1:  # the parent died before the request was in place
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def child_setup(rt: Runtime, name: str) -> None:
-    """Logging, and leave Ctrl-C to the supervisor: it stops the processes in order."""
+    """Logging, ending with the supervisor, and leave Ctrl-C to the supervisor: it stops the
+    processes in order."""
+    die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     logging.basicConfig(
         level=rt.log_level, format=f"%(asctime)s {name}[{os.getpid()}] %(levelname)s %(message)s"

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import gc
 import sys
 from pathlib import Path
 
-from PySide6.QtCore import QTimer
+from PySide6.QtCore import QCoreApplication, QEvent, QTimer
 from PySide6.QtWidgets import QApplication
 
 from cnc.bus.keys import Keys
@@ -41,10 +42,17 @@ class OperatorScreen:
         self.close()
 
     def close(self) -> None:
+        """Stop the commands, the signals and the session, then delete the Qt objects here, on the
+        GUI thread: left to Python's garbage collector they could be destroyed on whatever thread
+        it runs on (a Zenoh callback's), which Qt does not survive."""
         self.window.close()
         self.commands.close()
         self.adapter.close()
         self.connection.close()
+        for obj in (self.window, self.commands, self.adapter):
+            obj.deleteLater()
+        QCoreApplication.sendPostedEvents(None, QEvent.Type.DeferredDelete)
+        gc.collect()
 
     def take_lock_when_connected(self) -> None:
         """Take the command lock as soon as the controller is reachable (once)."""

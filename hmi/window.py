@@ -134,7 +134,8 @@ class MainWindow(QMainWindow):
         self.tabs.addTab(self.messages, "Messages")
         self.tabs.addTab(self.alarms, "Active alarms")
         self.tabs.addTab(self.faults, "Faults")
-        self.history = HistoryWindow(adapter, search_history)
+        self.history = HistoryWindow(adapter, search_history, parent=self)  # owned by the window, shown apart
+        self.history.setWindowFlag(Qt.WindowType.Window)
         self.bar.history_requested.connect(self.show_history)
 
         self._lay_out(scroll)

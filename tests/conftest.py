@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import os
 import socket
+import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -73,6 +75,15 @@ def press_button_when_asked(sup: Supervisor, until, timeout_s: float, what: str)
             sup.plc_sim.press_button()
         return until()
     sup.wait_until(step, timeout_s, what)
+
+
+@pytest.fixture(autouse=True)
+def _qt_garbage_collected_on_the_gui_thread():
+    """After each test, collect garbage here, on the GUI thread: a Qt object left to the collector
+    might otherwise be destroyed on some other thread later (a Zenoh callback's), and Qt crashes."""
+    yield
+    if "PySide6.QtCore" in sys.modules:
+        gc.collect()
 
 
 @pytest.fixture

@@ -59,6 +59,37 @@ def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig, t
     assert (tmp_path / "waterjet" / "waterjet" / "history.sqlite").exists(), "the control logic kept its history"
 
 
+def test_killing_the_supervisor_ends_every_controller_process_and_the_plc_simulator(tmp_path):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cnc.cli", "up", "--machine", str(MACHINE_FILE), "--clock", "virtual",
+         "--listen", f"tcp/127.0.0.1:{free_port()}"],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        env={**os.environ, "XDG_STATE_HOME": str(tmp_path)},
+    )
+    try:
+        assert "running on the virtual clock" in proc.stdout.readline()
+        children = [int(p) for p in subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
+                                                    text=True).stdout.split()]
+        assert len(children) >= 7, children  # hardware, servo, gateway, planner, logic, PLC link, simulator...
+        proc.kill()  # no chance to stop anything in order
+        proc.wait(10)
+        deadline = time.monotonic() + 10.0
+        while (alive := [p for p in children if os.path.exists(f"/proc/{p}") and _state(p) != "Z"]) \
+                and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert alive == [], "orphaned controller processes"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "gone"
+
+
 def test_waterjet_up_refuses_a_bad_machine_file_naming_the_key(tmp_path):
     before = _ours()
     bad = tmp_path / "bad.toml"
