@@ -28,6 +28,7 @@ from .hw.board import AxisIn, DigitalIn, DigitalOut
 from .alarms import AlarmLevel
 from .layout import ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
 from .logic.states import CyclePhase, MachineState, Mode
+from .param_door import ParamDoor
 
 _LEVELS = {int(level): level.name.lower() for level in AlarmLevel}
 _CLOCK_NAMES = {ClockKind.VIRTUAL: "virtual", ClockKind.REALTIME: "realtime", ClockKind.REALTIME_FALLBACK: "realtime-fallback"}
@@ -68,6 +69,7 @@ class Gateway:
                 config, session, self.keys, history_path, program_dir or str(Path(history_path).parent / "programs"),
                 machine_state=lambda: MachineState(self.logic.read_dict()["state"]).name, motion=self.motion.read_dict,
             )
+        self.param_door = ParamDoor(config, session, self.keys, area, self.door.lock if self.door is not None else None)
         self.seq = 0
 
     def status(self) -> Status:
@@ -199,6 +201,7 @@ class Gateway:
                 time.sleep(delay)
 
     def close(self) -> None:
+        self.param_door.close()
         if self.door is not None:
             self.door.close()
         self.publisher.undeclare()

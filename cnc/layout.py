@@ -149,6 +149,8 @@ def servo_layout(n: int) -> BlockLayout:
             F("position_offset_mm", "d", n),  # machine position = encoder counts * resolution + offset
             F("position_ref_seq", "Q"),  # last command.position_ref_seq the servo applied
             F("homed_mask", "I"),  # bit i: axis i has a position reference (is homed)
+            F("params_change", "Q"),  # the params block's change the servo applies (0: the machine file's values)
+            F("params_tick", "Q"),  # the tick it was first applied at
         ],
     )
 
@@ -208,6 +210,7 @@ def motion_layout(n: int) -> BlockLayout:
             F("event", "s", 160),  # "kind: text (line N)"
             F("error_seq", "Q"),  # +1 at every failure the planner reports
             F("error", "s", 240),
+            F("params_change", "Q"),  # the params block's change the planner applies
         ],
     )
 
@@ -290,6 +293,14 @@ def logic_layout() -> BlockLayout:
     )
 
 
+MAX_PARAMS = 64  # control parameters the params block holds
+
+
+def params_layout() -> BlockLayout:
+    """The control parameters in force (writer: the gateway), slots in `cnc.params.registry` order."""
+    return BlockLayout("params", [F("change", "Q"), F("values", "d", MAX_PARAMS)])  # change: +1 per change
+
+
 def timing_layout(name: str) -> BlockLayout:
     return BlockLayout(name, [F("count", "Q"), F("max_ns", "q"), F("hist", "Q", HIST_BINS)])
 
@@ -310,6 +321,7 @@ def controller_layouts(n_axes: int) -> list[BlockLayout]:
         plc_layout(),
         plc_out_layout(),
         logic_layout(),
+        params_layout(),
         timing_layout("hw_timing"),
         timing_layout("servo_timing"),
         timing_layout("logic_scan"),

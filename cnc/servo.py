@@ -30,11 +30,15 @@ from .dataserver import SharedArea
 from .fifo import OUTPUT_MASK, SetpointFifo, SetpointFlag
 from .hw.board import AxisIn, DigitalIn
 from .layout import HIST_BINS, Proc, ServoFault, ServoState
+from .params import registry
 from .trace import TraceRing
 
 log = logging.getLogger(__name__)
 
 _IN_MOTION = int(SetpointFlag.IN_MOTION)
+# the servo's list that holds each servo-owned control parameter, per axis
+_PARAM_LISTS = {"kp_1_s": "kp", "ki_1_s2": "ki", "velocity_ff": "kv", "accel_ff_s": "ka",
+                "integral_limit_mm_s": "i_lim", "following_error_limit_mm": "fe_lim"}
 
 
 class Servo:
@@ -90,6 +94,13 @@ class Servo:
         sup = area.blocks["supervisor"]
         at = sup.offset + sup.layout.dtype.fields["trace_enable"][1]
         self._trace_cell = sup.buf[at:at + 4].cast("I")
+        # control parameters: one 8-byte read per tick tells whether the gateway wrote new ones
+        self.params = area.reader("params")
+        block = area.blocks["params"]
+        at = block.offset + block.layout.dtype.fields["change"][1]
+        self._params_change_cell = block.buf[at:at + 8].cast("Q")
+        self._param_slots = [(_PARAM_LISTS[s.key], self.config.axis_names.index(s.path[1]), s.index)
+                             for s in registry(config) if s.owner == "servo"]
         mx = self.motion.layout.index
         self._m_ref = (mx["position_ref_seq"], mx["position_ref_mask"], mx["position_ref_counts"], mx["position_ref_mm"])
         # one 8-byte read per tick tells whether a reference waits; the block is read only then
@@ -97,6 +108,8 @@ class Servo:
         at = block.offset + block.layout.dtype.fields["position_ref_seq"][1]
         self._ref_seq_cell = block.buf[at:at + 8].cast("Q")
         v = self.out.values
+        if self._params_change_cell[0]:
+            self._apply_params(v[self._i["tick"]])  # a restarted servo takes the values in force, not the file's
         if v[self._i["ticks_processed"]]:
             # a restarted servo: the position it held is not known to be the one the planner expects
             self._trip(ServoFault.RESTARTED, -1, 0.0, v[self._i["tick"]])
@@ -121,6 +134,8 @@ class Servo:
             v[I["overruns"]] += steps - 1
         self.first = False
         self.last_tick = tick
+        if self._params_change_cell[0] != v[I["params_change"]]:
+            self._apply_params(tick)  # at the tick boundary: this whole tick runs with the new values
         enc = hw[self._h_enc]
         offset = v[I["position_offset_mm"]]
         actual = [enc[i] * self.res[i] + offset[i] for i in range(n)]
@@ -234,6 +249,17 @@ class Servo:
         v[I["digital_out"]] = flags & OUTPUT_MASK
         return ServoState.TRACKING if flags & _IN_MOTION else ServoState.HOLDING
 
+    def _apply_params(self, tick: int) -> None:
+        """Take the control parameters in force from the params block (its writer, the gateway,
+        has checked them); the tick they apply from is published with their change number."""
+        values, _ = self.params.read()
+        block = self.params.layout.index
+        slots = values[block["values"]]
+        for attr, axis, slot in self._param_slots:
+            getattr(self, attr)[axis] = float(slots[slot])
+        v, I = self.out.values, self._i
+        v[I["params_change"]], v[I["params_tick"]] = values[block["change"]], tick
+
     def _apply_reference(self, ref: tuple, enc: tuple, actual: list[float]) -> list[float]:
         """Homing: `position_ref_counts` of the masked axes is `position_ref_mm`. Applied only while
         not following a motion; the commanded position becomes the new actual one, so nothing jumps."""
@@ -259,6 +285,7 @@ class Servo:
         """Let go of the views into shared memory (before the segment is closed)."""
         self._ref_seq_cell.release()
         self._trace_cell.release()
+        self._params_change_cell.release()
 
     def _interlock(self, hw: tuple, cmd: tuple) -> tuple[ServoFault, int] | None:
         """Conditions that trip the servo whatever it is doing."""

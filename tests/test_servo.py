@@ -285,3 +285,36 @@ def test_the_commanders_output_inhibit_closes_the_jet_at_once_and_force_opens_it
         for tick in range(4, 10):
             s = bare.run(tick)
         assert s["state"] == ServoState.HOLDING and s["digital_out"] & jet, "jet test at rest"
+
+
+def test_control_parameters_written_between_two_ticks_apply_from_the_next_tick_whole():
+    """QMotor's online tuning: the gateway writes the params block; the servo takes every new value
+    at the tick boundary, so the next tick is computed entirely with the new gains."""
+    from cnc.params import registry, values_of
+
+    config = machine_config()
+    specs = registry(config)
+    kp_x = next(s for s in specs if s.name == "axis.x.kp_1_s")
+    fe_y = next(s for s in specs if s.name == "axis.y.following_error_limit_mm")
+    with BareServo(fifo_capacity=64, encoder_counts=(0, 0)) as bare:
+        bare.fifo.push_one((0.010, 0.0), (0.0, 0.0), SetpointFlag.IN_MOTION)  # 10 um of error on X, no velocity
+        bare.fifo.push_one((0.010, 0.0), (0.0, 0.0), SetpointFlag.IN_MOTION)
+        bare.fifo.push_one((0.010, 0.0), (0.0, 0.0), SetpointFlag.IN_MOTION)
+        s = bare.run(1)
+        volts = s["speed_cmd_v"][0]
+        assert s["params_change"] == 0 and volts > 0.0
+        block = bare.area.writer("params")
+        values = values_of(config, specs)
+        values[kp_x.index] = 2 * values[kp_x.index]
+        values[fe_y.index] = 0.25
+        block.set("values", values + [0.0] * (len(block.get("values")) - len(values)))
+        block.set("change", 1)
+        block.publish()
+        s = bare.run(2)
+        assert s["params_change"] == 1 and s["params_tick"] == 2
+        integral_step = config.axis["x"].ki_1_s2 * 0.010 * config.timing.period_s * config.axis["x"].volts_per_mm_s
+        p_part = lambda kp: kp * 0.010 * config.axis["x"].volts_per_mm_s  # noqa: E731
+        assert s["speed_cmd_v"][0] == pytest.approx(volts + p_part(values[kp_x.index] / 2) + integral_step, rel=1e-9)
+        assert bare.servo.fe_lim[1] == 0.25 and bare.servo.kp[0] == values[kp_x.index]
+        s = bare.run(3)
+        assert s["params_change"] == 1 and s["params_tick"] == 2, "applied once"

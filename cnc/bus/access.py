@@ -7,7 +7,8 @@ key expression. Everything is denied unless a rule allows it:
 
 - the controller user may do everything;
 - observers may subscribe to status, position, events, the procedure and the lock, query the
-  alarms, the job history, the loaded program, the lock and the procedure catalogue, and declare liveliness tokens and liveliness subscribers
+  alarms, the job history, the loaded program, the lock, the procedure catalogue and the control
+  parameters (changing one needs the command lock, which only an operator can take), and declare liveliness tokens and liveliness subscribers
   under `alive/**` and `hmi/**`;
 - operators may do what observers may, plus query `cmd/**` and put/query `program/**`.
 
@@ -53,7 +54,8 @@ ALL_MESSAGES = (
 
 # Key groups, relative to the machine root `<prefix>/<machine>`.
 WATCH_KEYS = ("status", "position", "event/**", "procedure", "lock")  # subscribed to
-READ_KEYS = ("alarms/**", "jobs/**", "program", "lock", "procedures")  # queried, read-only
+READ_KEYS = ("alarms/**", "jobs/**", "program", "lock", "procedures", "param/**", "params")  # queried (changing a
+# parameter is a query too: the gateway requires the command lock for it, which observers cannot take)
 ALIVE_KEYS = ("alive/**", "hmi/**")  # liveliness of controller processes and stations
 COMMAND_KEYS = ("cmd/**",)  # operators only
 UPLOAD_KEYS = ("program/**",)  # operators only

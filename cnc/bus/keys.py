@@ -65,6 +65,15 @@ class Keys:
     def program(self) -> str:
         return f"{self.root}/program"
 
+    def param(self, name: str) -> str:
+        """One control parameter (`axis.x.kp_1_s`): read it, or change it with a SetParam payload."""
+        return f"{self.root}/param/{name}"
+
+    @property
+    def params(self) -> str:
+        """Every control parameter; a SaveParams payload writes them into the machine file."""
+        return f"{self.root}/params"
+
     @property
     def jobs_history(self) -> str:
         return f"{self.root}/jobs/history"

@@ -282,6 +282,46 @@ class ProcedureCatalogue(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
+# -- control parameters (QMotor's), at `param/<name>` and `params` ----------------------------
+
+
+class ParamInfo(msgspec.Struct, frozen=True):
+    """One control parameter: what it is, its range, the value in force and the machine file's."""
+
+    name: str  # "axis.x.kp_1_s": the machine-file option it is
+    description: str
+    unit: str
+    min: float
+    max: float
+    value: float  # in force
+    file_value: float  # what the machine file says (the value after a restart, unless saved)
+    owner: str  # the process that applies it: servo | planner
+    changeable: str  # always | idle (only while no program runs)
+    effect: str  # when the machine feels a change: "the next tick", "the next program loaded", ...
+    version: int = SCHEMA_VERSION
+
+
+class ParamList(msgspec.Struct, frozen=True):
+    """Every control parameter (`params`), and the sequence number of the last change."""
+
+    params: list[ParamInfo]
+    seq: int
+    version: int = SCHEMA_VERSION
+
+
+class SetParam(msgspec.Struct, frozen=True):
+    """Change one control parameter (a query on `param/<name>` with this payload; the command lock applies)."""
+
+    value: float
+    version: int = SCHEMA_VERSION
+
+
+class SaveParams(msgspec.Struct, frozen=True):
+    """Write the control parameters in force into the machine file (a query on `params`; the lock applies)."""
+
+    version: int = SCHEMA_VERSION
+
+
 # -- commands to the planner (answered with a Reply) ------------------------------------------
 
 

@@ -9,7 +9,9 @@ import msgspec
 import zenoh
 
 from .keys import Keys
-from .messages import LOGIC_COMMANDS, LockRequest, Reply, UploadProgram, decode, encode
+from .messages import (
+    LOGIC_COMMANDS, LockRequest, ParamList, Reply, SaveParams, SetParam, UploadProgram, decode, encode,
+)
 
 OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {**LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram}
 _VERBS = {kind: verb for verb, kind in OPERATOR_COMMANDS.items()}
@@ -26,21 +28,38 @@ class OperatorStation:
     def request(self, command: msgspec.Struct, verb: str | None = None) -> Reply:
         """Send one command; the reply says ok or why not."""
         verb = verb or _VERBS[type(command)]
-        replies = self.session.get(
-            self.keys.cmd(verb), payload=encode(command), encoding=zenoh.Encoding.APPLICATION_JSON,
-            attachment=self.attachment, timeout=self.timeout_s,
-        )
-        for reply in replies:
-            if reply.ok is not None:
-                return decode(reply.ok.payload.to_bytes(), Reply)
-            return Reply(False, f"{verb}: the gateway answered with an error: {reply.err.payload.to_string()}")
-        return Reply(False, f"{verb}: no answer from the controller within {self.timeout_s:g} s")
+        return self._ask(self.keys.cmd(verb), command, verb)
 
     def take_lock(self) -> Reply:
         return self.request(LockRequest(take=True))
 
     def release_lock(self) -> Reply:
         return self.request(LockRequest(take=False))
+
+    def set_param(self, name: str, value: float) -> Reply:
+        """Change one control parameter (`axis.x.kp_1_s`); the reply says when it applied, or why not."""
+        return self._ask(self.keys.param(name), SetParam(value), f"param {name}")
+
+    def save_params(self) -> Reply:
+        """Write the control parameters in force into the controller's machine file."""
+        return self._ask(self.keys.params, SaveParams(), "save params")
+
+    def params(self) -> ParamList:
+        """Every control parameter with its range and the value in force."""
+        for reply in self.session.get(self.keys.params, timeout=self.timeout_s):
+            if reply.ok is None:
+                raise RuntimeError(f"params: {reply.err.payload.to_string()}")
+            return decode(reply.ok.payload.to_bytes(), ParamList)
+        raise TimeoutError(f"params: no answer from the controller within {self.timeout_s:g} s")
+
+    def _ask(self, key: str, msg: msgspec.Struct, what: str) -> Reply:
+        replies = self.session.get(key, payload=encode(msg), encoding=zenoh.Encoding.APPLICATION_JSON,
+                                   attachment=self.attachment, timeout=self.timeout_s)
+        for reply in replies:
+            if reply.ok is not None:
+                return decode(reply.ok.payload.to_bytes(), Reply)
+            return Reply(False, f"{what}: the gateway answered with an error: {reply.err.payload.to_string()}")
+        return Reply(False, f"{what}: no answer from the controller within {self.timeout_s:g} s")
 
     def upload(self, name: str, text: str) -> Reply:
         """Send a program; it is checked, interpreted and loaded, or refused with line and column."""

@@ -41,6 +41,7 @@ from ..fifo import SetpointFifo
 from ..homing import Homing, HomingError, Push, Reference
 from ..layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
+from ..params import registry, with_values
 from .preflight import PreflightRefusal, preflight
 from .runner import ProgramRunner, RunState
 from .sections import move_steps, program_steps
@@ -105,7 +106,10 @@ class Planner:
         self.run_first = 0  # FIFO head counter at the run's first record
         self.track_fill = False
         self.last_pushed: np.ndarray | None = None
+        self.params_r = area.reader("params")
+        self.param_specs = [p for p in registry(config) if p.owner == "planner"]
         self._set(state=int(PlannerState.IDLE), homing_axis=-1, override=1.0, fifo_min_fill=-1, segment=-1)
+        self.apply_params()  # a restarted planner takes the values in force, not the file's
         # Look-ahead windows are planned by a worker thread, away from the refills: a window of
         # hundreds of short chords takes tens of ms, more than the FIFO's slack. The main loop
         # holds `lock` while it serves commands and refills; the worker only to fetch a window
@@ -125,6 +129,7 @@ class Planner:
                 while self.timer.wake.acquire(False):
                     pass
             with self.lock:
+                self.apply_params()
                 self.handle_commands()
                 if woke:
                     try:
@@ -132,6 +137,21 @@ class Planner:
                     finally:
                         self.timer.tick_done()
             self.beat[Proc.PLANNER] += 1
+
+    def apply_params(self) -> None:
+        """Take the planner's control parameters from the params block when they changed and no
+        program runs (the gateway refuses the ones that need that while one does; any that arrive
+        as a program starts wait for its end)."""
+        values, _ = self.params_r.read()
+        index = self.params_r.layout.index
+        seq = values[index["change"]]
+        if seq == self.out.get("params_change") or (self.runner is not None and self.runner_kind == PlannerState.RUNNING):
+            return
+        slots = values[index["values"]]
+        self.config = with_values(self.config, self.param_specs, [slots[p.index] for p in self.param_specs])
+        self.low = max(1, round(self.config.planner.fifo_low_ms / 1000.0 / self.dt))
+        self.high = min(self.fifo.capacity, max(self.low + 1, round(self.config.planner.fifo_high_ms / 1000.0 / self.dt)))
+        self._set(params_change=seq)
 
     def _plan_ahead(self) -> None:
         """Worker: after each refill, plan windows until the motion is planned PLAN_AHEAD_S ahead."""

@@ -1,0 +1,178 @@
+"""The gateway's door for control parameters: read and change them online over Zenoh, save them.
+
+`<root>/param/<name>` answers the parameter (ParamInfo); with a SetParam payload it changes it:
+the sending station must hold the command lock, the value must be in range and the parameter
+changeable in the current state (else the reply refuses, saying why). The new value goes into the
+`params` block, of which this door is the only writer; the reply waits until the owning process
+has applied it and says at which tick. `<root>/params` answers every parameter (ParamList); with
+a SaveParams payload it writes the values in force into the machine file. Queries are served by
+a worker thread: a change waits for the servo's next tick, and no Zenoh callback thread may wait.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from typing import Any
+
+import msgspec
+import zenoh
+
+from . import params
+from .bus.keys import Keys
+from .bus.messages import ParamInfo, ParamList, Reply, SaveParams, SchemaVersionError, SetParam, decode, encode
+from .config import ConfigError, MachineConfig, load_machine
+from .dataserver import SharedArea
+from .door import station_of
+from .layout import PlannerState
+from .lock import LockRefused, OperatorLock
+
+log = logging.getLogger(__name__)
+
+APPLY_TIMEOUT_S = 2.0  # how long a change waits for its process to apply it
+
+
+class ParamDoor:
+    """`param/**` and `params` queryables; `lock` is the gateway's command lock (None: no lock, any station)."""
+
+    def __init__(self, config: MachineConfig, session: zenoh.Session, keys: Keys, area: SharedArea,
+                 lock: OperatorLock | None) -> None:
+        self.config, self.session, self.keys, self.lock = config, session, keys, lock
+        self.specs = params.registry(config)
+        self.out = area.writer("params")
+        self.out.load_current()
+        if self.out.get("change") == 0:  # first start: the machine file's values (a restarted gateway keeps the block's)
+            self._write(params.values_of(config, self.specs), 0)
+        self.servo, self.motion = area.reader("servo"), area.reader("motion")
+        self.queries: queue.Queue = queue.Queue()
+        root = len(keys.param(""))
+        self.declared = [
+            session.declare_queryable(keys.param("**"), lambda q: self.queries.put((str(q.key_expr)[root:], q))),
+            session.declare_queryable(keys.params, lambda q: self.queries.put(("", q))),
+        ]
+        self.worker = threading.Thread(target=self._serve, name="param-door", daemon=True)
+        self.worker.start()
+
+    def close(self) -> None:
+        for q in self.declared:
+            q.undeclare()
+        self.queries.put(None)
+        self.worker.join(APPLY_TIMEOUT_S + 1.0)
+
+    # -- the block --------------------------------------------------------------------------------
+
+    def values(self) -> list[float]:
+        return list(self.out.get("values"))[: len(self.specs)]
+
+    def _write(self, values: list[float], seq: int) -> None:
+        slots = list(self.out.get("values"))
+        slots[: len(values)] = values
+        self.out.set("values", slots)
+        self.out.set("change", seq)
+        self.out.publish()
+
+    # -- serving ----------------------------------------------------------------------------------
+
+    def _serve(self) -> None:
+        while (item := self.queries.get()) is not None:
+            name, query = item
+            try:
+                answer = self._answer(name, query)
+            except Exception as exc:  # a bug: the door stays open, the station learns what happened
+                log.exception("params: %r failed", name)
+                answer = Reply(False, f"param {name}: internal error in the gateway: {exc!r}")
+            if "*" in name:  # a reply must name one key: the list is at `params`
+                query.reply_err(zenoh.ZBytes(f"param/{name}: ask {self.keys.params} for every parameter".encode()))
+            else:
+                query.reply(query.key_expr, encode(answer), encoding=zenoh.Encoding.APPLICATION_JSON)
+            query.drop()
+
+    def _answer(self, name: str, query: Any) -> msgspec.Struct:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        try:
+            if name == "":
+                if payload:
+                    self._require_lock(query, "save the control parameters")
+                    decode(payload, SaveParams)
+                    return self.save()
+                return self.list()
+            spec = params.find(self.specs, name)
+            if not payload:
+                return self.info(spec, self.file_values())
+            self._require_lock(query, f"change {name}")
+            return self.set(spec, decode(payload, SetParam).value)
+        except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
+            return Reply(False, f"param {name}: malformed request: {exc}")
+        except (params.ParamError, LockRefused) as exc:
+            return Reply(False, str(exc))
+
+    def _require_lock(self, query: Any, what: str) -> None:
+        if self.lock is not None:
+            try:
+                self.lock.require(station_of(query))
+            except LockRefused as exc:
+                raise LockRefused(f"cannot {what}: {exc}") from None
+
+    # -- what the door does -------------------------------------------------------------------------
+
+    def list(self) -> ParamList:
+        file_values = self.file_values()
+        return ParamList([self.info(s, file_values) for s in self.specs], self.out.get("change"))
+
+    def info(self, spec: params.ParamSpec, file_values: list[float]) -> ParamInfo:
+        return ParamInfo(spec.name, spec.description, spec.unit, spec.lo, spec.hi, self.values()[spec.index],
+                         file_values[spec.index], spec.owner, spec.when, spec.effect)
+
+    def file_values(self) -> list[float]:
+        """What the machine file says now (it may have been saved since the controller started)."""
+        try:
+            return params.values_of(load_machine(self.config.source), self.specs)
+        except ConfigError:
+            return params.values_of(self.config, self.specs)
+
+    def set(self, spec: params.ParamSpec, value: float) -> Reply:
+        """Check, write, and wait for the owning process to apply the change."""
+        state = PlannerState(self.motion.read_dict()["state"]).name
+        spec.check(value, state)
+        values = self.values()
+        old, values[spec.index] = values[spec.index], float(value)
+        seq = self.out.get("change") + 1
+        self._write(values, seq)
+        log.info("params: %s %g -> %g (change %d)", spec.name, old, value, seq)
+        where = f"{spec.name} = {value:g}{' ' + spec.unit if spec.unit else ''} (was {old:g})"
+        if not self._alive(spec.owner):
+            return Reply(True, f"{where}; the {spec.owner} is not running: it applies it when it starts")
+        reader = self.servo if spec.owner == "servo" else self.motion
+        deadline = time.monotonic() + APPLY_TIMEOUT_S
+        while (applied := reader.read_dict())["params_change"] < seq:
+            if time.monotonic() > deadline:
+                return Reply(True, f"{where}; written, but the {spec.owner} has not applied it within "
+                                   f"{APPLY_TIMEOUT_S:g} s (it takes it at {spec.effect})")
+            time.sleep(0.001)
+        at = f" at tick {applied['params_tick']}" if spec.owner == "servo" else ""
+        return Reply(True, f"{where}; applied by the {spec.owner}{at}; takes effect at {spec.effect}")
+
+    def _alive(self, process: str) -> bool:
+        """The controller process announces itself (its liveliness token)."""
+        replies = self.session.liveliness().get(self.keys.alive(process), timeout=0.5)
+        return any(r.ok is not None for r in replies)
+
+    def save(self) -> Reply:
+        """Write every parameter whose value differs from the machine file's into the file."""
+        source = self.config.source
+        try:
+            file_values = params.values_of(load_machine(source), self.specs)
+        except ConfigError as exc:
+            return Reply(False, f"save: cannot read the machine file: {exc}")
+        changes = {(s.path, s.key): v for s, v, f in zip(self.specs, self.values(), file_values) if v != f}
+        if not changes:
+            return Reply(True, f"save: {source} already holds every value in force")
+        try:
+            written = params.save(source, changes)
+        except (ConfigError, OSError) as exc:
+            return Reply(False, f"save: {source} was not changed: {exc}")
+        log.info("params: saved %s into %s", ", ".join(written), source)
+        return Reply(True, f"saved {len(written)} parameter(s) into {source} ({', '.join(written)}); "
+                           f"the previous file is {source}.bak")
