@@ -114,6 +114,12 @@ def build_parser() -> argparse.ArgumentParser:
     watch.add_arguments(watch_p)
     watch_p.set_defaults(func=watch.run)
 
+    log_p = sub.add_parser("log", help="the data logger: list, start and stop log runs, export one to MATLAB or CSV")
+    from . import logcli
+
+    logcli.add_arguments(log_p)
+    log_p.set_defaults(func=logcli.run)
+
     hmi_p = sub.add_parser("hmi", help="the operator screen (Qt): connects to a controller over Zenoh")
     from hmi import app as hmi_app
 

@@ -346,6 +346,17 @@ class LogicConfig:
 
 
 @dataclass(frozen=True)
+class LoggerConfig:
+    """The data logger (QMotor's log variables): recording runs, the live stream, the runs kept."""
+
+    wake_divisor: int = opt(20, "ticks", "the logger drains the servo's trace every Nth base tick", 1, 1000)
+    live_rate_hz: float = opt(10.0, "Hz", "rate of the live stream (watch window, live plots)", 0.5, 100.0)
+    live_points: int = opt(500, "", "most samples per variable in one live message (older ones are thinned)", 10, 100000)
+    max_samples: int = opt(2_000_000, "", "most samples one variable keeps in a run", 1000, 100_000_000)
+    runs_kept: int = opt(20, "", "finished runs kept for plots and export (the oldest go first)", 1, 1000)
+
+
+@dataclass(frozen=True)
 class GatewayConfig:
     """The HMI's door on Zenoh."""
 
@@ -415,6 +426,7 @@ class MachineConfig:
     alarm: list[AlarmConfig] = field(default_factory=list, metadata={"array_of": AlarmConfig})
     procedure: list[ProcedureConfig] = field(default_factory=list, metadata={"array_of": ProcedureConfig})
     gateway: GatewayConfig = field(default_factory=GatewayConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
     source: str = field(default="<defaults>", metadata={"internal": True})

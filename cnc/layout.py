@@ -42,6 +42,7 @@ class Proc(enum.IntEnum):
     PLANNER = 4
     LOGIC = 5
     PLC_LINK = 6
+    LOGGER = 7
 
 
 class ClockKind(enum.IntEnum):

@@ -9,6 +9,7 @@ nothing on the tick path waits for the network, the disk or a collection.
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 from .bus.keys import Keys
 from .bus.session import open_client
@@ -122,8 +123,6 @@ def run_planner(rt: Runtime, ready) -> None:
 
 def program_dir(config, history_path: str) -> str:
     """`[gateway] program_dir` beside the machine file, or `programs/` beside the alarm history."""
-    from pathlib import Path
-
     from .config import beside
 
     if not config.gateway.program_dir:
@@ -180,7 +179,27 @@ def run_plc_link(rt: Runtime, ready) -> None:
     run(rt, ready)
 
 
+def run_logger(rt: Runtime, ready) -> None:
+    from .logger import Logger
+
+    child_setup(rt, "logger")
+    area = _attach(rt)
+    trace = TraceRing.attach(rt.trace_name)
+    session = open_client(rt.zenoh_connect, rt.zenoh_credentials)
+    runs_dir = Path(rt.history_path).parent / "runs" if rt.history_path else Path(rt.config.source).parent / "runs"
+    logger = Logger(rt.config, area, trace, session, rt.timer_clients["logger"], runs_dir)
+    set_ready(ready)
+    try:
+        logger.run()
+    finally:
+        logger.close()
+        session.close()
+        del logger
+        trace.close()
+        area.close()
+
+
 PROCESS_MAINS = {
     "hardware": run_hardware, "servo": run_servo, "planner": run_planner, "gateway": run_gateway,
-    "logic": run_logic, "plc_link": run_plc_link,
+    "logic": run_logic, "plc_link": run_plc_link, "logger": run_logger,
 }

@@ -178,13 +178,14 @@ class Servo:
         v[I["ticks_processed"]] += 1
         v[I["loop_ns"]] = time.monotonic_ns() - t0
         self.out.publish()
+        latency = time.monotonic_ns() - hw[self._h_ttime] if self.record_latency else 0
         if self._trace_cell[0] and self.trace is not None:
             self.trace.write(
                 tick, v[I["commanded_mm"]], actual, v[I["commanded_velocity_mm_s"]], v[I["speed_cmd_v"]],
-                v[I["setpoint_flags"]], v[I["setpoint_segment"]], v[I["setpoint_line"]], self.fifo.fill(),
+                v[I["setpoint_flags"]], v[I["setpoint_segment"]], v[I["setpoint_line"]], self.fifo.fill(), latency,
             )
         if self.record_latency:
-            self._record_latency(time.monotonic_ns() - hw[self._h_ttime])
+            self._record_latency(latency)
         self.beat[Proc.SERVO] = tick
 
     def _close_loop(self, actual: list[float], tick: int, steps: int) -> int:

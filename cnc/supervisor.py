@@ -72,8 +72,9 @@ POLICIES = {
     "plc_link": ProcessPolicy(Proc.PLC_LINK, "always"),
     "logic": ProcessPolicy(Proc.LOGIC, "always"),
     "gateway": ProcessPolicy(Proc.GATEWAY, "always"),
+    "logger": ProcessPolicy(Proc.LOGGER, "always"),
 }
-START_ORDER = ("servo", "hardware", "planner", "plc_link", "logic", "gateway")
+START_ORDER = ("servo", "hardware", "planner", "plc_link", "logic", "gateway", "logger")
 MOTION_ONLY = ("servo", "hardware", "planner", "gateway")  # no soft-PLC: the supervisor's process commands (motion tests, simulate)
 DIRECT_FEED = ("servo", "hardware", "gateway")  # no planner: the supervisor's process feeds the FIFO (servo tests)
 TRACE_CAPACITY = 1 << 16  # ticks the trace ring holds between two drains
@@ -165,6 +166,9 @@ class Supervisor:
                 clients["planner"] = TimerClient.new(self.ctx, "planner", cfg.planner.divisor)
             if "logic" in self.process_names:
                 clients["logic"] = TimerClient.new(self.ctx, "logic", cfg.timing.logic_divisor)
+            if "logger" in self.process_names:
+                clients["logger"] = TimerClient.new(self.ctx, "logger", cfg.logger.wake_divisor)
+                self.set_tracing(True)  # the logger drains the trace ring: the servo writes it every tick
             self.runtime = Runtime(
                 config=cfg,
                 clock=self.clock,

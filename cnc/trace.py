@@ -2,7 +2,7 @@
 
 The servo (single producer) appends one record per tick while tracing is enabled: the
 setpoint, the measured position, the reference velocity, the speed command, the setpoint's
-flags, segment and line, and the FIFO fill. A recorder (single consumer: `waterjet
+flags, segment and line, the FIFO fill and how late the tick started. A recorder (single consumer: `waterjet
 simulate`, the data logger) copies records out. The servo never waits: when the ring is
 full it drops the record and counts it. Counters and memory ordering are as in the setpoint
 FIFO (`fifo.py`): monotonic 8-byte counters, one writer each, on their own cache lines.
@@ -20,18 +20,22 @@ from .fifo import copy_out
 _HEADER = 256
 _OFF_META, _OFF_HEAD, _OFF_TAIL, _OFF_DROPPED = 0, 64, 128, 192
 _META = struct.Struct("<QQQ")
-_MAGIC = 0x5754_5241_4345_0001  # "WTRACE" v1
+_MAGIC = 0x5754_5241_4345_0002  # "WTRACE" v2
 
 
 def trace_dtype(n_axes: int) -> np.dtype:
-    """One tick's record; same bytes as the struct the servo packs."""
+    """One tick's record; same bytes as the struct the servo packs. `latency_ns`: how late the
+    servo started the tick after its deadline (0 on the virtual clock, where time is not real)."""
     n = n_axes
     return np.dtype(
         {
-            "names": ["tick", "commanded", "actual", "velocity", "speed_cmd", "flags", "segment", "line", "fifo_fill"],
-            "formats": ["<u8", ("<f8", (n,)), ("<f8", (n,)), ("<f8", (n,)), ("<f8", (n,)), "<u4", "<u4", "<i4", "<i4"],
-            "offsets": [0, 8, 8 + 8 * n, 8 + 16 * n, 8 + 24 * n, 8 + 32 * n, 12 + 32 * n, 16 + 32 * n, 20 + 32 * n],
-            "itemsize": 24 + 32 * n,
+            "names": ["tick", "commanded", "actual", "velocity", "speed_cmd", "flags", "segment", "line", "fifo_fill",
+                      "latency_ns"],
+            "formats": ["<u8", ("<f8", (n,)), ("<f8", (n,)), ("<f8", (n,)), ("<f8", (n,)), "<u4", "<u4", "<i4", "<i4",
+                        "<i8"],
+            "offsets": [0, 8, 8 + 8 * n, 8 + 16 * n, 8 + 24 * n, 8 + 32 * n, 12 + 32 * n, 16 + 32 * n, 20 + 32 * n,
+                        24 + 32 * n],
+            "itemsize": 32 + 32 * n,
         }
     )
 
@@ -46,7 +50,7 @@ class TraceRing:
             raise RuntimeError(f"shared memory {shm.name!r} is not a trace ring")
         self.capacity, self.n_axes = int(capacity), int(n_axes)
         self.dtype = trace_dtype(self.n_axes)
-        self._rec = struct.Struct(f"<Q{4 * self.n_axes}dIIii")
+        self._rec = struct.Struct(f"<Q{4 * self.n_axes}dIIiiq")
         self.ring = np.ndarray((self.capacity,), dtype=self.dtype, buffer=shm.buf, offset=_HEADER)
         self._buf = shm.buf
         self._head_cell = shm.buf[_OFF_HEAD:_OFF_HEAD + 8].cast("Q")
@@ -71,14 +75,14 @@ class TraceRing:
         return self._dropped_cell[0]
 
     # -- producer (the servo) ---------------------------------------------------------------
-    def write(self, tick, commanded, actual, velocity, speed_cmd, flags, segment, line, fifo_fill) -> None:
+    def write(self, tick, commanded, actual, velocity, speed_cmd, flags, segment, line, fifo_fill, latency_ns) -> None:
         head = self._head
         if head - self._tail_cell[0] >= self.capacity:
             self._dropped_cell[0] += 1
             return
         self._rec.pack_into(
             self._buf, _HEADER + (head % self.capacity) * self._rec.size,
-            tick, *commanded, *actual, *velocity, *speed_cmd, flags, segment, line, fifo_fill,
+            tick, *commanded, *actual, *velocity, *speed_cmd, flags, segment, line, fifo_fill, latency_ns,
         )
         self._head = head + 1
         self._head_cell[0] = self._head

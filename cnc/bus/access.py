@@ -53,9 +53,10 @@ ALL_MESSAGES = (
 )
 
 # Key groups, relative to the machine root `<prefix>/<machine>`.
-WATCH_KEYS = ("status", "position", "event/**", "procedure", "lock")  # subscribed to
-READ_KEYS = ("alarms/**", "jobs/**", "program", "lock", "procedures", "param/**", "params")  # queried (changing a
-# parameter is a query too: the gateway requires the command lock for it, which observers cannot take)
+WATCH_KEYS = ("status", "position", "event/**", "procedure", "lock", "log/live")  # subscribed to
+READ_KEYS = ("alarms/**", "jobs/**", "program", "lock", "procedures", "param/**", "params", "log/**")  # queried
+# (changing a parameter is a query too: the gateway requires the command lock for it, which observers cannot
+# take; starting and stopping a log run are queries that never move the machine)
 ALIVE_KEYS = ("alive/**", "hmi/**")  # liveliness of controller processes and stations
 COMMAND_KEYS = ("cmd/**",)  # operators only
 UPLOAD_KEYS = ("program/**",)  # operators only

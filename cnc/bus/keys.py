@@ -74,6 +74,10 @@ class Keys:
         """Every control parameter; a SaveParams payload writes them into the machine file."""
         return f"{self.root}/params"
 
+    def log(self, what: str) -> str:
+        """The data logger: `state`, `start`, `stop`, `live` (put) and `runs/<n>`."""
+        return f"{self.root}/log/{what}"
+
     @property
     def jobs_history(self) -> str:
         return f"{self.root}/jobs/history"

@@ -322,6 +322,113 @@ class SaveParams(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
+# -- data logging (QMotor's log variables), at `log/...` -----------------------------------------
+
+
+class LogVariable(msgspec.Struct, frozen=True):
+    """A variable the logger can record."""
+
+    name: str  # "x.following_error"
+    unit: str
+    description: str
+
+
+class LogSetting(msgspec.Struct, frozen=True):
+    """How one variable is logged in a run (QMotor's modes), at every `divisor`-th base tick:
+    timed: from `start_s` for `duration_s` after the run starts; continuous: the last `window_s`
+    seconds, kept when the run ends; triggered: while `enable_when` holds (or, with `disable_when`,
+    from `enable_when` becoming true until `disable_when` does). Conditions are over log variables:
+    `x.following_error > 0.02 or jet`."""
+
+    name: str
+    mode: str = "timed"  # timed | continuous | triggered
+    divisor: int = 1
+    start_s: float = 0.0
+    duration_s: float = 10.0
+    window_s: float = 10.0
+    enable_when: str = ""
+    disable_when: str = ""
+
+
+class LogStart(msgspec.Struct, frozen=True):
+    """Start a log run (a query on `log/start`); the reply names the run."""
+
+    variables: list[LogSetting]
+    title: str = ""
+    version: int = SCHEMA_VERSION
+
+
+class LogStop(msgspec.Struct, frozen=True):
+    """End the log run now (a query on `log/stop`); what was recorded is kept."""
+
+    version: int = SCHEMA_VERSION
+
+
+class LogRunSummary(msgspec.Struct, frozen=True):
+    run: int
+    title: str
+    started_ns: int
+    ended_ns: int  # 0 while it runs
+    duration_s: float
+    variables: list[str]
+    samples: int
+    state: str  # running | done
+
+
+class LogState(msgspec.Struct, frozen=True):
+    """The logger (`log/state`): what can be logged, the run under way and the runs kept."""
+
+    variables: list[LogVariable]
+    period_s: float  # the base tick: divisors are of this
+    running: int  # the run under way (0 none)
+    runs: list[LogRunSummary]
+    version: int = SCHEMA_VERSION
+
+
+class LogSamples(msgspec.Struct, frozen=True):
+    """Samples of one variable: times (s since the run's start) and values."""
+
+    t: list[float]
+    v: list[float]
+
+
+class LogLive(msgspec.Struct, frozen=True):
+    """Published on `log/live` about 10 times a second: the latest value of every variable (the
+    watch window) and, while a run records, the samples taken since the last message (live plots)."""
+
+    seq: int
+    tick: int
+    latest: dict[str, float]
+    run: int = 0
+    samples: dict[str, LogSamples] = msgspec.field(default_factory=dict)
+    version: int = SCHEMA_VERSION
+
+
+class LogColumn(msgspec.Struct, frozen=True):
+    """A whole variable of a run: little-endian float64 arrays (exact, and compact as base64)."""
+
+    t: bytes  # seconds since the run's start
+    v: bytes
+
+
+class LogRunData(msgspec.Struct, frozen=True):
+    """A whole run (`log/runs/<n>`): settings, the samples, and the control parameters in force."""
+
+    run: int
+    title: str
+    started_ns: int
+    ended_ns: int
+    period_s: float
+    settings: list[LogSetting]
+    columns: dict[str, LogColumn]
+    units: dict[str, str]
+    params_start: dict[str, float]  # control parameters when the run started
+    params_end: dict[str, float]  # ... and when it ended
+    param_changes: list[tuple[float, str, float]]  # (s since the start, name, new value) during the run
+    truncated: list[str]  # variables that hit the sample limit
+    version: int = SCHEMA_VERSION
+
+
 # -- commands to the planner (answered with a Reply) ------------------------------------------
 
 
