@@ -122,7 +122,7 @@ def _report(reply: Reply) -> int:
 
 
 def _export(session, keys: Keys, args: argparse.Namespace) -> int:  # noqa: ANN001
-    from .logexport import to_csv, to_mat
+    from .bus.logexport import to_csv, to_mat
 
     fmt = args.format or (Path(args.out).suffix.lstrip(".") if args.out and Path(args.out).suffix in (".mat", ".csv")
                           else "mat")

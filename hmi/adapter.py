@@ -14,32 +14,23 @@ import threading
 
 from PySide6.QtCore import QObject, Qt, Signal, Slot
 
-from .model import TOPICS, MachineModel
+from .model import MachineModel
+from .observable import Observable
+from .tuning_model import TuningModel
 
 
-class ModelAdapter(QObject):
-    """Signals named after the model's topics; each says "this changed, read the model"."""
+class TopicAdapter(QObject):
+    """The mechanism: subclasses declare one signal per topic of the model they adapt."""
 
-    status = Signal()
-    position = Signal()
-    alarms = Signal()
-    history = Signal()
-    procedure = Signal()
-    catalogue = Signal()
-    lock = Signal()
-    program = Signal()
-    connection = Signal()
-    screen = Signal()
-    error = Signal()
     _deliver = Signal(str)  # internal: a topic changed, crossing to the GUI thread
 
-    def __init__(self, model: MachineModel, parent: QObject | None = None) -> None:
+    def __init__(self, model: Observable, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self.model = model
         self._pending: set[str] = set()
         self._mutex = threading.Lock()
         self._deliver.connect(self._on_deliver, Qt.ConnectionType.QueuedConnection)
-        self._unsubscribe = [model.subscribe(topic, lambda t=topic: self._changed(t)) for topic in TOPICS]
+        self._unsubscribe = [model.subscribe(topic, lambda t=topic: self._changed(t)) for topic in model.topics]
 
     def _changed(self, topic: str) -> None:
         """Any thread: ask for one delivery of `topic` unless one is already on its way."""
@@ -60,3 +51,35 @@ class ModelAdapter(QObject):
         for unsubscribe in self._unsubscribe:
             unsubscribe()
         self._unsubscribe = []
+
+
+class ModelAdapter(TopicAdapter):
+    """Signals named after the machine model's topics; each says "this changed, read the model"."""
+
+    status = Signal()
+    position = Signal()
+    alarms = Signal()
+    history = Signal()
+    procedure = Signal()
+    catalogue = Signal()
+    lock = Signal()
+    program = Signal()
+    connection = Signal()
+    screen = Signal()
+    error = Signal()
+
+    def __init__(self, model: MachineModel, parent: QObject | None = None) -> None:
+        super().__init__(model, parent)
+        self.model: MachineModel = model
+
+
+class TuningAdapter(TopicAdapter):
+    """Signals of the tuning model's topics (parameters, the logger's state, the live stream)."""
+
+    params = Signal()
+    logstate = Signal()
+    live = Signal()
+
+    def __init__(self, model: TuningModel, parent: QObject | None = None) -> None:
+        super().__init__(model, parent)
+        self.model: TuningModel = model

@@ -56,9 +56,13 @@ class CommandRunner(QObject):
         text = label or describe(msg)
         return self._executor.submit(self._run, msg, text)
 
-    def _run(self, msg: msgspec.Struct, label: str) -> Reply:
+    def call(self, request: Callable[[], Reply], label: str) -> Future:
+        """Queue any blocking request that answers with a Reply (a parameter change, a log run)."""
+        return self._executor.submit(self._run, request, label)
+
+    def _run(self, msg: msgspec.Struct | Callable[[], Reply], label: str) -> Reply:
         try:
-            reply = self.sink.command(msg)
+            reply = msg() if callable(msg) else self.sink.command(msg)
         except Exception as exc:  # a bug or a dead session: logged, and the operator sees it refused
             log.exception("command %s failed", label)
             reply = Reply(False, f"{label}: not sent: {exc}")

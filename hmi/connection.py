@@ -13,13 +13,14 @@ import zenoh
 
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, Position, ProcedureCatalogue, ProcedureState, ProgramInfo,
-    Reply, Status, decode,
+    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState, LogStop,
+    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, Status, decode, encode,
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 
 from .model import HISTORY_KEPT, MachineModel
+from .tuning_model import TuningModel
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +29,7 @@ QUERY_TIMEOUT_S = 3.0  # how long a catch-up query may wait for its answer
 PAGE_SIZE = 500  # history entries per query (the controller caps a page at 1000)
 POLL_PERIOD_S = 0.1  # the worker's watchdog and catch-up period
 GAP_GRACE_S = 0.5  # a status may announce an entry before its event arrives: wait this long
+TUNING_REFRESH_S = 2.0  # the parameters and the logger's runs are read again this often
 SEARCH_LIMIT = 1000  # entries a search of the controller's history returns at most
 OPEN_RETRY_S = 1.0  # no router accepted the session: try again this often
 ACTIVE_RECHECK_S = 1.0  # a status whose alarm count differs from the model's re-reads the list this often
@@ -51,8 +53,12 @@ class Connection:
     def __init__(
         self, model: MachineModel, endpoints: list[str], keys: Keys, station: str,
         credentials: tuple[str, str] | None = None, status_timeout_s: float = STATUS_TIMEOUT_S,
+        tuning: TuningModel | None = None,
     ) -> None:
+        """`tuning`: also follow the control parameters and the data logger (the tuning windows)."""
         self.model, self.endpoints, self.keys, self.station = model, endpoints, keys, station
+        self.tuning = tuning
+        self._next_tuning = 0.0
         self.credentials, self.status_timeout_s = credentials, status_timeout_s
         self.session: zenoh.Session | None = None
         self.operator: OperatorStation | None = None
@@ -98,6 +104,8 @@ class Connection:
             self.keys.procedure: (ProcedureState, self.model.apply_procedure),
             self.keys.lock: (LockState, self.model.apply_lock),
         }
+        if self.tuning is not None:
+            handlers[self.keys.log("live")] = (LogLive, self.tuning.apply_live)
         self._subscribers = [
             session.declare_subscriber(key, self._handler(key, kind, apply)) for key, (kind, apply) in handlers.items()
         ]
@@ -233,14 +241,29 @@ class Connection:
             self._read(self.keys.lock, LockState, self.model.apply_lock)
             self._read(f"{self.keys.program}?path=1", ProgramInfo, self.model.apply_program)
             self._read(self.keys.procedures, ProcedureCatalogue, self.model.apply_catalogue)
+            self.refresh_tuning()
         except NoAnswer as exc:
             log.info("catch-up incomplete: %s", exc)
             return False
         return True
 
+    def refresh_tuning(self) -> None:
+        """Read the control parameters and the logger's state (runs, variables) again."""
+        if self.tuning is None:
+            return
+        self._next_tuning = time.monotonic() + TUNING_REFRESH_S
+        self._read(self.keys.params, ParamList, self.tuning.apply_params)
+        self._read(self.keys.log("state"), LogState, self.tuning.apply_log_state)
+
     def _keep_up(self) -> None:
         """Fill alarm gaps, notice entries a status announces but no event brought, re-read the
-        active list when its count disagrees, and fetch a program the status names but we lack."""
+        active list when its count disagrees, fetch a program the status names but we lack, and
+        now and then the parameters and the logger's runs."""
+        if self.tuning is not None and time.monotonic() >= self._next_tuning:
+            try:
+                self.refresh_tuning()
+            except NoAnswer as exc:
+                log.info("tuning refresh: %s", exc)
         status = self.model.status
         now = time.monotonic()
         behind = status is not None and status.alarm_seq > self._contiguous_seq
@@ -278,6 +301,65 @@ class Connection:
                 self._contiguous_seq = max(self._contiguous_seq, newest)
             if not page.more or not page.entries:
                 return
+
+    # -- tuning and logging (blocking: call them off the GUI thread) ------------------------------
+
+    def set_param(self, name: str, value: float) -> Reply:
+        """Change one control parameter (this station must hold the command lock)."""
+        refused = self._refuse_read_only(f"param {name}")
+        if refused is not None:
+            return refused
+        reply = self.operator.set_param(name, value)
+        self._refresh_quietly()
+        return reply
+
+    def save_params(self) -> Reply:
+        refused = self._refuse_read_only("save params")
+        if refused is not None:
+            return refused
+        reply = self.operator.save_params()
+        self._refresh_quietly()
+        return reply
+
+    def log_start(self, start: LogStart) -> Reply:
+        """Start a log run (no command lock needed: logging never moves the machine)."""
+        reply = self._ask_reply(self.keys.log("start"), start)
+        self._refresh_quietly()
+        return reply
+
+    def log_stop(self) -> Reply:
+        reply = self._ask_reply(self.keys.log("stop"), LogStop())
+        self._refresh_quietly()
+        return reply
+
+    def log_run(self, run: int) -> LogRunData:
+        """A whole log run (for plots after the run and for export); NoAnswer when there is none."""
+        return self._query(self.keys.log(f"runs/{run}"), LogRunData)
+
+    def _refuse_read_only(self, what: str) -> Reply | None:
+        if self.operator is None:
+            return Reply(False, f"{what}: not connected to the controller")
+        if self.model.read_only:
+            holder = self.model.lock_holder
+            who = f"station {holder!r} holds the command lock" if holder else "nobody holds the command lock"
+            return Reply(False, f"{what}: read-only: {who}; take the lock first")
+        return None
+
+    def _ask_reply(self, key: str, msg: msgspec.Struct) -> Reply:
+        session = self.session
+        if session is None:
+            return Reply(False, f"{key}: not connected to the controller")
+        for reply in session.get(key, payload=encode(msg), timeout=QUERY_TIMEOUT_S * 3):
+            if reply.ok is None:
+                return Reply(False, f"{key}: {reply.err.payload.to_string()}")
+            return decode(reply.ok.payload.to_bytes(), Reply)
+        return Reply(False, f"{key}: no answer from the controller")
+
+    def _refresh_quietly(self) -> None:
+        try:
+            self.refresh_tuning()
+        except NoAnswer as exc:
+            log.info("tuning refresh: %s", exc)
 
     def search_history(self, text: str = "", levels: list[str] | None = None, codes: list[int] | None = None,
                        limit: int = SEARCH_LIMIT) -> HistoryPage:

@@ -43,6 +43,7 @@ class CommandBar(QWidget):
     """Lock, mode, reset, stop, feed override and the history window: on every page."""
 
     history_requested = Signal()
+    tuning_requested = Signal()
 
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -77,6 +78,8 @@ class CommandBar(QWidget):
         self.override.valueChanged.connect(self._override_moved)
         self.history = _button("Message history…")
         self.history.clicked.connect(self.history_requested)
+        self.tuning = _button("Tuning and logging…", "Control parameters, log variables, watch and scope")
+        self.tuning.clicked.connect(self.tuning_requested)
         layout = QHBoxLayout(self)
         layout.setContentsMargins(4, 2, 4, 2)
         for w in (self.lock_button, self.lock_label):
@@ -89,6 +92,7 @@ class CommandBar(QWidget):
         layout.addWidget(self.override)
         layout.addWidget(self.override_label)
         layout.addStretch(1)
+        layout.addWidget(self.tuning)
         layout.addWidget(self.history)
         enable_while_commanding(adapter, [self.manual, self.auto, self.reset, self.stop, self.override])
         for signal in (adapter.lock, adapter.connection):

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import enum
-import logging
-import threading
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Protocol
@@ -16,7 +14,7 @@ from cnc.bus.messages import (
     ProcedureState, ProgramInfo, ProgramPath, Status,
 )
 
-log = logging.getLogger(__name__)
+from .observable import Observable
 
 TOPICS = ("status", "position", "alarms", "history", "procedure", "catalogue", "lock", "program", "connection", "screen",
           "error")
@@ -62,22 +60,16 @@ def _unstamped(msg: msgspec.Struct) -> msgspec.Struct:
     return msgspec.structs.replace(msg, seq=0, stamp_ns=0, tick=0)
 
 
-class MachineModel:
-    """Everything an operator screen shows, updated by `apply_*` from bus messages.
-
-    Observers `subscribe(topic, callback)`; a callback runs only when what its topic shows
-    changed, after the model's lock is released, on the thread that applied the message: Zenoh
-    callbacks arrive on Zenoh's threads, so a Qt view must marshal to its own thread (a queued
-    signal). All reads and writes hold one lock, so any thread may read the model at any time.
-    """
+class MachineModel(Observable):
+    """Everything an operator screen shows, updated by `apply_*` from bus messages (observers:
+    see `Observable`; topics: TOPICS)."""
 
     def __init__(self, station: str, config: TravelSource | None = None) -> None:
+        super().__init__(TOPICS)
         self.station = station
         self.travel_mm: dict[str, tuple[float, float]] = (
             {} if config is None else {name: (a.travel_min_mm, a.travel_max_mm) for name, a in config.axis.items()}
         )
-        self._lock = threading.RLock()
-        self._observers: dict[str, list[Callable[[], None]]] = {t: [] for t in TOPICS}
         self._status: Status | None = None
         self._position: Position | None = None
         self._active: dict[tuple[str, str], ActiveAlarm] = {}
@@ -89,33 +81,6 @@ class MachineModel:
         self._program: LoadedProgram | None = None
         self._reachable = False
         self._error = ""
-
-    # -- observers ---------------------------------------------------------------------------
-
-    def subscribe(self, topic: str, callback: Callable[[], None]) -> Callable[[], None]:
-        """Call `callback()` whenever `topic` (one of TOPICS) changes; returns the unsubscribe."""
-        if topic not in self._observers:
-            raise ValueError(f"topic {topic!r} is not one of: {', '.join(TOPICS)}")
-        with self._lock:
-            self._observers[topic].append(callback)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if callback in self._observers[topic]:
-                    self._observers[topic].remove(callback)
-        return unsubscribe
-
-    def _notify(self, topics: Iterable[str]) -> None:
-        """Run the callbacks of the changed topics (outside the lock: a callback may read the model).
-        A view's exception is logged with its traceback and does not stop the other views."""
-        for topic in dict.fromkeys(topics):
-            with self._lock:
-                callbacks = list(self._observers[topic])
-            for callback in callbacks:
-                try:
-                    callback()
-                except Exception:
-                    log.exception("the %r observer %r failed", topic, callback)
 
     def _update(self, change: Callable[[], Iterable[str]]) -> None:
         """Apply `change` under the lock; it returns the topics it changed. The screen topic

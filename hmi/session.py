@@ -12,10 +12,12 @@ from PySide6.QtWidgets import QApplication
 from cnc.bus.keys import Keys
 from cnc.bus.messages import LockRequest
 
-from .adapter import ModelAdapter
+from .adapter import ModelAdapter, TuningAdapter
 from .commands import CommandRunner
 from .connection import Connection
 from .model import MachineModel
+from .tuning import EngineeringWindow
+from .tuning_model import TuningModel
 from .window import MainWindow
 
 
@@ -27,12 +29,18 @@ class OperatorScreen:
                  credentials: tuple[str, str] | None = None) -> None:
         self.app = QApplication.instance() or QApplication(sys.argv[:1])
         self.model = MachineModel(station)
-        self.connection = Connection(self.model, endpoints, Keys(prefix, machine), station, credentials)
+        self.tuning = TuningModel()
+        self.connection = Connection(self.model, endpoints, Keys(prefix, machine), station, credentials,
+                                     tuning=self.tuning)
         self.adapter = ModelAdapter(self.model)
+        self.tuning_adapter = TuningAdapter(self.tuning)
         self.commands = CommandRunner(self.connection)
-        self.window = MainWindow(self.adapter, self.commands, ", ".join(endpoints),
-                                 open_error=lambda: self.connection.last_open_error,
-                                 search_history=self.connection.search_history)
+        self.window = MainWindow(
+            self.adapter, self.commands, ", ".join(endpoints), open_error=lambda: self.connection.last_open_error,
+            search_history=self.connection.search_history,
+            engineering=lambda parent: EngineeringWindow(self.adapter, self.tuning_adapter, self.commands,
+                                                         self.connection, parent),
+        )
         self.connection.start()
 
     def __enter__(self) -> OperatorScreen:
@@ -48,8 +56,9 @@ class OperatorScreen:
         self.window.close()
         self.commands.close()
         self.adapter.close()
+        self.tuning_adapter.close()
         self.connection.close()
-        for obj in (self.window, self.commands, self.adapter):
+        for obj in (self.window, self.commands, self.adapter, self.tuning_adapter):
             obj.deleteLater()
         QCoreApplication.sendPostedEvents(None, QEvent.Type.DeferredDelete)
         gc.collect()

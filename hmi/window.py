@@ -101,9 +101,10 @@ class MainWindow(QMainWindow):
 
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, where: str = "the controller",
                  open_error: Callable[[], str] | None = None, search_history: Search | None = None,
-                 parent: QWidget | None = None) -> None:
+                 engineering: Callable[[QWidget], QWidget] | None = None, parent: QWidget | None = None) -> None:
         """`open_error()` says why the controller cannot be reached ("" when unknown);
-        `search_history` searches the controller's whole history (the history window's button)."""
+        `search_history` searches the controller's whole history (the history window's button);
+        `engineering(parent)` builds the tuning and logging window (its button is hidden without it)."""
         super().__init__(parent)
         self.adapter, self.model, self.commands, self.where = adapter, adapter.model, commands, where
         self._open_error = open_error or (lambda: "")
@@ -137,6 +138,9 @@ class MainWindow(QMainWindow):
         self.history = HistoryWindow(adapter, search_history, parent=self)  # owned by the window, shown apart
         self.history.setWindowFlag(Qt.WindowType.Window)
         self.bar.history_requested.connect(self.show_history)
+        self.engineering = engineering(self) if engineering is not None else None
+        self.bar.tuning.setVisible(self.engineering is not None)
+        self.bar.tuning_requested.connect(self.show_engineering)
 
         self._lay_out(scroll)
         self.command_line = QLabel()
@@ -262,6 +266,11 @@ class MainWindow(QMainWindow):
             self.command_line.setStyleSheet("color: #b71c1c; font-weight: bold;")
             self.command_line.setText(f"✖ {label} refused: {reply.reason}")
 
+    def show_engineering(self) -> None:
+        if self.engineering is not None:
+            self.engineering.show()
+            self.engineering.raise_()
+
     def show_history(self) -> None:
         self.history.show()
         self.history.raise_()
@@ -297,4 +306,6 @@ class MainWindow(QMainWindow):
             pad.stop_all()
         QApplication.instance().removeEventFilter(self._key_jog)
         self.history.shutdown()
+        if self.engineering is not None:
+            self.engineering.close()
         super().closeEvent(event)

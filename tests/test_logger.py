@@ -16,7 +16,7 @@ from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.bus.messages import decode, encode
 from cnc.layout import PlannerState
-from cnc.logexport import columns, read_csv
+from cnc.bus.logexport import columns, read_csv
 from cnc.logic.states import MachineState
 
 from .conftest import MACHINE_FILE, REPO, logic, press_button_when_asked

@@ -1,4 +1,5 @@
-"""Exporting a log run to MATLAB (`.mat`, scipy.io.savemat) and CSV, with the control parameters in force.
+"""Exporting a log run (the `LogRunData` message) to MATLAB (`.mat`, scipy.io.savemat) and CSV, with the
+control parameters in force; shared by `waterjet log export` and the operator screen.
 
 MATLAB gets one struct per concern: `log.<variable>` with `t` (s since the run started), `v` and
 `unit`; `settings.<variable>` with its logging mode; `params_start` and `params_end` with the
@@ -18,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bus.messages import LogRunData
+from .messages import LogRunData
 
 
 def columns(data: LogRunData) -> dict[str, tuple[np.ndarray, np.ndarray]]:

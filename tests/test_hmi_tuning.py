@@ -1,0 +1,108 @@
+"""The servo engineer at the operator screen against a real controller (pytest-qt, offscreen): tune
+the X gain online while the following error is logged, watched and plotted, save the gains into the
+machine file, and export the run to MATLAB. Screenshots go where test_hmi_window's go."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from PySide6.QtCore import Qt
+
+from cnc.config import load_machine
+from hmi.model import Screen
+
+from .conftest import MACHINE_FILE, MID_TRAVEL, NEAR_HOME, free_port, full_controller
+from .test_hmi_window import WAIT_MS, click, open_screen, shot, take_lock
+
+pytest.importorskip("pytestqt")
+
+
+@pytest.fixture
+def machine_copy(tmp_path):
+    """The shipped machine file copied, so that saving the parameters writes the copy."""
+    machine = tmp_path / "machine.toml"
+    shutil.copy(MACHINE_FILE, machine)
+    return machine
+
+
+def test_an_engineer_tunes_x_while_watching_the_following_error_and_exports_the_run_to_matlab(qtbot, machine_copy, tmp_path):
+    config = load_machine(machine_copy, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **NEAR_HOME})
+    with full_controller(config, tmp_path / "history.sqlite"):
+        screen = open_screen(qtbot, config)
+        w, tuning = screen.window, screen.tuning
+        try:
+            qtbot.waitUntil(lambda: screen.model.reachable and bool(tuning.params) and bool(tuning.variables), timeout=WAIT_MS)
+            take_lock(qtbot, screen)
+            click(qtbot, screen, w.bar.reset)
+            qtbot.waitUntil(lambda: w.current_screen is Screen.MANUAL and screen.model.status.axes[0].drive_enabled,
+                            timeout=WAIT_MS)
+            qtbot.mouseClick(w.bar.tuning, Qt.MouseButton.LeftButton)
+            eng = w.engineering
+            qtbot.waitExposed(eng)
+            params, log, watch, scope = eng.params, eng.log, eng.watch, eng.scope
+            qtbot.waitUntil(lambda: params.table.rowCount() == len(tuning.params) == 20, timeout=WAIT_MS)
+
+            log.choose("x.following_error", "continuous", window_s=5.0)
+            log.choose("x.speed_cmd", "continuous", divisor=2, window_s=5.0)
+            log.title.setText("X gain")
+            click(qtbot, screen, log.start)
+            qtbot.waitUntil(lambda: tuning.running > 0 and log.stop.isEnabled(), timeout=WAIT_MS)
+            run = tuning.running
+            window = scope.add_window(["x.following_error"])
+            watch.watch(["x.following_error", "x.position", "fifo_fill"])
+
+            manual = w.pages[Screen.MANUAL]
+            manual.jog.step.setCurrentIndex(manual.jog.step.findData(100.0))
+            click(qtbot, screen, manual.jog.buttons[("x", 1)])
+            qtbot.waitUntil(lambda: window.point_counts().get("x.following_error", 0) > 200, timeout=WAIT_MS)
+            assert watch.values()["x.position"] != "-" and set(watch.values()) == {"x.following_error", "x.position",
+                                                                                    "fifo_fill"}
+            shot(eng, "11_tuning_scope_live")
+
+            with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as out:
+                params.set_value("axis.x.kp_1_s", "20000")
+            assert not out.args[1].ok and "out of range" in params.note.text()
+            with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as done:
+                params.set_value("axis.x.kp_1_s", "150")
+            assert done.args[1].ok and "applied by the servo at tick" in params.note.text(), params.note.text()
+            qtbot.waitUntil(lambda: params.value_of("axis.x.kp_1_s") == "150", timeout=WAIT_MS)
+            click(qtbot, screen, manual.jog.buttons[("x", -1)])  # the same move back with the new gain
+            qtbot.waitUntil(lambda: screen.model.status.planner_state == "IDLE"
+                            and abs(screen.model.status.axes[0].velocity_mm_s) < 1e-3, timeout=WAIT_MS)
+            shot(eng, "12_tuning_parameters")
+
+            click(qtbot, screen, log.stop)
+            qtbot.waitUntil(lambda: tuning.running == 0 and any(r.run == run and r.state == "done" for r in tuning.runs),
+                            timeout=WAIT_MS)
+            qtbot.waitUntil(lambda: log.runs.rowCount() >= 1, timeout=WAIT_MS)
+            log.select_run(run)
+            assert log.selected_run() == run
+            qtbot.mouseClick(log.plot, Qt.MouseButton.LeftButton)
+            qtbot.waitUntil(lambda: scope.source.currentData() == run, timeout=WAIT_MS)
+            finished = window.point_counts()["x.following_error"]
+            assert finished > 1000, "the whole run, not the live thinning"
+            shot(eng, "13_tuning_run_plotted")
+            window.x_axis.setCurrentText("x.speed_cmd")  # one variable against another
+            assert window.plot.getAxis("bottom").labelText == "x.speed_cmd"
+
+            click(qtbot, screen, params.save)
+            qtbot.waitUntil(lambda: "saved 1 parameter(s)" in params.note.text(), timeout=WAIT_MS)
+            assert load_machine(machine_copy).axis["x"].kp_1_s == 150.0
+
+            out = tmp_path / "tuning.mat"
+            with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as exported:
+                log.export(run, out, "mat")
+            assert exported.args[1].ok, exported.args[1].reason
+            from scipy.io import loadmat
+
+            mat = loadmat(out, simplify_cells=True)
+            fe = np.atleast_1d(mat["log"]["x_following_error"]["v"])
+            assert len(fe) == finished and np.abs(fe).max() > 0.001, "the following error of the two moves"
+            assert mat["params_start"]["axis_x_kp_1_s"] == 100.0 and mat["params_end"]["axis_x_kp_1_s"] == 150.0
+            assert mat["param_changes"]["name"] == "axis.x.kp_1_s" and mat["title"] == "X gain"
+            eng.tabs.setCurrentWidget(log)
+            shot(eng, "14_log_runs")
+        finally:
+            screen.close()
