@@ -53,7 +53,9 @@ from typing import Any
 
 import numpy as np
 
-from cnc.bus.messages import Home, LoadProgram, Start, Stop
+from cnc.bus.messages import (
+    Home, LoadProgram, LogSetting, LogStart, LogState, LogStop, Reply, Start, Stop, decode, encode,
+)
 from cnc.config import ConfigError, MachineConfig, load_machine
 from cnc.demo import free_port
 from cnc.fifo import SetpointFifo
@@ -62,7 +64,8 @@ from cnc.ptp import move_setpoints
 from cnc.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor, SupervisorError
 
 DEFAULT_MACHINE = Path(__file__).resolve().parent.parent / "machines" / "waterjet.toml"
-FEEDERS = ("direct", "planner")
+FEEDERS = ("direct", "planner", "logging")
+TRACE_VARIABLES = 20  # variables the logging run records at every tick
 CYCLICTEST_BINS = 5000  # 1 us bins up to 5 ms, as the controller's own histograms
 LEAD_S = 2.0  # how far ahead of the servo the direct feed keeps the FIFO filled
 POLL_S = 0.02
@@ -333,6 +336,51 @@ class PlannerFeed:
         return int(after.motion["fifo_min_fill"])
 
 
+class LoggingFeed(PlannerFeed):
+    """The planner's run, with the data logger recording every trace variable at every tick: the
+    servo writes a trace record per tick and the logger process drains and records them."""
+
+    name = "logging"
+    processes = (*MOTION_ONLY, "logger")
+    winding_down = "the program and the log run stopped"
+
+    def __init__(self, config: MachineConfig, seconds: float) -> None:
+        super().__init__(config, seconds)
+        self.seconds = seconds
+        self.samples = self.dropped = self.variables = 0
+
+    def begin(self, sup: Supervisor) -> None:
+        super().begin(sup)
+        state = self._ask(sup, "state", LogState)
+        trace = [v.name for v in state.variables if not v.name.startswith("plc.")][:TRACE_VARIABLES]
+        self.variables = len(trace)
+        reply = self._ask(sup, "start", Reply, LogStart([LogSetting(n, "timed", 1, 0.0, self.seconds + 60.0) for n in trace]))
+        if not reply.ok:
+            raise BenchError(f"the logger refused the run: {reply.reason}")
+        self.dropped = sup.trace.dropped()
+
+    def wind_down(self, sup: Supervisor) -> None:
+        reply = self._ask(sup, "stop", Reply, LogStop())
+        if not reply.ok:
+            raise BenchError(f"the logger could not stop the run: {reply.reason}")
+        self.samples = int(reply.reason.split(": ")[-1].split()[0])
+        self.dropped = sup.trace.dropped() - self.dropped
+        super().wind_down(sup)
+
+    @staticmethod
+    def _ask(sup: Supervisor, what: str, kind: type, payload: Any = None) -> Any:
+        options = {"payload": encode(payload)} if payload is not None else {}
+        for reply in sup.router.get(sup.keys.log(what), timeout=10.0, **options):
+            if reply.ok is None:
+                raise BenchError(f"log/{what}: {reply.err.payload.to_string()}")
+            return decode(reply.ok.payload.to_bytes(), kind)
+        raise BenchError(f"log/{what}: the logger did not answer")
+
+    def motion_text(self) -> str:
+        return (f"{super().motion_text()}; the logger recording {self.variables} variables at every tick "
+                f"({self.samples} samples, {self.dropped} trace records dropped)")
+
+
 def ask(sup: Supervisor, command: Any) -> None:
     """Send one command to the planner; a refusal fails the run."""
     reply = sup.planner.request(command)
@@ -435,7 +483,9 @@ def measure_controller(config: MachineConfig, feed: DirectFeed | PlannerFeed, se
     during it (servo fault, lost process, the program abandoned) returns the figures
     gathered up to the failure, with `failure` set.
     """
-    sup = Supervisor(on_free_port(config), clock="realtime", processes=feed.processes, log_level=logging.WARNING)
+    state = tempfile.TemporaryDirectory(prefix="servo_timing_state_")  # the logger's runs, not the user's
+    sup = Supervisor(on_free_port(config), clock="realtime", processes=feed.processes, log_level=logging.WARNING,
+                     history_path=Path(state.name) / "history.sqlite")
     try:
         sup.start()
         sup.enable()
@@ -456,6 +506,7 @@ def measure_controller(config: MachineConfig, feed: DirectFeed | PlannerFeed, se
         measured_s = min(time.monotonic() - started, seconds)
     finally:
         sup.stop()
+        state.cleanup()
     return ControllerRun(
         feeder=feed.name,
         motion=feed.motion_text(),
@@ -737,8 +788,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=int, default=30, help="length of each measurement (default 30)")
     parser.add_argument(
-        "--feeder", choices=(*FEEDERS, "both"), default="both",
-        help="who feeds the setpoint FIFO: this script (direct), the planner process, or both in turn (default)",
+        "--feeder", choices=(*FEEDERS, "both", "all"), default="both",
+        help="who feeds the setpoint FIFO: this script (direct), the planner process (planner), the planner with the "
+             "data logger recording at every tick (logging); both: direct then planner (default); all: the three",
     )
     parser.add_argument("--machine", default=str(DEFAULT_MACHINE), help="machine file (default machines/waterjet.toml)")
     parser.add_argument("--json", metavar="OUT", help="also write every figure to this JSON file")
@@ -751,8 +803,10 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"servo_timing: {exc}", file=sys.stderr)
         return 1
-    names = FEEDERS if args.feeder == "both" else (args.feeder,)
-    feeds = [DirectFeed(config) if name == "direct" else PlannerFeed(config, args.seconds) for name in names]
+    names = {"both": FEEDERS[:2], "all": FEEDERS}.get(args.feeder, (args.feeder,))
+    kinds = {"direct": lambda: DirectFeed(config), "planner": lambda: PlannerFeed(config, args.seconds),
+             "logging": lambda: LoggingFeed(config, args.seconds)}
+    feeds = [kinds[name]() for name in names]
     print(
         f"servo_timing: {args.seconds} s of the controller in motion fed by {' then by '.join(names)}, "
         f"then {args.seconds} s of cyclictest",
