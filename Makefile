@@ -32,7 +32,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	@command -v cyclictest >/dev/null || { [ "$$(id -u)" = 0 ] && (apt-get update -qq && apt-get install -y -qq rt-tests) >/dev/null 2>&1; } || true
-	$(PY) bench/servo_timing.py --seconds $(SECONDS)
+	$(PY) bench/servo_timing.py --seconds $(SECONDS) --feeder all
 	$(PY) bench/tracking.py
 	$(PY) bench/planner_throughput.py
 	$(PY) bench/linuxcnc_compare.py

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 import time
 from collections import OrderedDict
 from pathlib import Path
@@ -40,6 +41,9 @@ from .params import registry
 from .trace import TraceRing
 
 log = logging.getLogger(__name__)
+
+WRITE_PIECE_BYTES = 1 << 20  # a finished run goes to disk in pieces of this size ...
+WRITE_PAUSE_S = 0.002  # ... with this pause between them
 
 
 class Logger:
@@ -66,6 +70,7 @@ class Logger:
         self.token = session.liveliness().declare_token(self.keys.alive("logger"))
         self.runs_dir = Path(runs_dir)
         self.runs: OrderedDict[int, LogRunData] = OrderedDict()
+        self._writer: threading.Thread | None = None
         self._load_runs()
         self.next_run = max(self.runs, default=0) + 1
         self.run_obj: LogRun | None = None
@@ -118,6 +123,8 @@ class Logger:
     def close(self) -> None:
         if self.run_obj is not None:
             self.stop_run("the logger stopped")
+        if self._writer is not None:
+            self._writer.join()
         for q in self.queryables.values():
             q.undeclare()
         self.live_pub.undeclare()
@@ -186,6 +193,7 @@ class Logger:
         if run is None:
             return Reply(False, "no log run is recording")
         info = self.run_info
+        began = time.perf_counter()
         columns, units = {}, self.variables.units
         for s in run.settings:
             t, v = run.samples(s.name)
@@ -198,18 +206,32 @@ class Logger:
         self.run_obj = None
         self._keep(data)
         samples = sum(run.count(s.name) for s in run.settings)
-        log.info("logger: run %d ended (%s): %d samples", data.run, why, samples)
+        log.info("logger: run %d ended (%s): %d samples, kept in %.0f ms", data.run, why, samples,
+                 1000 * (time.perf_counter() - began))
         return Reply(True, f"log run {data.run} ended ({why}): {samples} samples")
 
     def _keep(self, data: LogRunData) -> None:
+        """Keep the run in memory at once, and on disk from a writer thread, in pieces: a run of
+        hundreds of thousands of samples is megabytes, and one burst of page-cache copies can hold
+        up a core that the servo shares on a small machine."""
         self.runs[data.run] = data
         while len(self.runs) > self.cfg.runs_kept:
             old, _ = self.runs.popitem(last=False)
             (self.runs_dir / f"run-{old}.json").unlink(missing_ok=True)
+        if self._writer is not None:
+            self._writer.join()
+        self._writer = threading.Thread(target=self._write, args=(data,), name="logger-keep", daemon=False)
+        self._writer.start()
+
+    def _write(self, data: LogRunData) -> None:
         try:
             self.runs_dir.mkdir(parents=True, exist_ok=True)
             tmp = self.runs_dir / f".run-{data.run}.json.part"
-            tmp.write_bytes(encode(data))
+            payload = memoryview(encode(data))
+            with tmp.open("wb") as f:
+                for at in range(0, len(payload), WRITE_PIECE_BYTES):
+                    f.write(payload[at:at + WRITE_PIECE_BYTES])
+                    time.sleep(WRITE_PAUSE_S)
             os.replace(tmp, self.runs_dir / f"run-{data.run}.json")
         except OSError as exc:  # the run stays in memory; the engineer learns it is not on disk
             log.error("logger: cannot keep run %d in %s: %s", data.run, self.runs_dir, exc)

@@ -9,6 +9,7 @@ nothing on the tick path waits for the network, the disk or a collection.
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 from .bus.keys import Keys
@@ -183,6 +184,7 @@ def run_logger(rt: Runtime, ready) -> None:
     from .logger import Logger
 
     child_setup(rt, "logger")
+    os.nice(10)  # off the servo's path: everything else on the controller goes first
     area = _attach(rt)
     trace = TraceRing.attach(rt.trace_name)
     session = open_client(rt.zenoh_connect, rt.zenoh_credentials)

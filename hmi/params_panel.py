@@ -59,7 +59,10 @@ class ParamsPanel(QWidget):
             cells = (p.name, f"{p.value:g}", p.unit, f"{p.min:g} .. {p.max:g}", f"{p.file_value:g}",
                      "any time" if p.changeable == "always" else "no program running", p.effect, p.description)
             for col, text in enumerate(cells):
-                item = self.table.item(row, col) or QTableWidgetItem()
+                item = self.table.item(row, col)
+                if item is None:
+                    item = QTableWidgetItem()
+                    self.table.setItem(row, col, item)
                 if item.text() != text:
                     item.setText(text)
                 flags = Qt.ItemFlag.ItemIsSelectable | Qt.ItemFlag.ItemIsEnabled
@@ -68,7 +71,6 @@ class ParamsPanel(QWidget):
                 item.setFlags(flags)
                 item.setData(Qt.ItemDataRole.UserRole, p.name)
                 item.setBackground(EDITED if p.value != p.file_value else QColor(Qt.GlobalColor.white))
-                self.table.setItem(row, col, item)
         self.table.resizeColumnsToContents()
         self.table.horizontalHeader().setSectionResizeMode(len(COLUMNS) - 1, QHeaderView.ResizeMode.Stretch)
         self._filling = False

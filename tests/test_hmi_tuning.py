@@ -68,6 +68,8 @@ def test_an_engineer_tunes_x_while_watching_the_following_error_and_exports_the_
                 params.set_value("axis.x.kp_1_s", "150")
             assert done.args[1].ok and "applied by the servo at tick" in params.note.text(), params.note.text()
             qtbot.waitUntil(lambda: params.value_of("axis.x.kp_1_s") == "150", timeout=WAIT_MS)
+            qtbot.waitUntil(lambda: screen.model.status.planner_state == "IDLE"
+                            and screen.model.status.machine_state != "JOGGING", timeout=WAIT_MS)
             click(qtbot, screen, manual.jog.buttons[("x", -1)])  # the same move back with the new gain
             qtbot.waitUntil(lambda: screen.model.status.planner_state == "IDLE"
                             and abs(screen.model.status.axes[0].velocity_mm_s) < 1e-3, timeout=WAIT_MS)

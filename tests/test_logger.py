@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -122,6 +123,8 @@ def test_a_timed_run_ends_by_itself_and_the_runs_outlive_a_killed_logger(plc_con
     sup.wait_until(lambda: ask(session, keys.log("state"), LogState).running == 0, 30.0, "the run to end by itself")
     before = ask(session, keys.log(f"runs/{run}"), LogRunData)
     assert {n: len(c.v) // 8 for n, c in before.columns.items()} == {"fifo_fill": 30, "tick_latency": 100}
+    kept = Path(sup.history_path).parent / "runs" / f"run-{run}.json"
+    sup.wait_until(kept.exists, 10.0, "the run on disk")  # written by the logger's writer thread
     old = sup.children["logger"].process.pid
     os.kill(old, signal.SIGKILL)
     sup.wait_until(lambda: "logger" in sup.children and sup.children["logger"].process.pid != old, 30.0, "a new logger")
