@@ -349,7 +349,7 @@ class LogicConfig:
 class LoggerConfig:
     """The data logger (QMotor's log variables): recording runs, the live stream, the runs kept."""
 
-    wake_divisor: int = opt(20, "ticks", "the logger drains the servo's trace every Nth base tick", 1, 1000)
+    wake_divisor: int = opt(50, "ticks", "the logger drains the servo's trace every Nth base tick", 1, 1000)
     live_rate_hz: float = opt(10.0, "Hz", "rate of the live stream (watch window, live plots)", 0.5, 100.0)
     live_points: int = opt(500, "", "most samples per variable in one live message (older ones are thinned)", 10, 100000)
     max_samples: int = opt(2_000_000, "", "most samples one variable keeps in a run", 1000, 100_000_000)

@@ -21,9 +21,8 @@ import msgspec
 
 from .bus.keys import Keys
 from .bus.messages import LogRunData, LogSetting, LogStart, LogState, LogStop, Reply, decode, encode
-from .bus.session import connect_endpoints
-from .config import ConfigError, load_machine
-from .watch import WatchError, _credentials, _machine_file, open_session
+from .config import ConfigError
+from .watch import WatchError, _credentials, address, open_session
 
 ANSWER_TIMEOUT_S = 10.0
 
@@ -58,12 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """0 done, 1 the controller refused or could not be reached, 2 a bad option or machine file."""
     try:
-        config = load_machine(_machine_file(args.machine))
+        keys, endpoints = address(args)
     except ConfigError as exc:
         print(f"waterjet log: {exc}", file=sys.stderr)
         return 2
-    keys = Keys(args.prefix or config.zenoh.key_prefix, config.machine.name)
-    endpoints = args.connect or connect_endpoints(config.zenoh.listen)
     try:
         session = open_session(endpoints, credentials=_credentials(args.credentials))
     except WatchError as exc:

@@ -76,7 +76,7 @@ class Logger:
         self.run_obj: LogRun | None = None
         self.run_info: dict = {}
         self.seen: dict[str, int] = {}  # samples of each variable already sent live
-        self.latest: dict[str, float] = {}
+        self.last_record: np.ndarray | None = None  # the newest trace record drained
         self.last_tick = 0
         self.live_seq = 0
         self.next_live = 0.0
@@ -102,23 +102,32 @@ class Logger:
             self.beat[Proc.LOGGER] += 1
 
     def on_wake(self) -> None:
-        """Drain the trace; the latest values for the watch; the ticks into the run under way."""
+        """Drain the trace; the ticks into the run under way. Without a run only the newest record
+        is kept (for the watch values, computed when the live message goes out)."""
         records = self.trace.drain()
         if not len(records):
+            return
+        self.last_record = records[-1:]
+        self.last_tick = int(records["tick"][-1])
+        run = self.run_obj
+        if run is None:
             return
         ticks = records["tick"].astype(np.int64)
         columns = trace_columns(records, self.config)
         for name, value in self.sampler.sample().items():
             columns[name] = np.full(len(ticks), value)
-        self.latest = {name: float(col[-1]) for name, col in columns.items()}
-        self.last_tick = int(ticks[-1])
-        run = self.run_obj
-        if run is None:
-            return
         self._note_param_changes(ticks[-1])
         run.feed(ticks, columns)
         if run.complete:
             self.stop_run("every timed variable is complete")
+
+    def _latest(self) -> dict[str, float]:
+        """The watch values: every variable at the newest tick drained."""
+        if self.last_record is None:
+            return {}
+        values = {name: float(col[-1]) for name, col in trace_columns(self.last_record, self.config).items()}
+        values.update(self.sampler.sample())
+        return values
 
     def close(self) -> None:
         if self.run_obj is not None:
@@ -293,4 +302,4 @@ class Logger:
                     samples[name] = LogSamples(t.tolist(), v.tolist())
         self.live_seq += 1
         run_id = self.run_info.get("run", 0) if run is not None else 0
-        self.live_pub.put(encode(LogLive(self.live_seq, self.last_tick, self.latest, run_id, samples)))
+        self.live_pub.put(encode(LogLive(self.live_seq, self.last_tick, self._latest(), run_id, samples)))

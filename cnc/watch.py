@@ -389,15 +389,21 @@ def _machine_file(path: str) -> Path:
     return Path(path)
 
 
+def address(args: argparse.Namespace) -> tuple[Keys, list[str]]:
+    """The machine's keys and the endpoints to reach it, from `--machine`, `--prefix` and `--connect`
+    (the options `add_arguments` declares; `waterjet log` shares them). ConfigError for a bad file."""
+    config = load_machine(_machine_file(args.machine))
+    return (Keys(args.prefix or config.zenoh.key_prefix, config.machine.name),
+            args.connect or connect_endpoints(config.zenoh.listen))
+
+
 def run(args: argparse.Namespace) -> int:
     """Watch until `--seconds` pass or SIGINT/SIGTERM (exit 0); 1 when the controller cannot be watched."""
     try:
-        config = load_machine(_machine_file(args.machine))
+        keys, endpoints = address(args)
     except ConfigError as exc:
         print(f"waterjet watch: {exc}", file=sys.stderr)
         return 2
-    keys = Keys(args.prefix or config.zenoh.key_prefix, config.machine.name)
-    endpoints = args.connect or connect_endpoints(config.zenoh.listen)
     output = JsonOutput(sys.stdout) if args.json else HumanOutput(sys.stdout)
     stop = {"requested": False}
     deadline = None if args.seconds is None else time.monotonic() + args.seconds

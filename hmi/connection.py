@@ -241,10 +241,10 @@ class Connection:
             self._read(self.keys.lock, LockState, self.model.apply_lock)
             self._read(f"{self.keys.program}?path=1", ProgramInfo, self.model.apply_program)
             self._read(self.keys.procedures, ProcedureCatalogue, self.model.apply_catalogue)
-            self.refresh_tuning()
         except NoAnswer as exc:
             log.info("catch-up incomplete: %s", exc)
             return False
+        self._refresh_quietly()  # a controller without a logger still gets its operator screen
         return True
 
     def refresh_tuning(self) -> None:
