@@ -10,7 +10,9 @@ expected data live and compare it with the committed files.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
+import io
 import json
 import math
 import re
@@ -21,6 +23,8 @@ from pathlib import Path
 
 import pytest
 
+from cnc.cli import main as cli_main
+
 REPO = Path(__file__).resolve().parent.parent
 SUITE = REPO / "tests" / "gcode_conformance"
 MACHINE = SUITE / "machine_xyz.toml"
@@ -30,7 +34,6 @@ TOL_MM = 0.00051            # rs274 prints 4 decimals; expected records from inc
 TOL_S = 0.00051             # dwell seconds, also printed with 4 decimals
 FEED_REL = 1e-4
 FEED_ABS = 0.0013           # half of rs274's last printed digit in inch/min, in mm/min
-CLI_TIMEOUT_S = 120.0
 RS274 = "/usr/bin/rs274"
 
 # GCodeError's one-line form: "part.ngc:42:9: error: message" (column optional here)
@@ -167,17 +170,16 @@ def machine_file(program: Path, tmp_path: Path) -> Path:
 
 
 def run_check(program: Path, tmp_path: Path, segments: Path | None = None) -> subprocess.CompletedProcess:
+    """`waterjet check` on `program`, in this process (the command line's own code from argument
+    parsing on, without the cost of a Python start per program; test_check_cli runs the command)."""
     machine = machine_file(program, tmp_path)
-    cmd = [
-        sys.executable, "-m", "cnc.cli", "check", str(program.relative_to(REPO)),
-        "--machine", str(machine.relative_to(REPO) if machine.is_relative_to(REPO) else machine),
-        "--tool-table", str(TOOL_TABLE.relative_to(REPO)),
-    ]
+    argv = ["check", str(program), "--machine", str(machine), "--tool-table", str(TOOL_TABLE)]
     if segments is not None:
-        cmd += ["--segments", str(segments)]
-    return subprocess.run(
-        cmd, cwd=REPO, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=CLI_TIMEOUT_S
-    )
+        argv += ["--segments", str(segments)]
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli_main(argv)
+    return subprocess.CompletedProcess(["waterjet", *argv], code, out.getvalue(), err.getvalue())
 
 
 def _show(proc: subprocess.CompletedProcess) -> str:

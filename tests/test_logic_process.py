@@ -197,10 +197,10 @@ def test_plc_link_loss_is_an_alarm_within_three_cycles_a_safe_stop_and_the_link_
     plc = sup.area.reader("plc").read_dict()
     assert plc["failed"] - before["failed"] == sup.config.plc.lost_after_cycles, "lost after exactly 3 failed exchanges"
     sup.wait_until(lambda: 1020 in events.codes(), 5.0, "alarm 1020 PLC link lost")
-    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING,
-                   30.0, "the safe stop")
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING
+                   and logic(sup)["state"] == MachineState.FAULT, 30.0, "the safe stop")  # the logic's next scan says so
     assert not sup.hw()["digital_out"] & DigitalOut.JET_VALVE
-    assert logic(sup)["state"] == MachineState.FAULT and logic(sup)["phase"] == CyclePhase.NONE
+    assert logic(sup)["phase"] == CyclePhase.NONE
     sup.plc_sim.inject("link_dead", False)
     sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 10.0, "the reconnection")
     sup.wait_until(lambda: 1020 in events.codes("cleared"), 5.0, "the link alarm to clear")
