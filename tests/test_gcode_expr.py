@@ -534,7 +534,7 @@ if st is not None:
         return params
 
     @needs_hypothesis
-    @settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @settings(max_examples=800, deadline=None, suppress_health_check=[HealthCheck.too_slow])  # bounded for the suite's time
     @given(_TEXT, st.integers(min_value=0, max_value=3))
     def test_any_text_raises_only_gcode_error_and_never_hangs(text, pos):
         for parse in (parse_real_value, parse_expression, parse_parameter_ref):
@@ -560,7 +560,7 @@ if st is not None:
         return st.recursive(leaf, extend, max_leaves=12)
 
     @needs_hypothesis
-    @settings(max_examples=500, deadline=None)
+    @settings(max_examples=250, deadline=None)  # bounded for the suite's time
     @given(st.lists(_NUMBERS, min_size=20, max_size=20), st.data())
     def test_folding_constants_gives_what_evaluating_parameters_gives(numbers, data):
         # The same expression with numbers (folded at parse time) and with #n holding those
