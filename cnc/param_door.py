@@ -85,11 +85,14 @@ class ParamDoor:
                 answer = Reply(False, f"param {name}: internal error in the gateway: {exc!r}")
             if "*" in name:  # a reply must name one key: the list is at `params`
                 query.reply_err(zenoh.ZBytes(f"param/{name}: ask {self.keys.params} for every parameter".encode()))
+            elif isinstance(answer, str):  # a read that cannot be answered: the asker expects no Reply
+                query.reply_err(zenoh.ZBytes(answer.encode()))
             else:
                 query.reply(query.key_expr, encode(answer), encoding=zenoh.Encoding.APPLICATION_JSON)
             query.drop()
 
-    def _answer(self, name: str, query: Any) -> msgspec.Struct:
+    def _answer(self, name: str, query: Any) -> msgspec.Struct | str:
+        """The answer to a query; a text when a read must be answered with an error instead."""
         payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
             if name == "":
@@ -98,9 +101,12 @@ class ParamDoor:
                     decode(payload, SaveParams)
                     return self.save()
                 return self.list()
-            spec = params.find(self.specs, name)
             if not payload:
-                return self.info(spec, self.file_values())
+                try:
+                    return self.info(params.find(self.specs, name), self.file_values())
+                except params.ParamError as exc:
+                    return str(exc)
+            spec = params.find(self.specs, name)
             self._require_lock(query, f"change {name}")
             return self.set(spec, decode(payload, SetParam).value)
         except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:

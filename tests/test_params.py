@@ -72,6 +72,8 @@ def test_an_engineer_tunes_the_gains_online_while_the_program_runs_and_saves_the
             listed = station.params()
             assert [p.name for p in listed.params] == [s.name for s in registry(config)] and listed.seq == 0
             assert [p.value for p in listed.params] == values_of(config, registry(config))
+            [unknown] = list(session.get(keys.param("axis.z.kp_1_s"), timeout=5.0))
+            assert unknown.ok is None and "no control parameter 'axis.z.kp_1_s'" in unknown.err.payload.to_string()
             refused = station.set_param("axis.x.kp_1_s", 150.0)
             assert not refused.ok and "cannot change axis.x.kp_1_s" in refused.reason and "lock" in refused.reason
             assert station.take_lock().ok
