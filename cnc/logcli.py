@@ -22,19 +22,13 @@ import msgspec
 from .bus.keys import Keys
 from .bus.messages import LogRunData, LogSetting, LogStart, LogState, LogStop, Reply, decode, encode
 from .config import ConfigError
-from .watch import WatchError, _credentials, address, open_session
+from .watch import WatchError, _credentials, add_connection_arguments, address, open_session
 
 ANSWER_TIMEOUT_S = 10.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from .cli import DEFAULT_MACHINE  # here, not at import: cli imports this module to wire it in
-
-    parser.add_argument("--connect", action="append", metavar="ENDPOINT",
-                        help="Zenoh endpoint of the controller (default: the machine file's [zenoh] listen)")
-    parser.add_argument("--machine", "-m", default=DEFAULT_MACHINE, help=f"machine file (default {DEFAULT_MACHINE})")
-    parser.add_argument("--prefix", help="key prefix (default: the machine file's [zenoh] key_prefix)")
-    parser.add_argument("--credentials", metavar="FILE", help="a user:password line, when access control is on")
+    add_connection_arguments(parser)
     sub = parser.add_subparsers(dest="log_command", required=True, metavar="ACTION")
     sub.add_parser("list", help="the variables that can be logged and the runs kept")
     start = sub.add_parser("start", help="start a log run of these variables (all with the same settings)")

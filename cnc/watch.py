@@ -352,18 +352,24 @@ def open_session(
 # -- command line ---------------------------------------------------------------------------
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The options of `waterjet watch` (shared by `python -m cnc.watch`)."""
+def add_connection_arguments(parser: argparse.ArgumentParser) -> None:
+    """How a terminal tool finds the controller (`address`): `--connect`, `--machine`, `--prefix`,
+    `--credentials` (shared by `waterjet watch` and `waterjet log`)."""
     from .cli import DEFAULT_MACHINE  # here, not at import: cli imports this module to wire it in
 
     parser.add_argument("--connect", action="append", metavar="ENDPOINT",
                         help="Zenoh endpoint of the controller (repeatable; default: the machine file's [zenoh] listen)")
     parser.add_argument("--machine", "-m", default=DEFAULT_MACHINE, help=f"machine file (default {DEFAULT_MACHINE})")
     parser.add_argument("--prefix", help="key prefix (default: the machine file's [zenoh] key_prefix)")
-    parser.add_argument("--json", action="store_true", help="every message as one JSON object per line")
-    parser.add_argument("--seconds", type=float, metavar="N", help="stop after N seconds (default: until SIGINT/SIGTERM)")
     parser.add_argument("--credentials", metavar="FILE",
                         help="a user:password line to log in with, when the controller has access control on")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of `waterjet watch` (shared by `python -m cnc.watch`)."""
+    add_connection_arguments(parser)
+    parser.add_argument("--json", action="store_true", help="every message as one JSON object per line")
+    parser.add_argument("--seconds", type=float, metavar="N", help="stop after N seconds (default: until SIGINT/SIGTERM)")
 
 
 def _credentials(path: str | None) -> tuple[str, str] | None:

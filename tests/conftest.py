@@ -61,6 +61,19 @@ def full_controller(config: MachineConfig, history_path: Path):
         yield sup
 
 
+def reset_and_home(sup: Supervisor, request) -> None:
+    """Reset (the drives come on a few ticks after the reply), then home once the servo holds:
+    `request(msg)` sends a command and returns its Reply (an operator station's, or the logic's)."""
+    from cnc.bus.messages import Home, Reset
+    from cnc.layout import ServoState
+
+    reply = request(Reset())
+    assert reply.ok, reply.reason
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the drives on after the reset")
+    reply = request(Home())
+    assert reply.ok, reply.reason
+
+
 def logic(sup: Supervisor) -> dict:
     """The control logic's block: mode, state, phase, cycles, procedure."""
     return sup.area.reader("logic").read_dict()

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cnc.bus.messages import CycleStart, Home, LogLive, LogRunData, LogSetting, LogStart, LogState, Reply, Reset, SetMode
+from cnc.bus.messages import CycleStart, LogLive, LogRunData, LogSetting, LogStart, LogState, Reply, SetMode
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.bus.messages import decode, encode
@@ -20,7 +20,7 @@ from cnc.layout import PlannerState
 from cnc.bus.logexport import columns, read_csv
 from cnc.logic.states import MachineState
 
-from .conftest import MACHINE_FILE, REPO, logic, press_button_when_asked
+from .conftest import MACHINE_FILE, REPO, logic, press_button_when_asked, reset_and_home
 from .test_zenoh_interface import PART
 
 
@@ -45,7 +45,8 @@ def test_each_logging_mode_records_what_it_should_during_a_cut_and_notes_paramet
     keys, dt = sup.keys, sup.config.timing.period_s
     live: list[LogLive] = []
     sub = session.declare_subscriber(keys.log("live"), lambda s: live.append(decode(s.payload.to_bytes(), LogLive)))
-    assert op.take_lock().ok and op.request(Reset()).ok and op.request(Home()).ok
+    assert op.take_lock().ok
+    reset_and_home(sup, op.request)
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 60.0, "homing")
     assert op.upload("part.ngc", PART).ok and op.request(SetMode("AUTO")).ok
 

@@ -13,7 +13,7 @@ import pytest
 from cnc.alarms import AlarmHistory
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, CycleStart, Drives, Hold, Home, HistoryPage, Jog, JetTest, LoadProgram, ProcedureConfirm,
+    AlarmEvent, AlarmList, CycleStart, Drives, Hold, HistoryPage, Jog, JetTest, LoadProgram, ProcedureConfirm,
     ProcedureEnd, ProcedureStart, ProcedureState, ProcedureStop, Pump, Reply, Reset, Resume, SetMode, Stop, decode,
 )
 from cnc.hw.board import DigitalOut
@@ -21,7 +21,7 @@ from cnc.layout import LinkState, PlannerState, RunResult, ServoState
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.supervisor import Supervisor
 
-from .conftest import logic, press_button_when_asked
+from .conftest import logic, press_button_when_asked, reset_and_home
 
 
 PART = """(a part: pierce, a square with a rounded corner, jet off)
@@ -80,8 +80,7 @@ def refusal(sup: Supervisor, msg) -> str:
 
 def ready_in_auto(sup: Supervisor, tmp_path, program: str | None = None) -> None:
     """Drives on, homed, a program loaded, AUTO: READY for cycle start."""
-    command(sup, Reset())
-    command(sup, Home())
+    reset_and_home(sup, sup.logic.request)
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
                    60.0, "homing")
     path = tmp_path / "nest.ngc"
@@ -232,8 +231,7 @@ def test_guided_procedure_walks_its_steps_publishes_each_change_and_can_be_stopp
     assert awaited.steps[3].text == "Drives on" and awaited.instruction == "Reset the machine to switch the drives on"
     assert [s.state for s in awaited.steps] == ["done", "done", "done", "awaited", "pending"]
     assert "while it runs; stop it first" in refusal(sup, ProcedureEnd())
-    command(sup, Reset())
-    command(sup, Home())
+    reset_and_home(sup, sup.logic.request)
     sup.wait_until(lambda: events.procedures[-1].state == "done", 60.0, "the start-up procedure to finish")
     command(sup, ProcedureEnd())
     sup.wait_until(lambda: events.procedures[-1].state == "idle", 5.0, "the window to close")

@@ -8,7 +8,7 @@ import shutil
 import pytest
 
 from cnc.bus.keys import Keys
-from cnc.bus.messages import CycleStart, Home, Reset, SetMode
+from cnc.bus.messages import CycleStart, SetMode
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.config import ConfigError, load_machine
@@ -16,7 +16,7 @@ from cnc.layout import PlannerState
 from cnc.logic.states import MachineState
 from cnc.params import ParamError, find, registry, save, values_of
 
-from .conftest import MACHINE_FILE, NEAR_HOME, MID_TRAVEL, free_port, full_controller, logic, press_button_when_asked
+from .conftest import MACHINE_FILE, NEAR_HOME, MID_TRAVEL, free_port, full_controller, logic, press_button_when_asked, reset_and_home
 from .test_zenoh_interface import PART
 
 
@@ -81,7 +81,7 @@ def test_an_engineer_tunes_the_gains_online_while_the_program_runs_and_saves_the
             assert not out.ok and "out of range: allowed 0 to 10000 1/s" in out.reason
             assert not station.set_param("axis.x.no_such_gain", 1.0).ok
 
-            assert station.request(Reset()).ok and station.request(Home()).ok
+            reset_and_home(sup, station.request)
             sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 60.0, "homing")
             assert station.upload("part.ngc", PART).ok and station.request(SetMode("AUTO")).ok
             assert station.request(CycleStart(1)).ok

@@ -19,7 +19,7 @@ from cnc.layout import LinkState, PlannerState, RunResult
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.supervisor import Supervisor
 
-from .conftest import NEAR_HOME, fast_plant, logic, machine_config, press_button_when_asked
+from .conftest import NEAR_HOME, fast_plant, logic, machine_config, press_button_when_asked, reset_and_home
 
 PART = """(square part)
 G21 G90 G64 P0.05 F6000
@@ -160,7 +160,7 @@ def test_history_queries_filter_and_page_and_every_run_is_a_job(controller, sess
     assert op.take_lock().ok
     for _ in range(3):
         op.request(CycleStart())  # refused in MANUAL: message 37 each time
-    assert op.request(Reset()).ok and op.request(Home()).ok
+    reset_and_home(sup, op.request)
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
                    60.0, "homing")
     assert op.upload("part.ngc", PART).ok and op.request(SetMode("AUTO")).ok and op.request(CycleStart(1)).ok
@@ -187,7 +187,8 @@ def test_losing_the_operator_station_during_a_cut_holds_the_feed(controller, key
     sup = controller
     hmi = open_client([sup.config.zenoh.listen[0]])
     op = OperatorStation(hmi, keys, "panel")
-    assert op.take_lock().ok and op.request(Reset()).ok and op.request(Home()).ok
+    assert op.take_lock().ok
+    reset_and_home(sup, op.request)
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
                    60.0, "homing")
     long_cut = PART.replace("G1 X140\nG1 Y140\nG1 X100\nG1 Y100", "G1 X900\nG1 Y900\nG1 X100\nG1 Y100")
