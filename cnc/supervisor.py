@@ -252,8 +252,8 @@ class Supervisor:
             self.control.set("safe_state", 1)
             self.control.publish()
             self._wait_ticks(3, timeout_s=0.5)
-            for name in reversed(self.process_names):
-                self._stop_child(name)
+            for stage in reversed(START_STAGES):  # a stage's processes stop together, the servo's last
+                self._stop_child(*[name for name in stage if name in self.children])
         for name, child in list(self.children.items()):
             child.process.kill()
             child.process.join(2.0)
@@ -281,20 +281,22 @@ class Supervisor:
             self.area.close()
             self.area = None
 
-    def _stop_child(self, name: str) -> None:
-        child = self.children.pop(name, None)
-        if child is None:
-            return
-        self.control.set("shutdown", self.control.get("shutdown") | 1 << POLICIES[name].slot)
-        self.control.publish()
-        child.process.join(5.0)
-        if child.process.is_alive():
-            log.warning("%s did not stop in time: terminating", name)
-            child.process.terminate()
-            child.process.join(2.0)
-        if child.process.is_alive():
-            child.process.kill()
-            child.process.join(2.0)
+    def _stop_child(self, *names: str) -> None:
+        """Ask these processes to stop, together, then wait for each (terminated, then killed, when late)."""
+        children = [(name, self.children.pop(name)) for name in names if name in self.children]
+        for name, _ in children:
+            self.control.set("shutdown", self.control.get("shutdown") | 1 << POLICIES[name].slot)
+        if children:
+            self.control.publish()
+        for name, child in children:
+            child.process.join(5.0)
+            if child.process.is_alive():
+                log.warning("%s did not stop in time: terminating", name)
+                child.process.terminate()
+                child.process.join(2.0)
+            if child.process.is_alive():
+                child.process.kill()
+                child.process.join(2.0)
 
     # -- watching ------------------------------------------------------------------------
     def poll(self) -> None:
