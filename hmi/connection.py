@@ -13,8 +13,8 @@ import zenoh
 
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState, LogStop,
-    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, Status, decode, encode,
+    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState,
+    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, Status, decode,
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
@@ -141,12 +141,9 @@ class Connection:
         """Send one operator command through the station; refused here, with the reason, when this
         station does not hold the command lock (a LockRequest always goes: it is how one takes it).
         Blocks until the controller answers: call it off the GUI thread or accept the wait."""
-        if self.operator is None:
-            return Reply(False, f"{type(msg).__name__}: not connected to the controller")
-        holder = self.model.lock_holder
-        if self.model.read_only and not isinstance(msg, LockRequest):
-            who = f"station {holder!r} holds the command lock" if holder else "nobody holds the command lock"
-            return Reply(False, f"read-only: {who}; take the lock first")
+        refused = self._refuse(type(msg).__name__, needs_lock=not isinstance(msg, LockRequest))
+        if refused is not None:
+            return refused
         reply = self.operator.request(msg)
         if isinstance(msg, LockRequest) and reply.ok:
             self._refresh(self.keys.lock, LockState, self.model.apply_lock)
@@ -306,7 +303,7 @@ class Connection:
 
     def set_param(self, name: str, value: float) -> Reply:
         """Change one control parameter (this station must hold the command lock)."""
-        refused = self._refuse_read_only(f"param {name}")
+        refused = self._refuse(f"param {name}")
         if refused is not None:
             return refused
         reply = self.operator.set_param(name, value)
@@ -314,7 +311,7 @@ class Connection:
         return reply
 
     def save_params(self) -> Reply:
-        refused = self._refuse_read_only("save params")
+        refused = self._refuse("save params")
         if refused is not None:
             return refused
         reply = self.operator.save_params()
@@ -323,12 +320,14 @@ class Connection:
 
     def log_start(self, start: LogStart) -> Reply:
         """Start a log run (no command lock needed: logging never moves the machine)."""
-        reply = self._ask_reply(self.keys.log("start"), start)
+        refused = self._refuse("log start", needs_lock=False)
+        reply = refused or self.operator.log_start(start)
         self._refresh_quietly()
         return reply
 
     def log_stop(self) -> Reply:
-        reply = self._ask_reply(self.keys.log("stop"), LogStop())
+        refused = self._refuse("log stop", needs_lock=False)
+        reply = refused or self.operator.log_stop()
         self._refresh_quietly()
         return reply
 
@@ -336,24 +335,15 @@ class Connection:
         """A whole log run (for plots after the run and for export); NoAnswer when there is none."""
         return self._query(self.keys.log(f"runs/{run}"), LogRunData)
 
-    def _refuse_read_only(self, what: str) -> Reply | None:
+    def _refuse(self, what: str, needs_lock: bool = True) -> Reply | None:
+        """Why `what` cannot be sent from here (not connected; read-only when it needs the lock), or None."""
         if self.operator is None:
             return Reply(False, f"{what}: not connected to the controller")
-        if self.model.read_only:
+        if needs_lock and self.model.read_only:
             holder = self.model.lock_holder
             who = f"station {holder!r} holds the command lock" if holder else "nobody holds the command lock"
             return Reply(False, f"{what}: read-only: {who}; take the lock first")
         return None
-
-    def _ask_reply(self, key: str, msg: msgspec.Struct) -> Reply:
-        session = self.session
-        if session is None:
-            return Reply(False, f"{key}: not connected to the controller")
-        for reply in session.get(key, payload=encode(msg), timeout=QUERY_TIMEOUT_S * 3):
-            if reply.ok is None:
-                return Reply(False, f"{key}: {reply.err.payload.to_string()}")
-            return decode(reply.ok.payload.to_bytes(), Reply)
-        return Reply(False, f"{key}: no answer from the controller")
 
     def _refresh_quietly(self) -> None:
         try:

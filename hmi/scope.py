@@ -23,8 +23,10 @@ TIME = "time"
 LIVE = 0  # the scope's source: the run under way
 
 
-def _checkable_list(names: list[str], checked: set[str]) -> QListWidget:
-    box = QListWidget()
+def _checkable_list(names: list[str], checked: set[str], box: QListWidget | None = None) -> QListWidget:
+    """A list of `names` with a check box each (`checked` ticked); refills `box` when given."""
+    box = box if box is not None else QListWidget()
+    box.clear()
     for name in names:
         item = QListWidgetItem(name)
         item.setFlags(item.flags() | Qt.ItemFlag.ItemIsUserCheckable)
@@ -72,12 +74,7 @@ class WatchPanel(QWidget):
         kept = set(self.watched())
         self._names = names
         self.choice.blockSignals(True)
-        self.choice.clear()
-        for name in names:
-            item = QListWidgetItem(name)
-            item.setFlags(item.flags() | Qt.ItemFlag.ItemIsUserCheckable)
-            item.setCheckState(Qt.CheckState.Checked if name in kept else Qt.CheckState.Unchecked)
-            self.choice.addItem(item)
+        _checkable_list(names, kept, self.choice)
         self.choice.blockSignals(False)
         self.refresh()
 

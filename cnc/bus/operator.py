@@ -10,7 +10,8 @@ import zenoh
 
 from .keys import Keys
 from .messages import (
-    LOGIC_COMMANDS, LockRequest, ParamList, Reply, SaveParams, SetParam, UploadProgram, decode, encode,
+    LOGIC_COMMANDS, LockRequest, LogStart, LogStop, ParamList, Reply, SaveParams, SetParam, UploadProgram, decode,
+    encode,
 )
 
 OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {**LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram}
@@ -28,7 +29,7 @@ class OperatorStation:
     def request(self, command: msgspec.Struct, verb: str | None = None) -> Reply:
         """Send one command; the reply says ok or why not."""
         verb = verb or _VERBS[type(command)]
-        return self._ask(self.keys.cmd(verb), command, verb)
+        return self.ask(self.keys.cmd(verb), command, verb)
 
     def take_lock(self) -> Reply:
         return self.request(LockRequest(take=True))
@@ -38,11 +39,18 @@ class OperatorStation:
 
     def set_param(self, name: str, value: float) -> Reply:
         """Change one control parameter (`axis.x.kp_1_s`); the reply says when it applied, or why not."""
-        return self._ask(self.keys.param(name), SetParam(value), f"param {name}")
+        return self.ask(self.keys.param(name), SetParam(value), f"param {name}")
 
     def save_params(self) -> Reply:
         """Write the control parameters in force into the controller's machine file."""
-        return self._ask(self.keys.params, SaveParams(), "save params")
+        return self.ask(self.keys.params, SaveParams(), "save params")
+
+    def log_start(self, start: LogStart) -> Reply:
+        """Start a log run (logging never moves the machine: no command lock needed)."""
+        return self.ask(self.keys.log("start"), start, "log start")
+
+    def log_stop(self) -> Reply:
+        return self.ask(self.keys.log("stop"), LogStop(), "log stop")
 
     def params(self) -> ParamList:
         """Every control parameter with its range and the value in force."""
@@ -52,7 +60,8 @@ class OperatorStation:
             return decode(reply.ok.payload.to_bytes(), ParamList)
         raise TimeoutError(f"params: no answer from the controller within {self.timeout_s:g} s")
 
-    def _ask(self, key: str, msg: msgspec.Struct, what: str) -> Reply:
+    def ask(self, key: str, msg: msgspec.Struct, what: str) -> Reply:
+        """Send `msg` as a query on `key` with this station's id; its Reply, or one saying why none came."""
         replies = self.session.get(key, payload=encode(msg), encoding=zenoh.Encoding.APPLICATION_JSON,
                                    attachment=self.attachment, timeout=self.timeout_s)
         for reply in replies:
