@@ -26,6 +26,7 @@ import numpy as np
 from .canon import ARC, DWELL, LINE, RAPID, Move
 from . import kerf_bulk
 from .dialect import AUX_BITS
+from .lexer import MAX_WORD_VALUE
 
 if TYPE_CHECKING:
     from .interp import Interpreter
@@ -104,6 +105,7 @@ class FastPath:
         letters = letters.copy()
         letters[(letters == ord("g")) & np.isin(values, _KERF_CODES)] = ord("k")
         limit = nl  # lines [0, limit) are taken; lowered at the first line that needs the general path
+        limit = _first(np.bincount(line_of[~(np.abs(values) <= MAX_WORD_VALUE)], minlength=nl) > 0, limit)  # refused there
 
         def column(ch: str) -> np.ndarray:
             nonlocal limit

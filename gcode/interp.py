@@ -25,7 +25,7 @@ from .dialect import AUX_BITS, Dialect
 from .errors import GCodeError
 from .fastpath import FastPath
 from .kerf import KerfCompensator
-from .lexer import Block, OWord, column_of, lex_line
+from .lexer import MAX_WORD_VALUE, Block, OWord, column_of, lex_line
 from .params import Parameters
 from .program import Attrs, Program, ProgramBuilder
 from .source import SourceLines, decode, split_lines
@@ -337,6 +337,11 @@ class Interpreter:
         for word in b.words:
             letter = word.letter
             value = word.value if word.value is not None else word.node.evaluate(params)
+            if not -MAX_WORD_VALUE <= value <= MAX_WORD_VALUE:  # also NaN
+                raise GCodeError(
+                    f"{letter.upper()} word {value:g} is out of range: word values are limited to +-{MAX_WORD_VALUE:g}",
+                    code="overflow", column=self._col(b, word.pos),
+                )
             if letter == "g":
                 code = modal.code_number(value)
                 if code is None or code not in modal.G_GROUP:

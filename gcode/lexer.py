@@ -24,6 +24,9 @@ O_KEYWORDS = (
 _SIMPLE = re.compile(r"(?:[abcdfghijklmpqrstuvwxyz][-+]?(?:\d+\.?\d*|\.\d+))+")
 _PAIR = re.compile(r"([a-z])([-+]?(?:\d+\.?\d*|\.\d+))")
 MAX_O_ARGS = 30
+# A word's value beyond any machine (1000 km, 31 years of dwell), and small enough that lengths, arc
+# centres and turn counts computed from it stay finite and fit their columns.
+MAX_WORD_VALUE = 1e9
 _DIGITS = frozenset("0123456789")  # str.isdigit() also takes '²' and other digits int() refuses
 
 
