@@ -2,13 +2,19 @@
 
 Payloads are JSON (Zenoh encoding application/json). Every top-level message carries
 `version`: a reader refuses, clearly, a message whose major version it does not know.
+Commands (and the settings inside them) refuse fields they do not declare: a misspelt optional
+field would otherwise be dropped in silence (`Jog` with `distance` for `distance_mm` is a
+continuous jog).
 """
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import msgspec
 
 SCHEMA_VERSION = 1
+MAX_CYCLES = 1_000_000  # cycles one CycleStart may ask for (JSON integers are unbounded; 0 runs until stopped)
 
 
 class SchemaVersionError(ValueError):
@@ -120,7 +126,7 @@ class Position(msgspec.Struct, frozen=True):
 # -- the operator's door: lock, programs, jobs ----------------------------------------------
 
 
-class LockRequest(msgspec.Struct, frozen=True):
+class LockRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Take (or release) the command lock for the station named in the query's attachment."""
 
     take: bool = True
@@ -137,7 +143,7 @@ class LockState(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
-class UploadProgram(msgspec.Struct, frozen=True):
+class UploadProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """A program sent over Zenoh: checked (size, encoding), interpreted, and loaded when valid."""
 
     name: str  # file name, e.g. "nest.ngc"
@@ -309,14 +315,14 @@ class ParamList(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
-class SetParam(msgspec.Struct, frozen=True):
+class SetParam(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Change one control parameter (a query on `param/<name>` with this payload; the command lock applies)."""
 
     value: float
     version: int = SCHEMA_VERSION
 
 
-class SaveParams(msgspec.Struct, frozen=True):
+class SaveParams(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Write the control parameters in force into the machine file (a query on `params`; the lock applies)."""
 
     version: int = SCHEMA_VERSION
@@ -333,7 +339,7 @@ class LogVariable(msgspec.Struct, frozen=True):
     description: str
 
 
-class LogSetting(msgspec.Struct, frozen=True):
+class LogSetting(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """How one variable is logged in a run (QMotor's modes), at every `divisor`-th base tick:
     timed: from `start_s` for `duration_s` after the run starts; continuous: the last `window_s`
     seconds, kept when the run ends; triggered: while `enable_when` holds (or, with `disable_when`,
@@ -350,7 +356,7 @@ class LogSetting(msgspec.Struct, frozen=True):
     disable_when: str = ""
 
 
-class LogStart(msgspec.Struct, frozen=True):
+class LogStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Start a log run (a query on `log/start`); the reply names the run."""
 
     variables: list[LogSetting]
@@ -358,7 +364,7 @@ class LogStart(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
-class LogStop(msgspec.Struct, frozen=True):
+class LogStop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """End the log run now (a query on `log/stop`); what was recorded is kept."""
 
     version: int = SCHEMA_VERSION
@@ -432,45 +438,45 @@ class LogRunData(msgspec.Struct, frozen=True):
 # -- commands to the planner (answered with a Reply) ------------------------------------------
 
 
-class LoadProgram(msgspec.Struct, frozen=True):
+class LoadProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Interpret and check a program file; it becomes the program `Start` runs."""
 
     path: str
     version: int = SCHEMA_VERSION
 
 
-class Start(msgspec.Struct, frozen=True):
+class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Run the loaded program from its beginning (cycle start)."""
 
     version: int = SCHEMA_VERSION
 
 
-class Hold(msgspec.Struct, frozen=True):
+class Hold(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Feed hold: decelerate along the path and stay there."""
 
     version: int = SCHEMA_VERSION
 
 
-class Resume(msgspec.Struct, frozen=True):
+class Resume(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Continue after a hold or a program stop."""
 
     version: int = SCHEMA_VERSION
 
 
-class Stop(msgspec.Struct, frozen=True):
+class Stop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Decelerate to rest and end the program (or the manual motion)."""
 
     version: int = SCHEMA_VERSION
 
 
-class Override(msgspec.Struct, frozen=True):
+class Override(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Feed override in percent, 0 to 200 (rapids follow it up to 100)."""
 
     percent: float
     version: int = SCHEMA_VERSION
 
 
-class Jog(msgspec.Struct, frozen=True):
+class Jog(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Jog one axis: continuously (until JogStop) when distance_mm is None, else by that distance.
     The sign of velocity_mm_s gives the direction of a continuous jog; 0 means the default speed."""
 
@@ -480,13 +486,13 @@ class Jog(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
-class JogStop(msgspec.Struct, frozen=True):
+class JogStop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """End a continuous jog: decelerate to rest."""
 
     version: int = SCHEMA_VERSION
 
 
-class GoTo(msgspec.Struct, frozen=True):
+class GoTo(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Move in a straight line to a position (axes left out stay); at feed_mm_s, or the axis limits when None."""
 
     position_mm: dict[str, float]
@@ -494,7 +500,7 @@ class GoTo(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
-class Home(msgspec.Struct, frozen=True):
+class Home(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Home these axes in this order (all axes, in machine order, when empty)."""
 
     axes: list[str] = msgspec.field(default_factory=list)
@@ -528,34 +534,34 @@ PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
 # -- commands to the control logic (the machine's commander; answered with a Reply) ---------
 
 
-class SetMode(msgspec.Struct, frozen=True):
+class SetMode(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Operation mode: MANUAL (jog, home, pump and jet by hand) or AUTO (the automatic cycle)."""
 
     mode: str
     version: int = SCHEMA_VERSION
 
 
-class CycleStart(msgspec.Struct, frozen=True):
+class CycleStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Start the automatic cycle for `cycles` cycles (0: until stopped)."""
 
-    cycles: int = 1
+    cycles: Annotated[int, msgspec.Meta(le=MAX_CYCLES)] = 1  # the logic refuses a negative count
     version: int = SCHEMA_VERSION
 
 
-class Reset(msgspec.Struct, frozen=True):
+class Reset(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Reset faults and alarms whose cause has gone, and switch the drives on."""
 
     version: int = SCHEMA_VERSION
 
 
-class Drives(msgspec.Struct, frozen=True):
+class Drives(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Switch the axis drives on or off (manual mode or idle)."""
 
     on: bool
     version: int = SCHEMA_VERSION
 
 
-class Pump(msgspec.Struct, frozen=True):
+class Pump(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Run the high-pressure pump (manual mode), at `pressure_bar` or the machine's cutting pressure."""
 
     on: bool
@@ -563,40 +569,40 @@ class Pump(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
-class JetTest(msgspec.Struct, frozen=True):
+class JetTest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Open the jet at standstill (manual mode, pump at pressure), or close it."""
 
     on: bool
     version: int = SCHEMA_VERSION
 
 
-class Acknowledge(msgspec.Struct, frozen=True):
+class Acknowledge(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The operator has seen alarm `code` (all active alarms when None)."""
 
     code: int | None = None
     version: int = SCHEMA_VERSION
 
 
-class ProcedureStart(msgspec.Struct, frozen=True):
+class ProcedureStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Start the guided procedure `id` of the machine file."""
 
     id: str
     version: int = SCHEMA_VERSION
 
 
-class ProcedureConfirm(msgspec.Struct, frozen=True):
+class ProcedureConfirm(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """The operator did what the awaited step asks."""
 
     version: int = SCHEMA_VERSION
 
 
-class ProcedureStop(msgspec.Struct, frozen=True):
+class ProcedureStop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """"Procedure stopped": abandon the running procedure."""
 
     version: int = SCHEMA_VERSION
 
 
-class ProcedureEnd(msgspec.Struct, frozen=True):
+class ProcedureEnd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """"End the procedure": close a finished or stopped procedure."""
 
     version: int = SCHEMA_VERSION
@@ -620,13 +626,14 @@ def encode(msg: msgspec.Struct) -> bytes:
 
 def decode(payload: bytes, kind: type[msgspec.Struct]) -> msgspec.Struct:
     """Decode and check the schema version; raises SchemaVersionError or msgspec.ValidationError."""
+    why = ""
     try:
         version = msgspec.json.decode(payload, type=_Versioned).version
-    except msgspec.ValidationError:
-        version = None
+    except msgspec.ValidationError as exc:  # not an object, or a version that is not an integer
+        version, why = None, f" ({exc})"
     if version != SCHEMA_VERSION:
         raise SchemaVersionError(
-            f"{kind.__name__}: message schema version {version} is not the supported version {SCHEMA_VERSION}"
+            f"{kind.__name__}: message schema version {version} is not the supported version {SCHEMA_VERSION}{why}"
         )
     return msgspec.json.decode(payload, type=kind)
 
