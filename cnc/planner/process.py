@@ -235,14 +235,35 @@ class Planner:
         if len(data) > self.config.gcode.max_program_bytes:
             raise Refused(f"{path}: the program is {len(data)} bytes; this machine accepts at most {self.config.gcode.max_program_bytes}")
         start = tuple(self.servo_r.read_dict()["commanded_mm"])
-        program = self._interpret(path, data, start)
-        self.loaded = LoadedProgram(path, data, program, self.config, start)
+        self.loaded = self._prepare(path, data, start)
+        program = self.loaded.program
         self._set(
             program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
             program_lines=program.stats.lines, planned_s=self.loaded.planned_ticks * self.dt,
             total_mm=sum(s.length_mm for s in self.loaded.steps if hasattr(s, "path")),
             done_mm=0.0, segment=-1, line=0, eta_s=self.loaded.planned_ticks * self.dt, run_result=int(RunResult.NONE),
         )
+
+    def _prepare(self, path: str, data: bytes, start: tuple) -> LoadedProgram:
+        """Interpret and plan a program on a helper thread while this loop keeps its heartbeat: a
+        large program takes seconds to prepare (minutes for a million lines), and a silent heartbeat
+        makes the supervisor kill the planner as hung."""
+        outcome: list[LoadedProgram | BaseException] = []
+
+        def prepare() -> None:
+            try:
+                outcome.append(LoadedProgram(path, data, self._interpret(path, data, start), self.config, start))
+            except BaseException as exc:  # raised again below, on the loop's thread
+                outcome.append(exc)
+
+        helper = threading.Thread(target=prepare, name="prepare-program", daemon=True)
+        helper.start()
+        while helper.is_alive():
+            helper.join(0.1)
+            self.beat[Proc.PLANNER] += 1
+        if isinstance(outcome[0], BaseException):
+            raise outcome[0]
+        return outcome[0]
 
     def _interpret(self, path: str, data: bytes, start: tuple) -> Program:
         xyz = [0.0, 0.0, 0.0]
@@ -262,8 +283,7 @@ class Planner:
         start = tuple(servo["commanded_mm"])
         if any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start)):
             # the head moved since loading: the program's first move starts where it now is
-            program = self._interpret(self.loaded.path, self.loaded.text, start)
-            self.loaded = LoadedProgram(self.loaded.path, self.loaded.text, program, self.config, start)
+            self.loaded = self._prepare(self.loaded.path, self.loaded.text, start)
         homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
         try:
             preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
