@@ -273,7 +273,8 @@ class PlcConfig:
 ALARM_LEVELS = ("fatal", "error", "warning", "info")
 # ids the control logic raises by name: a catalogue must declare them (the others it raises when declared)
 CONTROLLER_ALARM_IDS = (
-    "estop", "doors_open", "following_error", "soft_limit", "hard_limit", "watchdog", "process_lost", "plc_link_lost",
+    "estop", "doors_open", "following_error", "soft_limit", "hard_limit", "watchdog", "fifo_underrun", "process_lost",
+    "plc_link_lost",
     "plc_error", "pump_pressure_fault", "transport_timeout", "procedure_stop", "procedure_timeout", "program_error",
     "program_message", "wrong_mode", "cycle_done", "internal_error",
 )

@@ -117,6 +117,8 @@ def hw_layout(n: int) -> BlockLayout:
             F("safe_state", "I"),  # the board is being held in the safe state
             F("reset_seq", "Q"),  # last command.reset_seq the hardware server acted on
             F("paused", "I"),  # virtual clock: held at command.virtual_run_until
+            F("jet_off_tick", "Q"),  # tick at which the board's jet valve output last closed
+            F("last_motion_tick", "Q"),  # last tick at which an axis moved faster than STILL_MM_S
         ],
     )
 
@@ -145,6 +147,7 @@ def servo_layout(n: int) -> BlockLayout:
             F("ticks_processed", "Q"),
             F("overruns", "Q"),  # ticks the servo skipped (its count fell behind the tick counter)
             F("underruns", "Q"),  # ticks the FIFO ran dry during a motion
+            F("underrun_tick", "Q"),  # first tick of the latest dry spell (the jet closed on it)
             F("loop_ns", "q"),  # compute time of the last tick
             F("reset_seq", "Q"),  # last command.reset_seq the servo acted on
             F("position_offset_mm", "d", n),  # machine position = encoder counts * resolution + offset
@@ -176,6 +179,10 @@ def supervisor_layout() -> BlockLayout:
             F("shutdown", "I"),  # bit per process (Proc): stop it
             F("virtual_run_until", "Q"),  # virtual clock: do not tick past this tick (0: run freely)
             F("trace_enable", "I"),  # the servo writes every tick into the trace ring
+            F("lost_seq", "Q"),  # +1 each time a controller process dies or hangs
+            F("lost_proc", "I"),  # the last one lost (Proc)
+            F("lost_restarted", "I"),  # ... and whether it was restarted
+            F("lost_why", "s", 120),  # ... and how it was lost
         ],
     )
 
@@ -225,6 +232,7 @@ def sim_layout(n: int) -> BlockLayout:
             F("mains_off", "I"),
             F("drive_fault_mask", "I"),
             F("friction_scale", "d", n),
+            F("planner_stall", "I"),  # the planner pushes no setpoints (a planner starved of CPU)
         ],
     )
 
@@ -290,6 +298,8 @@ def logic_layout() -> BlockLayout:
             F("scans", "Q"),
             F("scan_us", "q"),  # duration of the last scan
             F("message", "s", 200),  # last refusal or notice
+            F("lost_seen", "Q"),  # the supervisor's lost_seq this logic (or the one before it) has reported
+            F("underrun_seen", "Q"),  # the servo's underrun_tick the logic has reported
         ],
     )
 

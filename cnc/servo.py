@@ -36,6 +36,8 @@ from .trace import TraceRing
 log = logging.getLogger(__name__)
 
 _IN_MOTION = int(SetpointFlag.IN_MOTION)
+# the FIFO ran dry mid-motion: the head stops where it is, and a jet left open would pierce there
+_DRY_CLOSES = int(SetpointFlag.JET_ON) | int(SetpointFlag.ABRASIVE)
 # the servo's list that holds each servo-owned control parameter, per axis
 _PARAM_LISTS = {"kp_1_s": "kp", "ki_1_s2": "ki", "velocity_ff": "kv", "accel_ff_s": "ka",
                 "integral_limit_mm_s": "i_lim", "following_error_limit_mm": "fe_lim"}
@@ -78,6 +80,7 @@ class Servo:
         self.integral = [0.0] * n
         self.v_prev = [0.0] * n
         self.last_flags = 0
+        self.dry = False  # the FIFO ran dry during a motion and nothing came since
         self.last_tick = 0
         self.first = True
         ix = self.out.layout.index
@@ -211,11 +214,16 @@ class Servo:
                     self.fifo.flush()
                     return ServoState.FAULT
             commanded, velocity = list(pos), list(vel)
+            self.dry = False
             v[I["setpoint_flags"]], v[I["setpoint_segment"]], v[I["setpoint_line"]] = flags, rec[2 * n + 1], rec[2 * n + 2]
             self.last_flags = flags
         else:
             if self.last_flags & _IN_MOTION:
                 v[I["underruns"]] += 1
+                if not self.dry:
+                    v[I["underrun_tick"]] = tick
+                self.dry = True
+                self.last_flags &= ~_DRY_CLOSES
             velocity = [0.0] * n
             flags = self.last_flags & ~_IN_MOTION
         errors, speed = [0.0] * n, [0.0] * n

@@ -323,14 +323,22 @@ class Supervisor:
         policy = POLICIES[name]
         self._note(f"{name} process {why}")
         moving = policy.slot in (Proc.PLANNER, Proc.LOGIC) and self.servo()["state"] == ServoState.TRACKING
-        if policy.slot in (Proc.SERVO, Proc.HARDWARE) or moving:
+        made_safe = policy.slot in (Proc.SERVO, Proc.HARDWARE) or moving
+        if made_safe:
             # without the servo, the board or (mid-motion) the planner nothing may move: jet off, drives off
             self.control.set("safe_state", 1)
             self.control.publish()
         child = self.children.pop(name)
         now = time.monotonic()
         recent = [t for t in child.restarts if now - t < 60.0]
-        if policy.restart == "never" or len(recent) >= MAX_RESTARTS_PER_MINUTE:
+        restart = policy.restart != "never" and len(recent) < MAX_RESTARTS_PER_MINUTE
+        # the control logic latches the loss and stops a cut (a restarted logic reports its own)
+        self.control.set("lost_proc", int(policy.slot))
+        self.control.set("lost_why", why[:120])
+        self.control.set("lost_restarted", int(restart))
+        self.control.set("lost_seq", self.control.get("lost_seq") + 1)
+        self.control.publish()
+        if not restart:
             self.failed = f"{name} process {why}; the controller cannot run without it"
             self._note(self.failed)
             return
@@ -339,6 +347,9 @@ class Supervisor:
         try:
             self._spawn(name)
             self._note(f"{name} process restarted" + (" into a latched fault: reset to continue" if policy.restart == "faulted" else ""))
+            if made_safe:  # the process is back: the latched servo fault and alarm now wait for the operator's reset
+                self.control.set("safe_state", 0)
+                self.control.publish()
         except SupervisorError as exc:
             self.children.pop(name, None)
             self.failed = f"{name} could not be restarted: {exc}"
@@ -433,7 +444,8 @@ class Supervisor:
             raise RuntimeError(f"only the virtual clock can be paused and stepped (this controller runs {self.clock})")
 
     def set_sim(self, **values: Any) -> None:
-        """Change the simulated environment: estop_pressed, doors_open, mains_off, drive_fault_mask, friction_scale."""
+        """Change the simulated environment: estop_pressed, doors_open, mains_off, drive_fault_mask, friction_scale,
+        planner_stall (the planner produces nothing: the FIFO runs dry)."""
         for key, value in values.items():
             if key not in self.sim.layout.index:
                 raise ValueError(f"unknown simulated input {key!r} (known: {', '.join(self.sim.layout.index)})")

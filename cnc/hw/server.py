@@ -7,6 +7,10 @@ watchdog lives here, next to the board: when the servo has missed `watchdog_miss
 consecutive ticks, the board disables the drives and closes the jet valve and the trip is
 latched in the hardware image, where the supervisor sees it, until a reset while the servo
 is running again.
+
+The image also records, as the board saw them, the tick the jet valve last closed and the last
+tick an axis moved: how fast the machine reached a safe state after a fault is read there, in
+ticks, whichever process reacted (fault injection, `cnc.faultinject`).
 """
 
 from __future__ import annotations
@@ -18,11 +22,13 @@ import time
 from ..config import MachineConfig
 from ..dataserver import SharedArea
 from ..layout import HIST_BINS, ClockKind, Proc
-from .board import BoardInputs, IOBoard
+from .board import BoardInputs, DigitalOut, IOBoard
 from .clock import RealtimeClock, VirtualClock
 from .timers import TimerClient
 
 log = logging.getLogger(__name__)
+
+STILL_MM_S = 1.0  # an axis slower than this (by its encoder, over one tick) stands still
 
 
 class HardwareServer:
@@ -73,6 +79,10 @@ class HardwareServer:
         i_trip, i_missed, i_trip_tick = idx["watchdog_tripped"], idx["watchdog_missed"], idx["watchdog_trip_tick"]
         i_missed_total, i_late, i_safe_rb = idx["servo_missed_total"], idx["late_ticks"], idx["safe_state"]
         i_reset_ack = idx["reset_seq"]
+        i_jet_off, i_moved = idx["jet_off_tick"], idx["last_motion_tick"]
+        still_counts = [STILL_MM_S * self.period_s / a.encoder_resolution_mm for a in self.config.axes]
+        axes = range(self.n)
+        jet_was_on, last_counts = False, [0] * self.n
         tick = v[i_tick]
         last_reset = v[i_reset_ack] = self.command.read()[0][i_reset]
         sim_seq = -1
@@ -113,6 +123,16 @@ class HardwareServer:
             board.advance(self.period_s)
             board.read_inputs(inputs)
             tick += 1
+            counts = inputs.encoder_counts
+            for i in axes:
+                if abs(counts[i] - last_counts[i]) > still_counts[i]:
+                    v[i_moved] = tick
+                    break
+            last_counts = list(counts)
+            jet_on = bool(inputs.digital_out & DigitalOut.JET_VALVE)
+            if jet_was_on and not jet_on:
+                v[i_jet_off] = tick
+            jet_was_on = jet_on
             v[i_tick], v[i_ttime], v[i_wtime] = tick, deadline, woke
             v[i_enc], v[i_ilc], v[i_ils], v[i_ain] = (
                 inputs.encoder_counts, inputs.index_latch_counts, inputs.index_latch_seq, inputs.axis_inputs,

@@ -77,6 +77,7 @@ class Logic:
         self.out = area.writer("logic")
         self.out.load_current()
         self.shutdown = area.blocks["supervisor"].array["shutdown"]
+        self.supervisor = area.reader("supervisor")
         hb = area.blocks["heartbeat"].array[0]
         self.beat = hb["beat"]
         hb["pid"][Proc.LOGIC] = os.getpid()
@@ -110,6 +111,8 @@ class Logic:
         self.state = MachineState.IDLE
         self.jet_test = False
         self.pump_reached = False  # the pressure reached its set point since the last change
+        self.reached_bar = 0.0  # the last set point the pressure reached (0: none since the pump started)
+        self.set_changed_at = 0.0
         self.plc_reset_until = 0.0
         self.heartbeat = 0
         self.last_event_seq = -1
@@ -157,6 +160,7 @@ class Logic:
         self._serve_queries()
         signals = self.reader.signals(snap, self.state.name, self.mode.name)
         self._interlocks(snap, signals)
+        self._losses(snap)
         self._program_events(snap)
         self._record_jobs(snap)
         self.cycle.step(snap, now)
@@ -464,7 +468,9 @@ class Logic:
             if f"{name}_drive" in self.book.catalogue:
                 ready = hw["axis_inputs"][i] & AxisIn.DRIVE_READY
                 c[f"{name}_drive"] = None if ready else f"the {name.upper()} drive is not ready"
-        fault = ServoFault(servo["fault"]) if servo["state"] == ServoState.FAULT else ServoFault.NONE
+        # a fault the servo still shows while it has not acted on our reset is the one just reset
+        reset_pending = servo["reset_seq"] != self.command.get("reset_seq")
+        fault = ServoFault(servo["fault"]) if servo["state"] == ServoState.FAULT and not reset_pending else ServoFault.NONE
         for f, alarm_id in _SERVO_ALARMS.items():
             if c.get(alarm_id) is None:
                 c[alarm_id] = self._servo_detail(servo) if fault == f else None
@@ -481,6 +487,23 @@ class Logic:
             c["barrier_interrupted"] = f"{' and '.join(barriers)} barrier interrupted" if barriers and running else None
         return {k: v for k, v in c.items() if k in self.book.catalogue}
 
+    def _losses(self, snap: Snapshot) -> None:
+        """A controller process lost (the supervisor says which and how) or the setpoint FIFO run
+        dry during a motion (the servo has closed the jet already): latched, and the cut stops.
+        The counts seen live in the logic's block, so a restarted logic reports what its
+        predecessor could not: its own death among them."""
+        sup = self.supervisor.read_dict()
+        if sup["lost_seq"] > self.out.get("lost_seen"):
+            self._put(lost_seen=sup["lost_seq"])
+            what = f"{Proc(sup['lost_proc']).name.lower()} process {sup['lost_why']}"
+            self.fault("process_lost", what + ("; restarted" if sup["lost_restarted"] else "; not restarted"))
+        dry_at = snap.servo["underrun_tick"]
+        if dry_at > self.out.get("underrun_seen"):
+            self._put(underrun_seen=dry_at)
+            if "fifo_underrun" in self.book.catalogue:
+                self.fault("fifo_underrun", f"the servo found the FIFO empty at tick {dry_at} during a motion: "
+                                            "the jet closed, the axes held")
+
     def _servo_detail(self, servo: dict) -> str:
         axis = servo["fault_axis"]
         where = f" on axis {self.names[axis].upper()}" if 0 <= axis < len(self.names) else ""
@@ -490,12 +513,16 @@ class Logic:
     def _pump_fault(self, snap: Snapshot, signals: dict[str, object], cutting: bool) -> str | None:
         if signals.get("plc.pump_fault"):
             return "the pump reports a fault"
-        if not (cutting and self.pump_reached and snap.jet_on):
+        if not (cutting and snap.jet_on):
             return None
+        pump = self.config.pump
         pressure = self.reader.plc_value(snap, "pump_pressure")
         set_bar = self.outputs.get("pump_pressure_set")
-        if pressure < set_bar - self.config.pump.drop_bar:
-            return f"pressure fell to {pressure:.0f} bar while cutting at {set_bar:.0f} bar"
+        floor = set_bar if self.pump_reached else self.reached_bar
+        if floor and pressure < floor - pump.drop_bar:
+            return f"pressure fell to {pressure:.0f} bar while cutting at {floor:.0f} bar"
+        if not self.pump_reached and self.clock() - self.set_changed_at > pump.ramp_timeout_s:
+            return f"the pump did not reach {set_bar:.0f} bar within {pump.ramp_timeout_s:g} s while cutting"
         return None
 
     def _safe_stop(self, why: str) -> None:
@@ -551,12 +578,18 @@ class Logic:
         self.outputs.set("pump_pressure_set", bar if on else 0.0)
 
     def _pump(self, snap: Snapshot) -> None:
+        """Follow the pressure: reached the set point yet, and the last set point it reached (a
+        drop below that while cutting is a fault, even while ramping to a new set point)."""
         set_bar = self.outputs.get("pump_pressure_set")
+        if not self.outputs.get("pump_on"):
+            self.reached_bar = 0.0
         if set_bar != getattr(self, "_last_set_bar", None):
-            self._last_set_bar, self.pump_reached = set_bar, False
+            self._last_set_bar, self.pump_reached, self.set_changed_at = set_bar, False, self.clock()
         elif not self.pump_reached and self.outputs.get("pump_on"):
             pressure = self.reader.plc_value(snap, "pump_pressure")
             self.pump_reached = abs(pressure - set_bar) <= self.config.pump.tolerance_bar
+            if self.pump_reached:
+                self.reached_bar = set_bar
 
     def _derive_state(self, snap: Snapshot) -> None:
         din_estop = "estop" in self.present

@@ -85,6 +85,8 @@ class Planner:
         self.out = area.writer("motion")
         self.out.load_current()
         self.hw_r, self.servo_r = area.reader("hw"), area.reader("servo")
+        self.sim_r = area.reader("sim")  # the simulated machine's fault knobs (planner_stall)
+        self._i_stall = self.sim_r.layout.index["planner_stall"]
         self.shutdown = area.blocks["supervisor"].array["shutdown"]
         hb = area.blocks["heartbeat"].array[0]
         self.beat = hb["beat"]
@@ -451,7 +453,7 @@ class Planner:
         if producing and self.track_fill:
             low = self.out.get("fifo_min_fill")
             self._set(fifo_min_fill=fill if low < 0 else min(low, fill))
-        if fill < self.low and producing:
+        if fill < self.low and producing and not self._stalled():
             records, done = runner.take(self.high - fill)
             self._push(records, done)
             self.track_fill = len(records) > 0 and not runner.idle
@@ -465,6 +467,11 @@ class Planner:
         self._publish_state()
         if runner.finished and self.fifo.fill() == 0 and servo["state"] != ServoState.TRACKING:
             self._end_run(RunResult.DONE if runner.state == RunState.DONE else RunResult.ABORTED)
+
+    def _stalled(self) -> bool:
+        """Simulated starvation (the sim block's `planner_stall`): the planner produces nothing, as
+        if it had no CPU; the FIFO runs dry and the controller's reaction can be tested."""
+        return bool(self.config.board.kind == "sim" and self.sim_r.read()[0][self._i_stall])
 
     def _push(self, records: np.ndarray, done: np.ndarray) -> None:
         if not len(records):
