@@ -45,6 +45,18 @@ NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm
              "plc.cycle_ms": 100.0, "plc.timeout_ms": 250.0}
 
 
+# (Reaction, Fault) of every fault injected in this run: the table is printed at its end
+FAULT_REACTIONS: list = []
+
+
+def pytest_terminal_summary(terminalreporter) -> None:
+    if FAULT_REACTIONS:
+        from cnc.faultinject import table
+
+        terminalreporter.section("faults injected during a cut (virtual clock)")
+        terminalreporter.write_line(table([r for r, _ in FAULT_REACTIONS], {f.name: f for _, f in FAULT_REACTIONS}))
+
+
 def fast_plant():
     from plc_link.sim_model import PlantTimes
 
