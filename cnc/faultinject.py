@@ -134,7 +134,8 @@ def _friction(scale: float) -> Callable[[Supervisor], None]:
 # fault: the logic's next scan (every 4 ticks) closes the jet and stops the cut on the path (from
 # 50 mm/s at 5 m/s^2 with the jerk limit: some 50 ticks); the servo closes the jet itself on an
 # e-stop, a trip or a FIFO run dry (the FIFO holds fifo_high_ms = 40 ms of motion: it takes that
-# long to run dry). The board makes the servo's death safe (watchdog): drives off.
+# long to run dry). The board makes the servo's death safe (watchdog), and the supervisor the
+# planner's or the logic's in mid-motion (the board's safe state): drives off, the axes coast.
 COAST_TICKS = 1000  # drives off (e-stop, servo lost or tripped): the axes coast to rest on the plant's friction
 
 
@@ -145,8 +146,8 @@ def catalogue() -> list[Fault]:
         Fault(f"kill -9 {name}", _kill(name), _nothing, "process_lost", jet, stop, process=name,
               detected=_supervisor_noticed)
         for name, jet, stop in (
-            ("gateway", 10, 300), ("logger", 10, 300), ("plc_link", 10, 300), ("planner", 10, 300),
-            ("logic", 10, 300), ("servo", 10, COAST_TICKS),
+            ("gateway", 10, 300), ("logger", 10, 300), ("plc_link", 10, 300), ("planner", 10, COAST_TICKS),
+            ("logic", 10, COAST_TICKS), ("servo", 10, COAST_TICKS),
         )
     ]
     others = [
