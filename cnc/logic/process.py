@@ -258,6 +258,8 @@ class Logic:
         self.cycle.start(msg.cycles, now)
 
     def _cmd_hold(self, msg, snap, now, query) -> str | None:
+        if msg.why and "operator_lost" in self.book.catalogue:
+            self._tell("operator_lost", msg.why[:200], "gateway")
         if self.cycle.active and not self.cycle.held:
             self.cycle.hold(now)
             return None
@@ -585,6 +587,9 @@ class Logic:
             self.reached_bar = 0.0
         if set_bar != getattr(self, "_last_set_bar", None):
             self._last_set_bar, self.pump_reached, self.set_changed_at = set_bar, False, self.clock()
+            # lowered on purpose (low pressure for the next pierce), the pressure may fall as far as the
+            # new set point, and rise from there when the cutting pressure follows before it got there
+            self.reached_bar = min(self.reached_bar, set_bar)
         elif not self.pump_reached and self.outputs.get("pump_on"):
             pressure = self.reader.plc_value(snap, "pump_pressure")
             self.pump_reached = abs(pressure - set_bar) <= self.config.pump.tolerance_bar
