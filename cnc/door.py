@@ -205,7 +205,10 @@ class Door:
         tmp.write_bytes(data)
         os.replace(tmp, path)
         digest = hashlib.sha256(data).hexdigest()
-        self.uploaded = {digest: (msg.name, msg.text, program)}  # the latest only: programs can be large
+        # the latest and the loaded one (its preview is served while it runs, also after a refused
+        # upload), no others: programs can be large
+        loaded = {h: p for h, p in self.uploaded.items() if h == self.motion()["program_hash"]}
+        self.uploaded = {**loaded, digest: (msg.name, msg.text, program)}
         reply = self.logic.request(LoadProgram(str(path)))
         if not reply.ok:
             return reply
