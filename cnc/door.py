@@ -175,7 +175,7 @@ class Door:
         state = self.machine_state()
         log.warning("gateway: operator station %r lost (machine %s)", station, state)
         if self.config.gateway.on_operator_lost == "hold" and state == "RUNNING":
-            reply = self.logic.request(Hold())
+            reply = self.logic.request(Hold(why=f"operator station {station!r} lost (network, host or program): feed hold"))
             log.warning("gateway: feed hold after the operator was lost: %s", "ok" if reply.ok else reply.reason)
 
     def _publish_lock(self) -> None:

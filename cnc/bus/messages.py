@@ -454,6 +454,7 @@ class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class Hold(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Feed hold: decelerate along the path and stay there."""
 
+    why: str = ""  # the controller's own hold says why (the operator's station was lost): in the history
     version: int = SCHEMA_VERSION
 
 

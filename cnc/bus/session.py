@@ -9,17 +9,27 @@ import zenoh
 from ..config import MachineConfig
 
 
+# How long a silent link lasts before the other end declares this session gone (Zenoh's lease,
+# with a keep-alive every quarter of it). Zenoh's default is 10 s: a cut cable left the operator's
+# station "alive", and the cut running without it, that long. Every session of ours announces this.
+LEASE_S = 3.0
+
+
 def zenoh_config(
     mode: str,
     listen: list[str] | None = None,
     connect: list[str] | None = None,
     credentials: tuple[str, str] | None = None,
+    lease_s: float = LEASE_S,
 ) -> zenoh.Config:
     """A session config: `router` listens, `client`/`peer` connect; scouting off (explicit
-    topology). `credentials` (user, password) authenticate it to a router with access control."""
+    topology). `credentials` (user, password) authenticate it to a router with access control.
+    `lease_s`: how soon the other end notices that this session went silent."""
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("transport/link/tx/lease", json.dumps(round(lease_s * 1000)))
+    cfg.insert_json5("transport/link/tx/keep_alive", "4")
     if listen is not None:
         cfg.insert_json5("listen/endpoints", json.dumps(listen))
     if connect is not None:

@@ -258,6 +258,8 @@ class Logic:
         self.cycle.start(msg.cycles, now)
 
     def _cmd_hold(self, msg, snap, now, query) -> str | None:
+        if msg.why and "operator_lost" in self.book.catalogue:
+            self._tell("operator_lost", msg.why[:200], "gateway")
         if self.cycle.active and not self.cycle.held:
             self.cycle.hold(now)
             return None
