@@ -198,6 +198,9 @@ class GcodeConfig:
     )
     block_delete: bool = opt(False, doc="block-delete switch at start: skip lines that begin with '/'")
     max_program_bytes: int = opt(64 * 1024 * 1024, "bytes", "largest program accepted", 1024, 2**31 - 1)
+    interpret_timeout_s: float = opt(
+        120.0, "s", "a program whose interpretation takes longer is refused as a runaway (an endless loop)", 1.0, 3600.0
+    )
 
 
 @dataclass(frozen=True)

@@ -74,10 +74,14 @@ class Door:
         self.uploaded: dict[str, tuple[str, str, Any]] = {}  # program hash -> (name, text, interpreted Program)
         self.commands: queue.Queue = queue.Queue()
         self.queries: queue.Queue = queue.Queue()
-        verbs = [*LOGIC_COMMANDS, "lock", "program"]
+        # uploads have their own worker: interpreting a big (or endlessly looping) program takes
+        # seconds, and a hold or a stop must not wait behind it
+        self.uploads: queue.Queue = queue.Queue()
+        verbs = [*LOGIC_COMMANDS, "lock"]
         self.declared = [
             session.declare_queryable(keys.cmd(verb), lambda q, v=verb: self.commands.put((v, q))) for verb in verbs
         ]
+        self.declared.append(session.declare_queryable(keys.cmd("program"), lambda q: self.uploads.put(("program", q))))
         self.declared += [
             session.declare_queryable(keys.alarms_history, lambda q: self.queries.put(("history", q))),
             session.declare_queryable(keys.jobs_history, lambda q: self.queries.put(("jobs", q))),
@@ -88,7 +92,8 @@ class Door:
         self.lock_pub = session.declare_publisher(keys.lock, encoding=zenoh.Encoding.APPLICATION_JSON)
         self.stations = session.liveliness().declare_subscriber(keys.stations, self._on_station, history=True)
         self.workers = [threading.Thread(target=self._serve, args=(q, h), name=f"door-{n}", daemon=True)
-                        for n, q, h in (("cmd", self.commands, self._command), ("query", self.queries, self._query))]
+                        for n, q, h in (("cmd", self.commands, self._command), ("upload", self.uploads, self._command),
+                                        ("query", self.queries, self._query))]
         for w in self.workers:
             w.start()
 
@@ -97,7 +102,7 @@ class Door:
         for q in self.declared:
             q.undeclare()
         self.lock_pub.undeclare()
-        for q in (self.commands, self.queries):
+        for q in (self.commands, self.uploads, self.queries):
             q.put(None)
         for w in self.workers:
             w.join(2.0)

@@ -33,5 +33,6 @@ def dialect_for(config: MachineConfig, tool_table: str | Path | None = None) -> 
         tool_diameters_mm=tools,
         default_tolerance_mm=config.gcode.default_tolerance_mm,
         block_delete=config.gcode.block_delete,
+        max_seconds=config.gcode.interpret_timeout_s,
         outputs=NUMBERED_OUTPUTS,
     )

@@ -36,6 +36,7 @@ class Dialect:
     start_position_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     block_delete: bool = False  # the block-delete switch: skip lines starting with '/' when on
     max_blocks: int = 20_000_000  # executed blocks before the program is judged to loop forever
+    max_seconds: float = 0.0  # interpreting longer than this is judged a runaway too (0: no limit)
     max_call_depth: int = 10
     outputs: int = 32  # numbered outputs M62-M65 may switch: P0 .. P(outputs - 1)
 

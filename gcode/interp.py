@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import re
+import time
 
 import numpy as np
 from dataclasses import dataclass
@@ -124,6 +125,7 @@ class Interpreter:
     def _execute_lines(self) -> None:
         pc, end, lines = 0, self.end, self.lines
         self._next_progress = 16384
+        self._next_clock_check, started = 4096, time.monotonic()
         self._cache: dict[int, Block] = {}
         while pc < end and not self.ended:
             self.line_no = pc + 1
@@ -135,6 +137,11 @@ class Interpreter:
                 raise GCodeError(
                     f"program executed more than {self.d.max_blocks} blocks: an endless loop?", code="runaway", line=pc + 1, column=1
                 )
+            if self.blocks_run >= self._next_clock_check:
+                self._next_clock_check = self.blocks_run + 4096
+                if self.d.max_seconds and time.monotonic() - started > self.d.max_seconds:
+                    raise GCodeError(f"program still running after {self.d.max_seconds:g} s of interpretation "
+                                     f"({self.blocks_run} blocks): an endless loop?", code="runaway", line=pc + 1, column=1)
             if self.use_fast_path and pc not in self._olines:
                 taken = self.fast.run(pc, end)
                 if taken:

@@ -206,6 +206,11 @@ def test_an_endless_loop_is_stopped_with_an_error_not_a_hang():
     assert err.code == "runaway" and "endless loop" in err.message
 
 
+def test_an_endless_loop_is_stopped_by_the_interpretation_time_limit_too():
+    err = error("o1 while [1]\nG0 X1\no1 endwhile\nM2\n", Dialect(axes="xyz", max_seconds=0.3))
+    assert err.code == "runaway" and "after 0.3 s of interpretation" in err.message and err.line in (1, 2, 3)
+
+
 # -- errors: where and what -----------------------------------------------------------------------
 @pytest.mark.parametrize(
     "text, line, column, code, message",

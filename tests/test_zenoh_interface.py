@@ -5,12 +5,13 @@ position stream, and what happens when the operator station is lost during a cut
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, CycleStart, HistoryPage, Home, JobPage, LockState, Position, ProcedureCatalogue, ProgramInfo, Reset,
+    AlarmEvent, AlarmList, CycleStart, HistoryPage, Hold, Home, JobPage, LockState, Position, ProcedureCatalogue, ProgramInfo, Reset,
     SetMode, Status, decode,
 )
 from cnc.bus.operator import OperatorStation
@@ -118,6 +119,21 @@ def test_a_program_is_uploaded_checked_and_loaded_or_refused_with_line_and_colum
     assert info.path is None, "the path only when asked for"
     path = get(session, f"{keys.program}?path=1;text=0", ProgramInfo).path
     assert path.kind == [0, 1, 1, 1, 1, 0] and path.end_x[:2] == [100.0, 140.0] and path.line[1] == 5
+    op.close()
+
+
+def test_a_program_that_takes_long_to_interpret_does_not_keep_the_gateway_from_other_commands(controller, session, keys):
+    """Uploads have their own worker: the lock, reset and hold are answered while one interprets."""
+    op = OperatorStation(session, keys, "op")
+    assert op.take_lock().ok
+    slow = threading.Thread(target=lambda: op.upload("loop.ngc", "o1 while [1]\nG0 X1\no1 endwhile\nM2\n"), daemon=True)
+    slow.start()
+    time.sleep(0.5)  # the gateway is interpreting it now
+    started = time.monotonic()
+    assert op.request(Reset()).ok
+    assert "nothing to hold" in op.request(Hold()).reason
+    assert time.monotonic() - started < 5.0, "answered beside the upload, not after it"
+    assert slow.is_alive(), "the endless program is still being interpreted (its own time limit ends it)"
     op.close()
 
 
