@@ -99,9 +99,10 @@ def test_start_is_refused_before_homing_naming_the_axes(tmp_path):
         assert sup.fifo.fill() == 0 and sup.servo()["commanded_velocity_mm_s"] == [0.0, 0.0], "nothing moved"
 
 
-def test_a_program_beyond_the_travel_is_refused_naming_its_line_and_axis(homed, tmp_path):
-    ask(homed, LoadProgram(write(tmp_path, "G0 X100 Y100\nG1 X1700 F3000\nM2\n", "far.ngc")))
-    assert "far.ngc:2: X reaches 1700.000 mm, outside the travel 0 to 1600 mm" in refused(homed, Start())
+def test_a_program_beyond_the_travel_is_refused_at_load_on_a_homed_machine_naming_its_line_and_axis(homed, tmp_path):
+    far = write(tmp_path, "G0 X100 Y100\nG1 X1700 F3000\nM2\n", "far.ngc")
+    assert "far.ngc:2: X reaches 1700.000 mm, outside the travel 0 to 1600 mm" in refused(homed, LoadProgram(far))
+    assert "no program is loaded" in refused(homed, Start()), "the refused program did not replace anything"
 
 
 def test_a_program_with_an_error_is_refused_at_load_with_its_line_and_column(homed, tmp_path):

@@ -236,8 +236,16 @@ class Planner:
             raise Refused(f"{path}: cannot read the program: {exc.strerror}") from None
         if len(data) > self.config.gcode.max_program_bytes:
             raise Refused(f"{path}: the program is {len(data)} bytes; this machine accepts at most {self.config.gcode.max_program_bytes}")
-        start = tuple(self.servo_r.read_dict()["commanded_mm"])
-        self.loaded = self._prepare(path, data, start)
+        servo = self.servo_r.read_dict()
+        start = tuple(servo["commanded_mm"])
+        loaded = self._prepare(path, data, start)
+        if servo["homed_mask"] == (1 << self.n) - 1:
+            # a move beyond the travel is refused now, not at the start of a cycle that has fed the material
+            try:
+                preflight(loaded.program.segments, self.config, dict.fromkeys(self.config.axis_names, True), loaded.name)
+            except PreflightRefusal as exc:
+                raise Refused(str(exc)) from None
+        self.loaded = loaded
         program = self.loaded.program
         self._set(
             program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
