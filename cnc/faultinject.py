@@ -235,11 +235,16 @@ def _history_has(history_path: str, alarm_code: int, after_seq: int) -> bool:
         return any(e.code == alarm_code and e.action == "raised" for e in history.after(after_seq, 1000).entries)
 
 
+def cutting_now(sup: Supervisor) -> bool:
+    """The jet is on and the head moves along the cut."""
+    return jet_on(sup) and sup.servo()["state"] == ServoState.TRACKING
+
+
 def inject_during_cut(sup: Supervisor, fault: Fault, timeout_s: float = 30.0) -> Reaction:
     """Inject `fault` into a running cut (jet on, head moving) and wait for the safe state: jet
     closed, axes still, the alarm raised. For the hardware server the supervisor gives up (its
     policy); the reaction then reads what the board had recorded before it died."""
-    assert jet_on(sup) and sup.servo()["state"] == ServoState.TRACKING, "inject during a cut"
+    assert cutting_now(sup), "inject during a cut"
     code = next(a.code for a in sup.config.alarm if a.id == fault.alarm)
     with AlarmHistory(sup.history_path, readonly=True) as history:
         seq0 = history.last_seq()

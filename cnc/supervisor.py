@@ -303,12 +303,14 @@ class Supervisor:
         """Check exits, heartbeats and the watchdog once; act on what is found."""
         now = time.monotonic()
         self._beats[Proc.SUPERVISOR] += 1
+        # a paused virtual clock stops the processes that beat once a tick: that is no hang
+        paused = self.clock == "virtual" and bool(self.area.reader("hw").read_dict()["paused"])
         for name, child in list(self.children.items()):
             if not child.process.is_alive():
                 self._on_death(name, f"exited with code {child.process.exitcode}")
                 continue
             beat = int(self._beats[POLICIES[name].slot])
-            if beat != child.last_beat:
+            if beat != child.last_beat or paused:
                 child.last_beat, child.last_beat_change = beat, now
             elif now - child.last_beat_change > self.config.supervisor.heartbeat_timeout_s:
                 child.process.kill()

@@ -113,9 +113,16 @@ def test_a_dead_gateway_is_restarted_and_status_resumes(virtual_controller):
     assert sup.failed is None
 
 
-def test_a_hung_process_is_found_by_its_heartbeat_and_replaced():
+def test_a_hung_process_is_found_by_its_heartbeat_and_replaced_but_a_paused_clock_is_no_hang():
     config = machine_config(**{"supervisor.heartbeat_timeout_s": 0.5})
     with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
+        sup.pause_virtual_clock()  # the servo and the hardware server beat once a tick: now they do not
+        deadline = time.monotonic() + 1.5
+        while time.monotonic() < deadline:
+            sup.poll()
+            time.sleep(0.01)
+        sup.resume_virtual_clock()
+        assert not sup.events and sup.failed is None, sup.events
         old = sup.children["gateway"].process.pid
         os.kill(old, signal.SIGSTOP)
         sup.wait_until(lambda: "gateway" in sup.children and sup.children["gateway"].process.pid != old, 30.0, "a new gateway")
