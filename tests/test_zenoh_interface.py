@@ -78,7 +78,7 @@ def test_only_the_station_holding_the_lock_commands_and_observers_are_refused(co
     sup.wait_until(lambda: get(session, keys.lock, LockState).holder == "", 10.0, "the lock released with bob's token")
 
 
-def test_malformed_and_refused_commands_get_a_reason_and_never_crash_the_gateway(controller, session, keys):
+def test_malformed_and_refused_commands_get_a_reason_and_never_crash_or_block_the_gateway(controller, session, keys):
     op = OperatorStation(session, keys, "op")
     assert op.take_lock().ok
     for verb, payload, expected in [
@@ -96,6 +96,15 @@ def test_malformed_and_refused_commands_get_a_reason_and_never_crash_the_gateway
         reply = decode(replies[0].ok.payload.to_bytes(), type(op.request(Reset())))
         assert not reply.ok and expected in reply.reason, (verb, payload, reply.reason)
     assert controller.children["gateway"].process.is_alive() and controller.failed is None
+    # uploads have their own worker: the lock, reset and hold are answered while one interprets
+    slow = threading.Thread(target=lambda: op.upload("loop.ngc", "o1 while [1]\nG0 X1\no1 endwhile\nM2\n"), daemon=True)
+    slow.start()
+    time.sleep(0.5)  # the gateway is interpreting it now
+    started = time.monotonic()
+    assert op.request(Reset()).ok
+    assert "nothing to hold" in op.request(Hold()).reason
+    assert time.monotonic() - started < 5.0, "answered beside the endless upload, not after it"
+    assert slow.is_alive(), "the endless program is still being interpreted (its own time limit ends it)"
     op.close()
 
 
@@ -119,21 +128,6 @@ def test_a_program_is_uploaded_checked_and_loaded_or_refused_with_line_and_colum
     assert info.path is None, "the path only when asked for"
     path = get(session, f"{keys.program}?path=1;text=0", ProgramInfo).path
     assert path.kind == [0, 1, 1, 1, 1, 0] and path.end_x[:2] == [100.0, 140.0] and path.line[1] == 5
-    op.close()
-
-
-def test_a_program_that_takes_long_to_interpret_does_not_keep_the_gateway_from_other_commands(controller, session, keys):
-    """Uploads have their own worker: the lock, reset and hold are answered while one interprets."""
-    op = OperatorStation(session, keys, "op")
-    assert op.take_lock().ok
-    slow = threading.Thread(target=lambda: op.upload("loop.ngc", "o1 while [1]\nG0 X1\no1 endwhile\nM2\n"), daemon=True)
-    slow.start()
-    time.sleep(0.5)  # the gateway is interpreting it now
-    started = time.monotonic()
-    assert op.request(Reset()).ok
-    assert "nothing to hold" in op.request(Hold()).reason
-    assert time.monotonic() - started < 5.0, "answered beside the upload, not after it"
-    assert slow.is_alive(), "the endless program is still being interpreted (its own time limit ends it)"
     op.close()
 
 
