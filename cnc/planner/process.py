@@ -238,14 +238,9 @@ class Planner:
             raise Refused(f"{path}: the program is {len(data)} bytes; this machine accepts at most {self.config.gcode.max_program_bytes}")
         servo = self.servo_r.read_dict()
         start = tuple(servo["commanded_mm"])
-        loaded = self._prepare(path, data, start)
-        if servo["homed_mask"] == (1 << self.n) - 1:
-            # a move beyond the travel is refused now, not at the start of a cycle that has fed the material
-            try:
-                preflight(loaded.program.segments, self.config, dict.fromkeys(self.config.axis_names, True), loaded.name)
-            except PreflightRefusal as exc:
-                raise Refused(str(exc)) from None
-        self.loaded = loaded
+        # on a homed machine a move beyond the travel is refused now (before it is planned), not
+        # at the start of a cycle that has fed the material
+        self.loaded = self._prepare(path, data, start, check_travel=servo["homed_mask"] == (1 << self.n) - 1)
         program = self.loaded.program
         self._set(
             program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
@@ -254,7 +249,7 @@ class Planner:
             done_mm=0.0, segment=-1, line=0, eta_s=self.loaded.planned_ticks * self.dt, run_result=int(RunResult.NONE),
         )
 
-    def _prepare(self, path: str, data: bytes, start: tuple) -> LoadedProgram:
+    def _prepare(self, path: str, data: bytes, start: tuple, check_travel: bool = False) -> LoadedProgram:
         """Interpret and plan a program on a helper thread while this loop keeps its heartbeat: a
         large program takes seconds to prepare (minutes for a million lines), and a silent heartbeat
         makes the supervisor kill the planner as hung."""
@@ -262,7 +257,12 @@ class Planner:
 
         def prepare() -> None:
             try:
-                outcome.append(LoadedProgram(path, data, self._interpret(path, data, start), self.config, start))
+                program = self._interpret(path, data, start)
+                if check_travel:
+                    preflight(program.segments, self.config, dict.fromkeys(self.config.axis_names, True), Path(path).name)
+                outcome.append(LoadedProgram(path, data, program, self.config, start))
+            except PreflightRefusal as exc:
+                outcome.append(Refused(str(exc)))
             except BaseException as exc:  # raised again below, on the loop's thread
                 outcome.append(exc)
 
