@@ -20,12 +20,12 @@ from pathlib import Path
 
 from cnc.config import load_machine
 from cnc.demo import free_port
-from cnc.faultinject import CUT_PROGRAM, SCENARIO_OVERRIDES, Reaction, catalogue, inject_during_cut, ready_to_cut, recover, start_cut
+from cnc.faultinject import (
+    CUT_PROGRAM, FAST_PLANT, SCENARIO_OVERRIDES, Reaction, catalogue, inject_during_cut, ready_to_cut, recover, start_cut,
+)
 from cnc.supervisor import Supervisor
-from plc_link.sim_model import PlantTimes
 
 REPO = Path(__file__).resolve().parent.parent
-FAST_PLANT = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.1, ramp_bar_s=20000.0)
 
 
 def run(machine: str, repeat: int, workdir: Path) -> list[tuple[str, list[Reaction]]]:

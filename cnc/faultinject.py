@@ -22,6 +22,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from plc_link.sim_model import PlantTimes
+
 from .alarms import AlarmHistory
 from .bus.messages import CycleStart, Home, LoadProgram, Reset, SetMode
 from .hw.board import DigitalOut
@@ -53,6 +55,8 @@ M2
 STILL_FOR_TICKS = 200  # the axes stand still when no encoder moved for this long
 # Settings the fault scenarios need on the shipped machine: the cycle skips the guided transport
 # procedure (nobody presses the station's button), the table starts near home.
+# A transport system and a pump that are quick about it: faults land in cuts, not in waits.
+FAST_PLANT = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.1, ramp_bar_s=20000.0)
 SCENARIO_OVERRIDES = {
     "cycle.transport_procedure": "",
     "sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0,

@@ -40,7 +40,6 @@ def machine_config(**overrides) -> MachineConfig:
 # The whole controller with the PLC simulator: a plant that moves fast, the table switched on near
 # home (homing is short), and a slower PLC cycle: the virtual clock runs the controller flat out
 # on this 2-core machine while the serial link lives in wall time, and must not be starved.
-FAST_PLANT_TIMES = {"feed_s": 0.3, "gripper_s": 0.1, "unload_s": 0.3, "pneumatic_s": 0.1, "ramp_bar_s": 20000.0}
 NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0,
              "plc.cycle_ms": 100.0, "plc.timeout_ms": 250.0}
 
@@ -58,9 +57,9 @@ def pytest_terminal_summary(terminalreporter) -> None:
 
 
 def fast_plant():
-    from plc_link.sim_model import PlantTimes
+    from cnc.faultinject import FAST_PLANT
 
-    return PlantTimes(**FAST_PLANT_TIMES)
+    return FAST_PLANT
 
 
 @contextmanager

@@ -10,10 +10,8 @@ import sys
 import threading
 
 from cnc.config import load_machine
+from cnc.faultinject import FAST_PLANT
 from cnc.supervisor import Supervisor
-from plc_link.sim_model import PlantTimes
-
-FAST_PLANT = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.1, ramp_bar_s=20000.0)
 
 
 def main() -> int:
