@@ -39,6 +39,8 @@ bench: $(STAMP)
 	$(PY) bench/gcode_speed.py
 	QT_QPA_PLATFORM=offscreen $(PY) bench/hmi_contour.py
 	QT_QPA_PLATFORM=offscreen $(PY) bench/hmi_window.py
+	QT_QPA_PLATFORM=offscreen $(PY) bench/load.py
+	$(PY) bench/soak.py --minutes 2
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
