@@ -38,6 +38,7 @@ from .bus.messages import (
 from .bus.operator import OperatorStation
 from .bus.session import connect_endpoints, open_client
 from .config import load_machine
+from .faultinject import reset_until_clear
 from .hw.board import DigitalOut
 from .layout import PlannerState, RunResult, ServoState
 from .logic.states import CyclePhase, MachineState
@@ -226,8 +227,7 @@ def _operator(sup: Supervisor, until, timeout_s: float, what: str) -> None:
 
 def _run(sup: Supervisor, program: Path) -> list[str]:
     """Reset, home, load, two automatic cycles with a door opened in the second, reset, one more."""
-    _ask(sup, "reset", Reset())
-    sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the drives to come on")
+    reset_until_clear(sup)  # on a busy host the PLC link may come up late: its alarm waits for a reset
     _ask(sup, "home", Home())
     sup.wait_until(lambda: _logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
                    120.0, "homing")

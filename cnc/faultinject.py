@@ -198,13 +198,13 @@ def ask(sup: Supervisor, msg, what: str, timeout_s: float = 20.0) -> None:
         raise TimeoutError(f"{exc}: {reasons[-1] if reasons else 'no reply'}") from None
 
 
-def ready_to_cut(sup: Supervisor, program: Path) -> None:
-    """From any state: reset, drives on, homed, the program loaded, AUTO, READY."""
-    sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
+def reset_until_clear(sup: Supervisor, timeout_s: float = 30.0) -> None:
+    """The PLC link up, then reset until nothing waits for one and the drives are on: a cause
+    that has just gone (a released e-stop, a link that came up late on a busy host) may still be
+    seen by the scan that serves the first reset."""
+    sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, timeout_s, "the PLC link")
 
     def reset_done() -> bool:
-        """Reset until nothing waits for one: a cause that has just gone (a released e-stop) may
-        still be seen by the scan that serves the first reset."""
         ask(sup, Reset(), "the reset")
         deadline = time.monotonic() + 1.0
         while time.monotonic() < deadline:
@@ -212,7 +212,12 @@ def ready_to_cut(sup: Supervisor, program: Path) -> None:
                 return True
             time.sleep(0.01)
         return False
-    sup.wait_until(reset_done, 30.0, "the reset: drives on, no alarm waiting")
+    sup.wait_until(reset_done, timeout_s, "the reset: drives on, no alarm waiting")
+
+
+def ready_to_cut(sup: Supervisor, program: Path) -> None:
+    """From any state: reset, drives on, homed, the program loaded, AUTO, READY."""
+    reset_until_clear(sup)
     if sup.servo()["homed_mask"] != (1 << len(sup.config.axis_names)) - 1:
         ask(sup, Home(), "homing")
     sup.wait_until(lambda: logic_block(sup)["state"] == MachineState.READY
