@@ -113,13 +113,16 @@ class Host:
         return json.loads(self.proc.stdout.readline())
 
     def close(self) -> None:
+        """End of input: the program stops; SIGTERM, then SIGKILL, when it takes too long."""
         if self.proc.poll() is None:
             self.proc.stdin.close()
-            try:
-                self.proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+            for stop in (lambda: None, self.proc.terminate, self.proc.kill):
+                stop()
+                try:
+                    self.proc.wait(timeout=5)
+                    return
+                except subprocess.TimeoutExpired:
+                    continue
 
 
 class Station(Host):
@@ -161,7 +164,9 @@ def hosts(network, tmp_path_factory):
         controller = Host(CONTROLLER_NS, "controller.py", "--machine", str(MACHINE_FILE), "--listen", LOCAL,
                           "--connect", SHOP, "--history", str(tmp / "history.sqlite"),
                           "--set", 'cycle.transport_procedure=""', "--set", "sim.axes.x.start_position_mm=30",
-                          "--set", "sim.axes.y.start_position_mm=30", "--set", "plc.cycle_ms=100", "--set", "plc.timeout_ms=250")
+                          "--set", "sim.axes.y.start_position_mm=30", "--set", "plc.cycle_ms=100", "--set", "plc.timeout_ms=250",
+                          # the network is under test, not the host's timer: a busy host may not trip the watchdog
+                          "--set", "timing.watchdog_missed_ticks=50")
         started.append(controller)
         machine = controller.banner["machine"]
         local = Station(CONTROLLER_NS, LOCAL, machine, "watch")
