@@ -54,8 +54,9 @@ from concurrent.futures import Future
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, TypeVar
 
+import msgspec
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -75,6 +76,7 @@ from cnc.supervisor import Supervisor, SupervisorError  # noqa: E402
 from plc_link.sim_model import PlantTimes  # noqa: E402
 
 DEFAULT_MACHINE = Path(__file__).resolve().parent.parent / "machines" / "waterjet.toml"
+T = TypeVar("T")
 BRISK_PLANT = PlantTimes(feed_s=1.0, gripper_s=0.3, unload_s=1.0)  # the demo's: the cycle's time goes to cutting
 OBSERVER_PROCESSES = 2  # the observer sessions are shared out over this many processes
 CUT_FEED_MM_MIN = 6000.0
@@ -87,7 +89,7 @@ UPLOAD_TIMEOUT_S = 900.0  # how long the bench's station waits for an upload's r
 LOAD_TIMEOUT_S = 900.0  # until the planner has the large program
 PREVIEW_TIMEOUT_S = 300.0  # until the screen has drawn it
 CYCLE_TIMEOUT_S = 600.0
-CYCLE_ATTEMPTS = 3  # a cycle that faults (this machine is shared) is noted, reset and cut again
+ATTEMPTS = 3  # homing or a cycle that faults (this machine is shared) is noted, reset and done again
 RECOVER_TIMEOUT_S = 60.0
 STATION = "load-bench"
 PREVIEW_STATION = "load-preview"
@@ -178,6 +180,11 @@ def observers_main(endpoints: list[str], prefix: str, machine: str, sessions: in
     and alarm events; ready once every one has received a status; reports what each received at `stop`."""
     faulthandler.enable()  # a crash in a session's native code leaves its traceback
     os.nice(OBSERVER_NICE)
+    for kind in (Status, Position, AlarmEvent):
+        # msgspec builds a type's decoding info at its first use: here, once, rather than in many
+        # sessions' callback threads at the same moment (two observer processes died in msgspec's
+        # first decode of a Status that way, SIGSEGV, under this machine's load)
+        msgspec.json.Decoder(kind)
     keys = Keys(prefix, machine)
     logs = [SessionLog(measuring and i == 0) for i in range(sessions)]
     opened: list[tuple[Any, list[Any]]] = []
@@ -353,7 +360,7 @@ class PreviewProcess:
         """The preview of the program with this hash, once drawn."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            check_healthy(sup)
+            supervise(sup)
             if not self.process.is_alive():
                 raise BenchError(f"the preview process died (exit code {self.process.exitcode})")
             while not self.results.empty():
@@ -409,15 +416,23 @@ class Operator:
     def logic(self) -> dict:
         return self.sup.area.reader("logic").read_dict()
 
-    def wait(self, until: Callable[[], bool], timeout_s: float, what: str) -> None:
-        """Until `until()`, pressing the transport station's button when asked; fails on a fault."""
+    def wait(self, until: Callable[[], bool], timeout_s: float, what: str, faults: list[str] | None = None) -> None:
+        """Until `until()`, pressing the transport station's button when asked. A fault fails the
+        wait, unless `faults` is given (the machine stands still): then each is noted there once."""
         def step() -> bool:
-            check_healthy(self.sup)
+            if faults is None:
+                check_healthy(self.sup)
+            else:
+                supervise(self.sup)
             lo = self.logic()
             if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
                 self.sup.plc_sim.press_button()
             if lo["state"] == MachineState.FAULT:
-                raise BenchError(f"the machine went to FAULT while waiting for {what}: {lo['message']}")
+                why = f"the machine went to FAULT while waiting for {what}: {lo['message']}"
+                if faults is None:
+                    raise BenchError(why)
+                if why not in faults:
+                    faults.append(why)
             return until()
         self.sup.wait_until(step, timeout_s, what)
 
@@ -447,6 +462,21 @@ class Operator:
             self.reset_and_home()
             self.ask("AUTO mode", SetMode("AUTO"))
 
+    def attempt(self, what: str, step: Callable[[], T], notes: list[str], before_retry: Callable[[], None] = lambda: None
+                ) -> T:
+        """`step()`, and again after a reset when it ends in a fault (ATTEMPTS in all: this machine is
+        shared); each fault is noted. A process lost for good, or the last attempt's fault, is raised."""
+        for n in range(1, ATTEMPTS + 1):
+            try:
+                return step()
+            except BenchError as exc:
+                if n == ATTEMPTS or self.sup.failed:
+                    raise
+                notes.append(f"{what}, attempt {n}, faulted: {exc}; reset and again")
+                before_retry()
+                self.recover()
+        raise AssertionError("unreachable")
+
     def send(self, name: str, text: str) -> Future:
         """Upload in the background (the caller keeps supervising); the future's result is an Upload."""
         data = text.encode()
@@ -465,14 +495,16 @@ class Operator:
         threading.Thread(target=upload, name=f"upload-{name}", daemon=True).start()  # never holds up an exit
         return result
 
-    def load(self, name: str, text: str, timeout_s: float = LOAD_TIMEOUT_S) -> Upload:
-        """Upload and wait until the planner has the program, even when the reply gave up first."""
+    def load(self, name: str, text: str, faults: list[str] | None = None) -> Upload:
+        """Upload and wait until the planner has the program, even when the reply gave up first
+        (`faults`: as for `wait`)."""
         digest = hashlib.sha256(text.encode()).hexdigest()
         t0 = time.monotonic()
         pending = self.send(name, text)
-        self.wait(lambda: self.sup.motion()["program_hash"] == digest, timeout_s, f"the planner to load {name}")
+        self.wait(lambda: self.sup.motion()["program_hash"] == digest, LOAD_TIMEOUT_S, f"the planner to load {name}",
+                  faults)
         loaded_s = time.monotonic() - t0
-        self.wait(pending.done, UPLOAD_TIMEOUT_S, f"the reply to the upload of {name}")
+        self.wait(pending.done, UPLOAD_TIMEOUT_S, f"the reply to the upload of {name}", faults)
         return replace(pending.result(), loaded_s=loaded_s)
 
     def run_cycle(self, during_cut: Callable[[], None] = lambda: None) -> tuple[Snapshot, Snapshot, int, int]:
@@ -587,27 +619,24 @@ def measure(config: MachineConfig, sessions: int, cut_seconds: float, big: str |
 def _cycle_and_after(sup: Supervisor, operator: Operator, run: Run, preview: PreviewProcess | None,
                      cut_seconds: float, big: str | None, idle_s: float) -> None:
     """Home, load the cut, run the cycle (sending `big` during the cut), then the second window."""
-    operator.reset_and_home()
+    operator.attempt("homing", operator.reset_and_home, run.notes)
     cut = cut_program(cut_seconds)
     operator.load("load_cut.ngc", cut)
     run.planned_cut_s, cut_hash = sup.motion()["planned_s"], sup.motion()["program_hash"]
     operator.ask("AUTO mode", SetMode("AUTO"))
     time.sleep(SETTLE_S)
-    for attempt in range(1, CYCLE_ATTEMPTS + 1):
-        pending: list[Future] = []
-        during = (lambda: pending.append(operator.send("load_big.ngc", big))) if big is not None else (lambda: None)
-        try:
-            before, after, t0_ns, t1_ns = operator.run_cycle(during)
-            break
-        except BenchError as exc:
-            if attempt == CYCLE_ATTEMPTS or sup.failed:
-                raise
-            run.notes.append(f"cycle {attempt} faulted: {exc}; reset and cut again")
-            if pending:
-                operator.wait(pending[0].done, UPLOAD_TIMEOUT_S, "the reply to the upload during the cut")
-            operator.recover()
-            if sup.motion()["program_hash"] != cut_hash:  # the large program came in after the fault
-                operator.load("load_cut.ngc", cut)
+    pending: list[Future] = []
+
+    def cycle() -> tuple[Snapshot, Snapshot, int, int]:
+        if sup.motion()["program_hash"] != cut_hash:  # the large program came in after a fault
+            operator.load("load_cut.ngc", cut)
+        pending.clear()
+        return operator.run_cycle((lambda: pending.append(operator.send("load_big.ngc", big))) if big else lambda: None)
+
+    def upload_answered() -> None:
+        if pending:
+            operator.wait(pending[0].done, UPLOAD_TIMEOUT_S, "the reply to the upload during the cut", faults=[])
+    before, after, t0_ns, t1_ns = operator.attempt("the cycle", cycle, run.notes, upload_answered)
     run.windows.append(window("cut", before, after, t0_ns, t1_ns))
     if pending:
         operator.wait(pending[0].done, UPLOAD_TIMEOUT_S, "the reply to the upload during the cut")
@@ -617,7 +646,7 @@ def _cycle_and_after(sup: Supervisor, operator: Operator, run: Run, preview: Pre
         _hold(sup, idle_s)
         name = "idle, holding"
     else:
-        run.load = operator.load("load_big.ngc", big)
+        run.load = operator.load("load_big.ngc", big, faults=run.notes)  # the machine stands still: noted
         run.preview = preview.wait_for(sup, hashlib.sha256(big.encode()).hexdigest(), PREVIEW_TIMEOUT_S)
         name = f"{run.load.lines // 1000}k-line load + preview"
         for proc in ("planner", "gateway"):

@@ -128,7 +128,7 @@ def soak(config: MachineConfig, minutes: float, cut_seconds: float, warmup_cycle
             start_memory = memory_now(sup)
             operator = Operator(sup)
             cleanup.callback(operator.close)
-            operator.reset_and_home()
+            operator.attempt("homing", operator.reset_and_home, result.faults)
             operator.load("soak_cut.ngc", cut_program(cut_seconds))
             operator.ask("AUTO mode", SetMode("AUTO"))
             _cycles(sup, operator, result, start_memory, minutes, warmup_cycles, report_s)
