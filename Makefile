@@ -40,6 +40,7 @@ bench: $(STAMP)
 	QT_QPA_PLATFORM=offscreen $(PY) bench/hmi_contour.py
 	QT_QPA_PLATFORM=offscreen $(PY) bench/hmi_window.py
 	QT_QPA_PLATFORM=offscreen $(PY) bench/load.py
+	$(PY) bench/faults.py
 	$(PY) bench/soak.py --minutes 2
 
 clean:
