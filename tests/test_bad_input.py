@@ -36,6 +36,7 @@ from gcode.errors import GCodeError
 from gcode.interp import Interpreter
 
 from .conftest import MACHINE_FILE, NEAR_HOME, full_controller, logic, machine_config, reset_and_home
+from .test_zenoh_interface import PART
 
 CORPUS = Path(__file__).parent / "bad_input"
 EXPECTED = tomllib.loads((CORPUS / "expected.toml").read_text())
@@ -45,18 +46,6 @@ BROKEN_MACHINES = EXPECTED["machine"]
 UPLOAD_LIMIT = 1 << 20  # the bench controller's max_program_bytes: a 10 MB line is beyond it
 NESTING = 5000
 
-PART = """(square part)
-G21 G90 G64 P0.05 F6000
-G0 X100 Y100
-M3
-G1 X140
-G1 Y140
-G1 X100
-G1 Y100
-M5
-G0 X60 Y60
-M2
-"""
 
 
 @dataclass(frozen=True)
