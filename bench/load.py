@@ -445,22 +445,24 @@ class Operator:
                   120.0, "homing")
 
     def recover(self) -> None:
-        """After a faulted cycle: reset until the fault is gone, home again when the reference was lost,
-        and back to AUTO; BenchError when the machine does not come back."""
-        stopped = (MachineState.FAULT, MachineState.ESTOP)
+        """After a fault: reset until cycle start is allowed again (READY or STOPPED), homing again (in
+        MANUAL, then back to AUTO) only when an axis lost its reference (homing a homed machine trips
+        its soft limit); BenchError when the machine does not come back."""
+        every_axis = (1 << len(self.sup.config.axis_names)) - 1
         deadline = time.monotonic() + RECOVER_TIMEOUT_S
-        while self.logic()["state"] in stopped:
+        while (state := MachineState(self.logic()["state"])) not in (MachineState.READY, MachineState.STOPPED):
             if time.monotonic() > deadline:
-                raise BenchError(f"the machine did not come back after a reset: {self.logic()['message']}")
-            self.sup.logic.request(Reset())
-            settle = time.monotonic() + 1.0
-            while time.monotonic() < settle and self.logic()["state"] in stopped:
+                raise BenchError(f"the machine did not come back after a fault: {state.name}, {self.logic()['message']}")
+            if state == MachineState.IDLE and self.sup.servo()["homed_mask"] != every_axis:
+                self.ask("MANUAL mode", SetMode("MANUAL"))
+                self.reset_and_home()
+                self.ask("AUTO mode", SetMode("AUTO"))
+                continue
+            self.sup.logic.request(Reset())  # refused while the stop is still under way: asked again
+            settle = time.monotonic() + 0.5
+            while time.monotonic() < settle:
                 supervise(self.sup)
                 time.sleep(0.02)
-        if self.logic()["state"] != MachineState.READY:
-            self.ask("MANUAL mode", SetMode("MANUAL"))
-            self.reset_and_home()
-            self.ask("AUTO mode", SetMode("AUTO"))
 
     def attempt(self, what: str, step: Callable[[], T], notes: list[str], before_retry: Callable[[], None] = lambda: None
                 ) -> T:
@@ -499,10 +501,15 @@ class Operator:
         """Upload and wait until the planner has the program, even when the reply gave up first
         (`faults`: as for `wait`)."""
         digest = hashlib.sha256(text.encode()).hexdigest()
-        t0 = time.monotonic()
+        t0, seen = time.monotonic(), len(self.sup.events)
         pending = self.send(name, text)
-        self.wait(lambda: self.sup.motion()["program_hash"] == digest, LOAD_TIMEOUT_S, f"the planner to load {name}",
-                  faults)
+
+        def loaded() -> bool:
+            lost = [e for e in self.sup.events[seen:] if e.startswith("planner process")]
+            if lost:
+                raise BenchError(f"the planner was lost while loading {name}: {lost[0]}")
+            return self.sup.motion()["program_hash"] == digest
+        self.wait(loaded, LOAD_TIMEOUT_S, f"the planner to load {name}", faults)
         loaded_s = time.monotonic() - t0
         self.wait(pending.done, UPLOAD_TIMEOUT_S, f"the reply to the upload of {name}", faults)
         return replace(pending.result(), loaded_s=loaded_s)

@@ -147,26 +147,29 @@ def _cycles(sup: Supervisor, operator: Operator, result: Soak, start_memory: dic
     t_warm = t_start
     interval = Snapshot.take(sup)
     next_report = time.monotonic() + report_s
-    while time.monotonic() < end or warm is None:
-        try:
-            one_cycle(sup, operator)
-            result.cycles += 1
-        except BenchError as exc:
-            result.faults.append(f"{(time.monotonic() - t_start) / 60:.1f} min: {exc}")
-            operator.recover()
-        now = time.monotonic()
-        if warm is None and result.cycles >= warmup_cycles:
-            warm, t_warm = Snapshot.take(sup), now
-            for name, mb in memory_now(sup).items():
-                result.memory[name] = MemoryTrack(start_memory.get(name, 0.0), mb, mb, [(0.0, mb)])
-        if warm is not None and (now >= next_report or now >= end):
-            latest = Snapshot.take(sup)
-            _sample(sup, result, now - t_warm)
-            hist = latest.servo_hist - interval.servo_hist
-            result.last_interval_p99_us, result.last_interval_peak_us = _p99_peak(hist)
-            _progress(sup, result, warm, latest, now - t_start)
-            interval, next_report = latest, now + report_s
-    _totals(sup, result, warm, Snapshot.take(sup))
+    try:
+        while time.monotonic() < end or warm is None:
+            try:
+                one_cycle(sup, operator)
+                result.cycles += 1
+            except BenchError as exc:
+                result.faults.append(f"{(time.monotonic() - t_start) / 60:.1f} min: {exc}")
+                operator.recover()
+            now = time.monotonic()
+            if warm is None and result.cycles >= warmup_cycles:
+                warm, t_warm = Snapshot.take(sup), now
+                for name, mb in memory_now(sup).items():
+                    result.memory[name] = MemoryTrack(start_memory.get(name, 0.0), mb, mb, [(0.0, mb)])
+            if warm is not None and (now >= next_report or now >= end):
+                latest = Snapshot.take(sup)
+                _sample(sup, result, now - t_warm)
+                hist = latest.servo_hist - interval.servo_hist
+                result.last_interval_p99_us, result.last_interval_peak_us = _p99_peak(hist)
+                _progress(sup, result, warm, latest, now - t_start)
+                interval, next_report = latest, now + report_s
+    finally:
+        if warm is not None:  # the figures up to a failure count too
+            _totals(sup, result, warm, Snapshot.take(sup))
 
 
 def _sample(sup: Supervisor, result: Soak, seconds: float) -> None:
