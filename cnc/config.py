@@ -214,6 +214,9 @@ class PlannerConfig:
     fifo_high_ms: float = opt(40.0, "ms", "fill the setpoint FIFO up to this much motion (bounds the reaction to hold and override)", 4.0, 4000.0)
     divisor: int = opt(5, "ticks", "the planner runs every Nth base tick", 1, 100)
     jog_velocity_mm_s: float = opt(50.0, "mm/s", "default jog speed", 0.01, 10000.0)
+    load_timeout_s: float = opt(
+        900.0, "s", "how long loading a program may take: checking and planning it (minutes for a million lines)", 10.0, 7200.0
+    )
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,21 @@ def enter_realtime(priority: int, name: str) -> RtStatus:
     return status
 
 
+def leave_realtime() -> None:
+    """Put the calling thread back under the normal time-sharing scheduler.
+
+    For long computations started from a real-time process (checking and planning a large
+    program takes minutes): at SCHED_FIFO they would hold a CPU away from everything else on it,
+    and once the kernel's real-time throttling steps in, from the servo too (a drive watchdog
+    trip on a 2-CPU host). Threads inherit their creator's policy, so the thread itself asks.
+    """
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError as exc:  # not real-time to begin with, or not permitted: nothing to give back
+        log.debug("leave_realtime: %s", exc)
+
+
 def keep_gc_out() -> None:
     """Collect once, move survivors to the permanent generation and stop automatic collection.
 

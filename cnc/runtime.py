@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import faulthandler
 import logging
 import os
 import signal
@@ -13,6 +14,7 @@ from .config import MachineConfig
 from .hw.timers import TimerClient
 
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
+HANG_DUMP_SIGNAL = signal.SIGUSR2  # a child writes every thread's stack to stderr: sent before a hung one is killed
 
 
 @dataclass
@@ -51,6 +53,9 @@ def child_setup(rt: Runtime, name: str) -> None:
     processes in order."""
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # written from the signal handler itself, so even a process stuck holding the interpreter
+    # says where it was when the supervisor finds its heartbeat stopped
+    faulthandler.register(HANG_DUMP_SIGNAL, all_threads=True)
     logging.basicConfig(
         level=rt.log_level, format=f"%(asctime)s {name}[{os.getpid()}] %(levelname)s %(message)s"
     )

@@ -39,7 +39,7 @@ from .bus.messages import Drives, Reset
 from .logic.client import LogicClient
 from .planner.client import PlannerClient
 from .procs import PROCESS_MAINS
-from .runtime import Runtime
+from .runtime import HANG_DUMP_SIGNAL, Runtime
 from .trace import TraceRing
 
 log = logging.getLogger(__name__)
@@ -313,6 +313,7 @@ class Supervisor:
             if beat != child.last_beat or paused:
                 child.last_beat, child.last_beat_change = beat, now
             elif now - child.last_beat_change > self.config.supervisor.heartbeat_timeout_s:
+                _dump_stacks(name, child.process)
                 child.process.kill()
                 child.process.join(2.0)
                 self._on_death(name, f"heartbeat stopped for {now - child.last_beat_change:.1f} s (killed)")
@@ -498,3 +499,13 @@ class Supervisor:
 
     def servo_fault(self) -> ServoFault:
         return ServoFault(self.servo()["fault"])
+
+
+def _dump_stacks(name: str, process: multiprocessing.Process) -> None:
+    """Have a hung process write where each of its threads stands (stderr) before it is killed."""
+    log.error("supervisor: %s stopped its heartbeat; its threads' stacks follow", name)
+    try:
+        os.kill(process.pid, HANG_DUMP_SIGNAL)
+    except (OSError, TypeError):
+        return
+    time.sleep(0.1)  # the dump is written by the signal handler, at once

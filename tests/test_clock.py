@@ -56,6 +56,29 @@ def test_refused_realtime_scheduling_warns_and_falls_back_cleanly():
     assert "mlockall refused" in res.stderr
 
 
+def test_a_long_computation_started_by_a_realtime_thread_runs_under_the_normal_scheduler():
+    # the planner checks and plans a program on a thread its real-time loop starts: minutes
+    # of work for a large program, which at SCHED_FIFO held a CPU and tripped the drive watchdog
+    code = (
+        "import os, threading\n"
+        "from cnc.rt import leave_realtime\n"
+        "os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))\n"
+        "seen = []\n"
+        "def work():\n"
+        "    seen.append(os.sched_getscheduler(0))\n"
+        "    leave_realtime()\n"
+        "    seen.append(os.sched_getscheduler(0))\n"
+        "t = threading.Thread(target=work); t.start(); t.join()\n"
+        "print(seen == [os.SCHED_FIFO, os.SCHED_OTHER], os.sched_getscheduler(0) == os.SCHED_FIFO)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "PYTHONPATH": str(REPO)})
+    if "PermissionError" in res.stderr:
+        pytest.skip("SCHED_FIFO is not permitted here")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["True", "True"], "the thread left real time, its creator stayed"
+
+
 def _run_move(ticks: int) -> tuple:
     config = machine_config()
     with Supervisor(config, clock="virtual", processes=DIRECT_FEED) as sup:

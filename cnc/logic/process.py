@@ -206,7 +206,7 @@ class Logic:
             return None
         return result if result is not None else Reply(True)
 
-    def _forward(self, command, query, then: Callable[[Reply], None] | None = None) -> str:
+    def _forward(self, command, query, then: Callable[[Reply], None] | None = None, timeout_s: float | None = None) -> str:
         """Ask the planner; the operator's query is answered with the planner's reply."""
         def on_reply(reply: Reply) -> None:
             if then is not None:
@@ -214,7 +214,7 @@ class Logic:
             if not reply.ok:
                 self._note(reply.reason)
             _reply(query, reply)
-        self.planner.send(command, on_reply)
+        self.planner.send(command, on_reply, timeout_s)
         return DEFERRED
 
     def _require_mode(self, mode: Mode, what: str) -> None:
@@ -329,7 +329,7 @@ class Logic:
     def _cmd_load(self, msg: LoadProgram, snap, now, query) -> str:
         if self.cycle.phase == CyclePhase.CUTTING:
             raise Refused("cannot load a program while cutting: it is taken between cycles")
-        return self._forward(msg, query)
+        return self._forward(msg, query, timeout_s=self.config.planner.load_timeout_s)
 
     def _cmd_override(self, msg: Override, snap, now, query) -> str:
         return self._forward(msg, query)

@@ -23,6 +23,7 @@ class _Pending:
     replies: Any  # the get's reply channel
     on_reply: OnReply | None
     deadline: float
+    limit_s: float
 
 
 class PlannerLink:
@@ -33,12 +34,14 @@ class PlannerLink:
         self.session, self.keys, self.timeout_s = session, keys, timeout_s
         self.pending: list[_Pending] = []
 
-    def send(self, command: msgspec.Struct, on_reply: OnReply | None = None) -> None:
+    def send(self, command: msgspec.Struct, on_reply: OnReply | None = None, timeout_s: float | None = None) -> None:
+        """Ask the planner; `timeout_s` (default the link's) bounds the wait for this answer."""
         verb = _VERBS[type(command)]
+        limit = self.timeout_s if timeout_s is None else timeout_s
         replies = self.session.get(
-            self.keys.planner(verb), payload=encode(command), encoding=zenoh.Encoding.APPLICATION_JSON, timeout=self.timeout_s
+            self.keys.planner(verb), payload=encode(command), encoding=zenoh.Encoding.APPLICATION_JSON, timeout=limit
         )
-        self.pending.append(_Pending(verb, replies, on_reply, time.monotonic() + self.timeout_s + 1.0))
+        self.pending.append(_Pending(verb, replies, on_reply, time.monotonic() + limit + 1.0, limit))
 
     @property
     def busy(self) -> bool:
@@ -61,7 +64,7 @@ class PlannerLink:
         except zenoh.ZError:  # the channel closed without a reply: nobody answers that key
             return Reply(False, f"{p.verb}: no answer from the planner (is it running?)")
         if r is None:
-            return Reply(False, f"{p.verb}: no answer from the planner within {self.timeout_s:g} s") if now > p.deadline else None
+            return Reply(False, f"{p.verb}: no answer from the planner within {p.limit_s:g} s") if now > p.deadline else None
         if r.ok is not None:
             return decode(r.ok.payload.to_bytes(), Reply)
         return Reply(False, f"{p.verb}: the planner answered with an error: {r.err.payload.to_string()}")

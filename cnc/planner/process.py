@@ -42,6 +42,7 @@ from ..homing import Homing, HomingError, Push, Reference
 from ..layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
 from ..params import registry, with_values
+from ..rt import leave_realtime
 from .preflight import PreflightRefusal, preflight
 from .runner import ProgramRunner, RunState
 from .sections import move_steps, program_steps
@@ -111,6 +112,7 @@ class Planner:
         self.params_r = area.reader("params")
         self.param_specs = [p for p in registry(config) if p.owner == "planner"]
         self._set(state=int(PlannerState.IDLE), homing_axis=-1, override=1.0, fifo_min_fill=-1, segment=-1)
+        self._forget_program()
         self.apply_params()  # a restarted planner takes the values in force, not the file's
         # Look-ahead windows are planned by a worker thread, away from the refills: a window of
         # hundreds of short chords takes tens of ms, more than the FIFO's slack. The main loop
@@ -249,6 +251,16 @@ class Planner:
             done_mm=0.0, segment=-1, line=0, eta_s=self.loaded.planned_ticks * self.dt, run_result=int(RunResult.NONE),
         )
 
+    def _forget_program(self) -> None:
+        """A planner started again has no program: the status must not name the one its
+        predecessor held (cycle start would be offered, then refused)."""
+        lost = self.out.get("program_name")
+        if not lost:
+            return
+        log.warning("planner: the program %s was lost with the planner's restart: load it again", lost)
+        self._set(program_seq=self.out.get("program_seq") + 1, program_name="", program_hash="", program_lines=0,
+                  planned_s=0.0, total_mm=0.0, done_mm=0.0, segment=-1, line=0, eta_s=0.0)
+
     def _prepare(self, path: str, data: bytes, start: tuple, check_travel: bool = False) -> LoadedProgram:
         """Interpret and plan a program on a helper thread while this loop keeps its heartbeat: a
         large program takes seconds to prepare (minutes for a million lines), and a silent heartbeat
@@ -256,6 +268,7 @@ class Planner:
         outcome: list[LoadedProgram | BaseException] = []
 
         def prepare() -> None:
+            leave_realtime()  # minutes of work for a large program: not at the refills' priority
             try:
                 program = self._interpret(path, data, start)
                 if check_travel:
