@@ -38,6 +38,7 @@ from .jobs import JobHistory, jobs_path
 from .lock import LockRefused, OperatorLock
 from .logic.client import LogicClient
 from .machine_dialect import dialect_for
+from .rt import collector_paused
 
 log = logging.getLogger(__name__)
 
@@ -224,7 +225,8 @@ class Door:
         from gcode.interp import Interpreter
 
         try:
-            return Interpreter(dialect_for(self.config), name).run(data), None
+            with collector_paused():  # kept for the preview: no collector passes over it, now or later
+                return Interpreter(dialect_for(self.config), name).run(data), None
         except GCodeError as exc:
             return None, ProgramDiagnostic(exc.line, exc.column, exc.message, (exc.source_line or "").rstrip("\r\n"))
 

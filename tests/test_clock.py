@@ -95,3 +95,27 @@ def _run_move(ticks: int) -> tuple:
 def test_virtual_clock_simulation_is_deterministic_tick_for_tick():
     first = _run_move(400)  # mid-move: the table is still moving
     assert first[4] > 0 and first == _run_move(400)
+
+
+def test_a_structure_built_with_the_collector_paused_is_left_out_of_later_collections():
+    # a million-line program's objects held the planner in one collector pass longer than its
+    # heartbeat timeout; built under collector_paused they are never passed over again
+    code = (
+        "import gc\n"
+        "from cnc.rt import collector_paused\n"
+        "gc.collect(); before = gc.get_freeze_count()\n"
+        "with collector_paused():\n"
+        "    inside = gc.isenabled()\n"
+        "    big = [[i] for i in range(200_000)]\n"
+        "    young = gc.get_count()[0]\n"
+        "frozen = gc.get_freeze_count() - before\n"
+        "print(inside, young >= 200_000, frozen >= 200_000, gc.isenabled(), gc.get_count()[0] < 1000)\n"
+        "del big\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert res.returncode == 0, res.stderr
+    inside, built_without_passes, frozen, enabled_after, young_after = res.stdout.split()
+    assert inside == "False" and built_without_passes == "True", "no automatic collection while building"
+    assert frozen == "True" and young_after == "True", "what was built is in the permanent generation"
+    assert enabled_after == "True", "automatic collection is back on"

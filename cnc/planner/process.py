@@ -42,7 +42,7 @@ from ..homing import Homing, HomingError, Push, Reference
 from ..layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
 from ..params import registry, with_values
-from ..rt import leave_realtime
+from ..rt import collector_paused, leave_realtime
 from .preflight import PreflightRefusal, preflight
 from .runner import ProgramRunner, RunState
 from .sections import move_steps, program_steps
@@ -254,7 +254,7 @@ class Planner:
     def _forget_program(self) -> None:
         """A planner started again has no program: the status must not name the one its
         predecessor held (cycle start would be offered, then refused)."""
-        lost = self.out.get("program_name")
+        lost = bytes(self.out.get("program_name")).rstrip(b"\0").decode(errors="replace")
         if not lost:
             return
         log.warning("planner: the program %s was lost with the planner's restart: load it again", lost)
@@ -270,10 +270,11 @@ class Planner:
         def prepare() -> None:
             leave_realtime()  # minutes of work for a large program: not at the refills' priority
             try:
-                program = self._interpret(path, data, start)
-                if check_travel:
-                    preflight(program.segments, self.config, dict.fromkeys(self.config.axis_names, True), Path(path).name)
-                outcome.append(LoadedProgram(path, data, program, self.config, start))
+                with collector_paused():
+                    program = self._interpret(path, data, start)
+                    if check_travel:
+                        preflight(program.segments, self.config, dict.fromkeys(self.config.axis_names, True), Path(path).name)
+                    outcome.append(LoadedProgram(path, data, program, self.config, start))
             except PreflightRefusal as exc:
                 outcome.append(Refused(str(exc)))
             except BaseException as exc:  # raised again below, on the loop's thread
