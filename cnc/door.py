@@ -132,7 +132,8 @@ class Door:
                 if verb == "program":
                     reply = self._upload(decode(payload, UploadProgram))
                 else:
-                    reply = self.logic.request(decode(payload, LOGIC_COMMANDS[verb]))
+                    command = decode(payload, LOGIC_COMMANDS[verb])
+                    reply = self.logic.request(command, self._limit_for(command))
         except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
             reply = Reply(False, f"{verb}: malformed command: {exc}")
         except LockRefused as exc:
@@ -215,10 +216,16 @@ class Door:
         # upload), no others: programs can be large
         loaded = {h: p for h, p in self.uploaded.items() if h == self.motion()["program_hash"]}
         self.uploaded = {**loaded, digest: (msg.name, msg.text, program)}
-        reply = self.logic.request(LoadProgram(str(path)))
+        command = LoadProgram(str(path))
+        reply = self.logic.request(command, self._limit_for(command))
         if not reply.ok:
             return reply
         return Reply(True, f"loaded {msg.name} ({len(data)} bytes, sha256 {digest[:12]})")
+
+    def _limit_for(self, command) -> float | None:
+        """A load waits as long as the logic waits for the planner to check and plan the program
+        (minutes for a large one), and a little longer; other commands the client's default."""
+        return self.config.planner.load_timeout_s + 5.0 if isinstance(command, LoadProgram) else None
 
     def _interpret(self, name: str, data: bytes) -> tuple[Any, ProgramDiagnostic | None]:
         from gcode.errors import GCodeError

@@ -18,6 +18,7 @@ from PySide6.QtCore import QObject, Qt, Signal, Slot
 from PySide6.QtWidgets import QWidget
 
 from cnc.bus.messages import Reply
+from cnc.bus.operator import LOADS
 
 if TYPE_CHECKING:
     from .adapter import ModelAdapter
@@ -48,13 +49,17 @@ class CommandRunner(QObject):
         super().__init__(parent)
         self.sink = sink
         self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hmi-command")
+        # a program upload is answered when the planner has it (minutes for a large one): on its
+        # own worker, so that hold, stop, reset and the rest go out meanwhile, in their order
+        self._loads = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hmi-upload")
         self._done.connect(self._on_done, Qt.ConnectionType.QueuedConnection)
         self.last: tuple[str, Reply] | None = None  # the latest answer, for the status line and tests
 
     def send(self, msg: msgspec.Struct, label: str | None = None) -> Future:
         """Queue `msg`; the returned future resolves to its Reply (never raises)."""
         text = label or describe(msg)
-        return self._executor.submit(self._run, msg, text)
+        executor = self._loads if isinstance(msg, LOADS) else self._executor
+        return executor.submit(self._run, msg, text)
 
     def call(self, request: Callable[[], Reply], label: str) -> Future:
         """Queue any blocking request that answers with a Reply (a parameter change, a log run)."""
@@ -75,8 +80,9 @@ class CommandRunner(QObject):
         self.replied.emit(label, reply)
 
     def close(self) -> None:
-        """Send what is queued, then stop the worker."""
+        """Send what is queued, then stop the workers."""
         self._executor.shutdown(wait=True)
+        self._loads.shutdown(wait=True)
 
 
 def enable_while_commanding(adapter: ModelAdapter, widgets: list[QWidget], extra: Callable[[], bool] | None = None

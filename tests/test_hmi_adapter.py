@@ -39,3 +39,34 @@ def test_changes_made_on_another_thread_arrive_on_the_gui_thread_once_per_burst(
     model.apply_position(position(201, 201))
     qtbot.wait(50)
     assert seen[-1][0] == 200, "nothing after close"
+
+
+class _SlowUploads:
+    """A command sink whose program uploads take until `release` is set (a million-line program)."""
+
+    def __init__(self) -> None:
+        self.release = threading.Event()
+        self.order: list[str] = []
+
+    def command(self, msg):
+        from cnc.bus.messages import Reply, UploadProgram
+
+        if isinstance(msg, UploadProgram):
+            self.release.wait(30.0)
+        self.order.append(type(msg).__name__)
+        return Reply(True)
+
+
+def test_a_long_program_upload_does_not_hold_up_the_operators_other_commands(qtbot):
+    from cnc.bus.messages import Hold, Reset, UploadProgram
+    from hmi.commands import CommandRunner
+
+    sink = _SlowUploads()
+    runner = CommandRunner(sink)
+    upload = runner.send(UploadProgram("big.ngc", "G0 X1\n"))
+    hold, reset = runner.send(Hold()), runner.send(Reset())
+    assert hold.result(10.0).ok and reset.result(10.0).ok, "hold and reset answered while the upload runs"
+    assert sink.order == ["Hold", "Reset"] and not upload.done()
+    sink.release.set()
+    assert upload.result(10.0).ok and sink.order[-1] == "UploadProgram"
+    runner.close()

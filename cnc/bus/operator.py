@@ -10,12 +10,17 @@ import zenoh
 
 from .keys import Keys
 from .messages import (
-    LOGIC_COMMANDS, LockRequest, LogStart, LogStop, ParamList, Reply, SaveParams, SetParam, UploadProgram, decode,
-    encode,
+    LOGIC_COMMANDS, LoadProgram, LockRequest, LogStart, LogStop, ParamList, Reply, SaveParams, SetParam, UploadProgram,
+    decode, encode,
 )
 
 OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {**LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram}
 _VERBS = {kind: verb for verb, kind in OPERATOR_COMMANDS.items()}
+# An upload or load is answered once the planner has checked and planned the program: minutes for
+# a million lines, bounded by the controller's own `[planner] load_timeout_s` (at most 7200 s) and
+# the gateway's margin. The station waits that long, so the controller's answer always comes first.
+LOAD_WAIT_S = 7200.0 + 60.0
+LOADS = (UploadProgram, LoadProgram)
 
 
 class OperatorStation:
@@ -62,13 +67,14 @@ class OperatorStation:
 
     def ask(self, key: str, msg: msgspec.Struct, what: str) -> Reply:
         """Send `msg` as a query on `key` with this station's id; its Reply, or one saying why none came."""
+        limit = max(self.timeout_s, LOAD_WAIT_S) if isinstance(msg, LOADS) else self.timeout_s
         replies = self.session.get(key, payload=encode(msg), encoding=zenoh.Encoding.APPLICATION_JSON,
-                                   attachment=self.attachment, timeout=self.timeout_s)
+                                   attachment=self.attachment, timeout=limit)
         for reply in replies:
             if reply.ok is not None:
                 return decode(reply.ok.payload.to_bytes(), Reply)
             return Reply(False, f"{what}: the gateway answered with an error: {reply.err.payload.to_string()}")
-        return Reply(False, f"{what}: no answer from the controller within {self.timeout_s:g} s")
+        return Reply(False, f"{what}: no answer from the controller within {limit:g} s")
 
     def upload(self, name: str, text: str) -> Reply:
         """Send a program; it is checked, interpreted and loaded, or refused with line and column."""
