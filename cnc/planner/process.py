@@ -22,7 +22,9 @@ import hashlib
 import logging
 import math
 import os
+import sys
 import threading
+import time
 from pathlib import Path
 
 import msgspec
@@ -50,6 +52,7 @@ from .sections import move_steps, program_steps
 log = logging.getLogger(__name__)
 
 PLAN_AHEAD_S = 0.5  # motion planned this far ahead of the setpoints made, by the worker thread
+RELEASE_SLICE = 100  # sections freed at a time when a program is replaced: a few ms of the interpreter each
 
 _RUN_STATES = {
     RunState.RUNNING: PlannerState.RUNNING, RunState.HOLDING: PlannerState.HOLDING, RunState.HELD: PlannerState.HELD,
@@ -242,7 +245,9 @@ class Planner:
         start = tuple(servo["commanded_mm"])
         # on a homed machine a move beyond the travel is refused now (before it is planned), not
         # at the start of a cycle that has fed the material
-        self.loaded = self._prepare(path, data, start, check_travel=servo["homed_mask"] == (1 << self.n) - 1)
+        loaded = self._prepare(path, data, start, check_travel=servo["homed_mask"] == (1 << self.n) - 1)
+        self._release(self.loaded)
+        self.loaded = loaded
         program = self.loaded.program
         self._set(
             program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
@@ -250,6 +255,23 @@ class Planner:
             total_mm=sum(s.length_mm for s in self.loaded.steps if hasattr(s, "path")),
             done_mm=0.0, segment=-1, line=0, eta_s=self.loaded.planned_ticks * self.dt, run_result=int(RunResult.NONE),
         )
+
+    def _release(self, old: LoadedProgram | None) -> None:
+        """Free a replaced program a slice at a time, on a thread of its own: dropped at once, the
+        sections of a million-line program take seconds to free, all of it holding the interpreter,
+        and the loop's heartbeat stopped long enough for the supervisor to kill it as hung."""
+        if old is None:
+            return
+        steps, old.steps = old.steps, []
+        if sys.getrefcount(steps) > 2:  # still held (a runner's last reference): it goes with that
+            return
+
+        def free() -> None:
+            leave_realtime()
+            while steps:
+                del steps[-RELEASE_SLICE:]
+                time.sleep(0)  # the loop takes the interpreter between slices
+        threading.Thread(target=free, name="release-program", daemon=True).start()
 
     def _forget_program(self) -> None:
         """A planner started again has no program: the status must not name the one its
@@ -307,7 +329,9 @@ class Planner:
         start = tuple(servo["commanded_mm"])
         if any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start)):
             # the head moved since loading: the program's first move starts where it now is
-            self.loaded = self._prepare(self.loaded.path, self.loaded.text, start)
+            loaded = self._prepare(self.loaded.path, self.loaded.text, start)
+            self._release(self.loaded)
+            self.loaded = loaded
         homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
         try:
             preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
