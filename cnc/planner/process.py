@@ -24,7 +24,6 @@ import math
 import os
 import sys
 import threading
-import time
 from pathlib import Path
 
 import msgspec
@@ -52,7 +51,7 @@ from .sections import move_steps, program_steps
 log = logging.getLogger(__name__)
 
 PLAN_AHEAD_S = 0.5  # motion planned this far ahead of the setpoints made, by the worker thread
-RELEASE_SLICE = 100  # sections freed at a time when a program is replaced: a few ms of the interpreter each
+RELEASE_SLICE = 25  # sections of a replaced program freed a tick while idle: 1-2 ms of the interpreter
 
 _RUN_STATES = {
     RunState.RUNNING: PlannerState.RUNNING, RunState.HOLDING: PlannerState.HOLDING, RunState.HELD: PlannerState.HELD,
@@ -99,6 +98,7 @@ class Planner:
         self.queryables = {verb: session.declare_queryable(self.keys.planner(verb)) for verb in PLANNER_COMMANDS}
         self.token = session.liveliness().declare_token(self.keys.alive("planner"))
         self.loaded: LoadedProgram | None = None
+        self.to_free: list[list] = []  # sections of replaced programs, freed a slice a tick while idle
         self.runner: ProgramRunner | None = None
         self.runner_kind = PlannerState.IDLE  # RUNNING (a program), JOGGING or MOVING
         self.homing = None
@@ -257,21 +257,23 @@ class Planner:
         )
 
     def _release(self, old: LoadedProgram | None) -> None:
-        """Free a replaced program a slice at a time, on a thread of its own: dropped at once, the
-        sections of a million-line program take seconds to free, all of it holding the interpreter,
-        and the loop's heartbeat stopped long enough for the supervisor to kill it as hung."""
+        """Free a replaced program a slice a tick while nothing moves (`_free_a_slice`): dropped at
+        once, the sections of a million-line program take seconds to free, all of it holding the
+        interpreter, and the loop's heartbeat stopped long enough for the supervisor to kill it as
+        hung. Not on a thread: one of normal priority holding the interpreter between slices
+        starved this loop of it under load (a FIFO underrun at the next cycle start)."""
         if old is None:
             return
         steps, old.steps = old.steps, []
-        if sys.getrefcount(steps) > 2:  # still held (a runner's last reference): it goes with that
-            return
+        if sys.getrefcount(steps) <= 2:  # else still held (a runner's last reference): it goes with that
+            self.to_free.append(steps)
 
-        def free() -> None:
-            leave_realtime()
-            while steps:
-                del steps[-RELEASE_SLICE:]
-                time.sleep(0)  # the loop takes the interpreter between slices
-        threading.Thread(target=free, name="release-program", daemon=True).start()
+    def _free_a_slice(self) -> None:
+        if self.to_free and self.runner is None and self.homing is None:
+            big = self.to_free[-1]
+            del big[-RELEASE_SLICE:]
+            if not big:
+                self.to_free.pop()
 
     def _forget_program(self) -> None:
         """A planner started again has no program: the status must not name the one its
@@ -490,6 +492,8 @@ class Planner:
             self._step_homing(servo)
         elif self.runner is not None:
             self._feed(servo)
+        else:
+            self._free_a_slice()
         self._progress(servo)
 
     def _feed(self, servo: dict) -> None:
