@@ -18,7 +18,6 @@ before writing, which would let a reader see a transient 0 and take a torn body 
 
 from __future__ import annotations
 
-import os
 import secrets
 import struct
 import time
@@ -29,7 +28,8 @@ from typing import Any, Iterable
 import numpy as np
 
 _ALIGN = 64  # a cache line per block start: writers of different blocks do not share lines
-_SPINS = 200  # retries before a reader starts yielding the CPU to a preempted writer
+_SPINS = 200  # retries before a reader starts sleeping to let a preempted writer finish
+_NAP_S = 20e-6  # the reader's sleep: a real-time reader must leave the CPU to a lower-priority writer
 _GIVE_UP_NS = 50_000_000  # a writer that has not finished in 50 ms has died mid-write
 
 SHM_PREFIX = "wjcnc"
@@ -155,9 +155,14 @@ class BlockReader:
         self.layout = block.layout
         self._unpack = self.layout.body.unpack_from
         self._buf, self._body_off, self._cell = block.buf, block.body_offset, block.seq_cell
+        self._last: tuple | None = None  # the last consistent copy
 
     def read(self) -> tuple[tuple, bool]:
-        """Return (flat values, consistent)."""
+        """Return (flat values, consistent).
+
+        When the writer stays in the middle of a write past _GIVE_UP_NS (it died there, or could
+        not run), the last consistent copy this reader had, flagged False: a torn body is never
+        handed out (it is partly zeros: the PLC's inputs read as zeros made a false e-stop)."""
         buf, cell = self._buf, self._cell
         tries, give_up = 0, 0
         while True:
@@ -165,6 +170,7 @@ class BlockReader:
             if not s1 & 1:
                 values = self._unpack(buf, self._body_off)
                 if cell[0] == s1:
+                    self._last = values
                     return values, True
             tries += 1
             if tries > _SPINS:
@@ -172,8 +178,10 @@ class BlockReader:
                 if not give_up:
                     give_up = now + _GIVE_UP_NS
                 elif now > give_up:
-                    return self._unpack(buf, self._body_off), False
-                os.sched_yield()
+                    return (self._last if self._last is not None else self._unpack(buf, self._body_off)), False
+                # sleep, not sched_yield: a real-time reader yielding only gives the CPU to its own
+                # priority, and a normal-priority writer preempted mid-write on it never finished
+                time.sleep(_NAP_S)
 
     def read_dict(self) -> dict[str, Any]:
         """Consistent snapshot as {field: value, list or str}; for readers off the tick path."""

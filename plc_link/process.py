@@ -21,6 +21,7 @@ import time
 from cnc.config import MachineConfig
 from cnc.dataserver import SharedArea
 from cnc.layout import MAX_PLC_VARS, LinkState, Proc, controller_layouts
+from cnc.rt import enter_realtime
 from cnc.runtime import Runtime, child_setup, set_ready
 
 from .master import NO_PORT, PlcMaster
@@ -113,6 +114,10 @@ def run_plc_link(rt: Runtime, ready) -> None:
     link = PlcLink(rt.config, area, port)
     if not port:
         log.warning("PLC link: %s", NO_PORT)
+    if rt.clock == "realtime":
+        # below the logic: the PLC's safety and plant signals must not wait behind a busy host
+        # (a program being planned, fifty observers): three exchanges late is a lost link
+        enter_realtime(max(1, rt.config.timing.realtime_priority - 4), "plc link")
     set_ready(ready)
     try:
         link.run()

@@ -395,6 +395,10 @@ def _child_main(plc: PlcConfig, times: PlantTimes | None, conn: Connection) -> N
 
     die_with_parent()  # a simulator outliving its controller would hold the pty for the next one
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us in order
+    try:  # it stands for a PLC with a CPU of its own: the host's load is not its load
+        os.nice(-10)
+    except OSError:
+        pass  # not permitted: it shares the CPU like any process
     try:
         model = PlcModel(plc, times)
     except ModelError as exc:

@@ -71,3 +71,23 @@ def test_text_fields_hold_utf8_cut_to_their_size_without_splitting_a_character()
         assert got == {"n": 3, "name": "Düsseld", "x": 1.5}
     finally:
         area.close()
+
+
+def test_a_writer_stuck_mid_write_gives_the_reader_its_last_consistent_copy_never_a_torn_one():
+    # the PLC link preempted inside a write, with the control logic (real-time) reading: the
+    # torn body (partly zeros) read as "the PLC reports the safety circuit open"
+    area = SharedArea.create(unique_name("test", "stuck"), [LAYOUT])
+    try:
+        w, reader = area.writer("t"), area.reader("t")
+        w.values = [7] + [1.5] * 5 + [3] + [-7] * 3
+        w.publish()
+        assert reader.read() == (tuple(w.values), True)
+        block = area.blocks["t"]
+        block.seq_cell[0] = block.seq() + 1  # a write begun...
+        area.shm.buf[block.body_offset : block.body_offset + LAYOUT.size - 8] = bytes(LAYOUT.size - 8)  # ...half done
+        values, consistent = reader.read()
+        assert not consistent and values == tuple(w.values), "the last consistent copy, flagged"
+        w.publish()  # the writer finishes its next write: consistent again
+        assert reader.read() == (tuple(w.values), True)
+    finally:
+        area.close()
