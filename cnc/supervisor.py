@@ -116,6 +116,7 @@ class Supervisor:
         self.process_names = tuple(p for p in START_ORDER if p in processes)
         self.history_path = str(history_path) if history_path is not None else default_history_path(config)
         self.plc_sim = None  # the PLC simulator, when this controller started one
+        self._sim_pending: Callable[[], None] | None = None  # waits for the simulator spawned at start
         self.plc_sim_link = ""  # the device name the PLC link opens: a symlink to the simulator's pty
         self._plc_dir: tempfile.TemporaryDirectory | None = None
         self.plc_sim_times = plc_sim_times  # its plant's times (plc_link.sim_model.PlantTimes; None: realistic)
@@ -162,7 +163,7 @@ class Supervisor:
         try:
             self.router = open_router(cfg)  # listen, connect, and the access rules of the machine file
             self._token = self.router.liveliness().declare_token(self.keys.alive("supervisor"))
-            plc_port = self._plc_port()
+            plc_port, self._sim_pending = self._plc_port()
             clients = {}
             if "servo" in self.process_names:
                 clients["servo"] = TimerClient.new(self.ctx, "servo", 1)
@@ -189,6 +190,9 @@ class Supervisor:
             self.planner = PlannerClient(self.router, self.keys)
             self.logic = LogicClient(self.router, self.keys)
             for stage in START_STAGES:  # each stage's processes start together, once the stage before is ready
+                if "plc_link" in stage and self._sim_pending is not None:
+                    finish, self._sim_pending = self._sim_pending, None
+                    finish()  # the link opens the simulator's pty: it must serve by now (raises why not)
                 self._spawn(*[name for name in stage if name in self.process_names])
         except BaseException:
             self.stop()
@@ -218,31 +222,41 @@ class Supervisor:
             child.last_beat_change = time.monotonic()
             self.children[name] = child
 
-    def _plc_port(self) -> str:
+    def _plc_port(self) -> tuple[str, Callable[[], None] | None]:
         """The PLC link's serial device: the machine file's, or a PLC simulator's on a pty pair
-        that this controller starts (sim board, `[plc] port` empty)."""
+        that this controller starts (sim board, `[plc] port` empty). The simulator is spawned
+        here and starts while the first stages do (its start-up is imports, like theirs); the
+        function returned waits until it serves."""
         cfg = self.config
         if "plc_link" not in self.process_names or cfg.plc.port or not cfg.plc.var:
-            return cfg.plc.port
+            return cfg.plc.port, None
         if cfg.board.kind != "sim":
             raise SupervisorError("[plc] port is empty: a real board needs the PLC's serial device")
         # the link opens a stable name, like socat's link=: a restarted simulator gets a new pty
         self._plc_dir = tempfile.TemporaryDirectory(prefix=f"wj-{cfg.machine.name}-plc-")
         self.plc_sim_link = os.path.join(self._plc_dir.name, "tty")
-        self.restart_plc_sim()
-        return self.plc_sim_link
+        return self.plc_sim_link, self.restart_plc_sim(wait=False)
 
-    def restart_plc_sim(self) -> None:
+    def restart_plc_sim(self, wait: bool = True) -> Callable[[], None] | None:
         """(Re)start the PLC simulator on a fresh pty pair and point the link's device name at it.
-        Stopping it closes its pty: to the PLC link that is a cut cable."""
-        from plc_link.sim_server import start_simulator_process
+        Stopping it closes its pty: to the PLC link that is a cut cable. With `wait` False the
+        simulator is spawned and what finishes its start is returned (start-up goes on meanwhile)."""
+        from plc_link.sim_server import launch_simulator_process
 
         if self.plc_sim is not None:
             self.plc_sim.stop()
-        self.plc_sim = start_simulator_process(self.config, self.ctx, times=self.plc_sim_times)
-        fresh = self.plc_sim_link + ".new"
-        os.symlink(self.plc_sim.device, fresh)
-        os.replace(fresh, self.plc_sim_link)
+            self.plc_sim = None
+        serving = launch_simulator_process(self.config, self.ctx, times=self.plc_sim_times)
+
+        def finish() -> None:
+            self.plc_sim = serving()
+            fresh = self.plc_sim_link + ".new"
+            os.symlink(self.plc_sim.device, fresh)
+            os.replace(fresh, self.plc_sim_link)
+        if not wait:
+            return finish
+        finish()
+        return None
 
     def stop(self) -> None:
         """Safe state, then stop the processes in reverse start order and free the shared memory."""
@@ -258,6 +272,12 @@ class Supervisor:
             child.process.kill()
             child.process.join(2.0)
         self.children.clear()
+        if self._sim_pending is not None:  # start-up failed before the simulator was waited for
+            try:
+                self._sim_pending()
+            except (RuntimeError, OSError):
+                pass  # it did not come up: nothing to stop but its process, which start_... killed
+            self._sim_pending = None
         if self.plc_sim is not None:
             self.plc_sim.stop()
             self.plc_sim = None

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.context import BaseContext
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from cnc.config import MachineConfig, PlcConfig, PlcVarConfig, load_machine
 
@@ -372,6 +372,18 @@ def start_simulator_process(
     `ctx` is a multiprocessing context (default: spawn). Raises RuntimeError with the child's
     message when it cannot start (e.g. the map lacks a variable the simulated program needs).
     Faults reach the child through the returned handle (`inject`, `press_button`), over a Pipe."""
+    return launch_simulator_process(config, ctx, times, timeout_s)()
+
+
+def launch_simulator_process(
+    config: str | Path | MachineConfig | PlcConfig,
+    ctx: BaseContext | None = None,
+    times: PlantTimes | None = None,
+    timeout_s: float = 10.0,
+) -> Callable[[], SimulatorHandle]:
+    """Spawn the simulator now and return what waits until it serves (and gives its handle, or
+    raises as start_simulator_process does): the caller does other start-up meanwhile. Spawn
+    from the thread that lives as long as the simulator should: the child ends with it."""
     if isinstance(config, (str, Path)):
         config = load_machine(config)
     plc = config.plc if isinstance(config, MachineConfig) else config
@@ -380,14 +392,18 @@ def start_simulator_process(
     process = ctx.Process(target=_child_main, args=(plc, times, child), name="plc-sim", daemon=True)
     process.start()
     child.close()
-    if not parent.poll(timeout_s):
-        process.kill()
-        raise RuntimeError(f"PLC simulator did not start within {timeout_s:g} s")
-    ok, value = parent.recv()
-    if not ok:
-        process.join(timeout_s)
-        raise RuntimeError(f"PLC simulator did not start: {value}")
-    return SimulatorHandle(process, value, parent, threading.Lock())
+    started = time.monotonic()
+
+    def serving() -> SimulatorHandle:
+        if not parent.poll(max(0.0, timeout_s - (time.monotonic() - started))):
+            process.kill()
+            raise RuntimeError(f"PLC simulator did not start within {timeout_s:g} s")
+        ok, value = parent.recv()
+        if not ok:
+            process.join(timeout_s)
+            raise RuntimeError(f"PLC simulator did not start: {value}")
+        return SimulatorHandle(process, value, parent, threading.Lock())
+    return serving
 
 
 def _child_main(plc: PlcConfig, times: PlantTimes | None, conn: Connection) -> None:
