@@ -18,6 +18,7 @@ before writing, which would let a reader see a transient 0 and take a torn body 
 
 from __future__ import annotations
 
+import os
 import secrets
 import struct
 import time
@@ -28,9 +29,10 @@ from typing import Any, Iterable
 import numpy as np
 
 _ALIGN = 64  # a cache line per block start: writers of different blocks do not share lines
-_SPINS = 200  # retries before a reader starts sleeping to let a preempted writer finish
-_NAP_S = 20e-6  # the reader's sleep: a real-time reader must leave the CPU to a lower-priority writer
-_GIVE_UP_NS = 50_000_000  # a writer that has not finished in 50 ms has died mid-write
+_SPINS = 200  # retries before a reader starts yielding the CPU to a preempted writer
+_NAP_EVERY = 16  # ...and every 16th retry sleeping: a real-time reader must leave the CPU to any writer
+_NAP_S = 20e-6
+_GIVE_UP_NS = 50_000_000  # a writer in the same write for 50 ms has died mid-write
 
 SHM_PREFIX = "wjcnc"
 
@@ -160,11 +162,12 @@ class BlockReader:
     def read(self) -> tuple[tuple, bool]:
         """Return (flat values, consistent).
 
-        When the writer stays in the middle of a write past _GIVE_UP_NS (it died there, or could
-        not run), the last consistent copy this reader had, flagged False: a torn body is never
-        handed out (it is partly zeros: the PLC's inputs read as zeros made a false e-stop)."""
+        When the writer stays in the middle of one write past _GIVE_UP_NS (it died there), the
+        last consistent copy this reader had, flagged False: a torn body is never handed out (it
+        is partly zeros: the PLC's inputs read as zeros made a false e-stop). A writer that keeps
+        writing is alive, however long the reader has to try."""
         buf, cell = self._buf, self._cell
-        tries, give_up = 0, 0
+        tries, give_up, watched = 0, 0, -1
         while True:
             s1 = cell[0]
             if not s1 & 1:
@@ -175,13 +178,16 @@ class BlockReader:
             tries += 1
             if tries > _SPINS:
                 now = time.monotonic_ns()
-                if not give_up:
-                    give_up = now + _GIVE_UP_NS
+                if s1 != watched:  # the writer has moved on since: alive, the wait starts again
+                    watched, give_up = s1, now + _GIVE_UP_NS
                 elif now > give_up:
                     return (self._last if self._last is not None else self._unpack(buf, self._body_off)), False
-                # sleep, not sched_yield: a real-time reader yielding only gives the CPU to its own
-                # priority, and a normal-priority writer preempted mid-write on it never finished
-                time.sleep(_NAP_S)
+                if tries % _NAP_EVERY:
+                    os.sched_yield()
+                else:
+                    # now and then a sleep: a real-time reader's sched_yield only gives the CPU to its
+                    # own priority, and a normal-priority writer preempted mid-write on it never finished
+                    time.sleep(_NAP_S)
 
     def read_dict(self) -> dict[str, Any]:
         """Consistent snapshot as {field: value, list or str}; for readers off the tick path."""
