@@ -36,6 +36,12 @@ def test_virtual_clock_time_is_tick_count_times_period():
         make_clock("atomic", 0.001)
 
 
+def _python(code: str) -> subprocess.CompletedProcess:
+    """Run `code` in a fresh interpreter of its own: scheduling and collector settings are per process."""
+    return subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+
+
 @pytest.mark.skipif(os.geteuid() != 0, reason="dropping privileges to provoke a refusal needs root")
 def test_refused_realtime_scheduling_warns_and_falls_back_cleanly():
     code = (
@@ -48,8 +54,7 @@ def test_refused_realtime_scheduling_warns_and_falls_back_cleanly():
         "s = enter_realtime(80, 'servo')\n"
         "print(s.fifo, s.mlocked, s.granted)\n"
     )
-    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "PYTHONPATH": str(REPO)})
+    res = _python(code)
     assert res.returncode == 0, res.stderr
     assert res.stdout.split() == ["False", "False", "False"]
     assert "servo: running without full real-time guarantees: SCHED_FIFO refused" in res.stderr
@@ -71,8 +76,7 @@ def test_a_long_computation_started_by_a_realtime_thread_runs_under_the_normal_s
         "t = threading.Thread(target=work); t.start(); t.join()\n"
         "print(seen == [os.SCHED_FIFO, os.SCHED_OTHER], os.sched_getscheduler(0) == os.SCHED_FIFO)\n"
     )
-    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "PYTHONPATH": str(REPO)})
+    res = _python(code)
     if "PermissionError" in res.stderr:
         pytest.skip("SCHED_FIFO is not permitted here")
     assert res.returncode == 0, res.stderr
@@ -112,8 +116,7 @@ def test_a_structure_built_with_the_collector_paused_is_left_out_of_later_collec
         "print(inside, young >= 200_000, frozen >= 200_000, gc.isenabled(), gc.get_count()[0] < 1000)\n"
         "del big\n"
     )
-    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
-                         env={**os.environ, "PYTHONPATH": str(REPO)})
+    res = _python(code)
     assert res.returncode == 0, res.stderr
     inside, built_without_passes, frozen, enabled_after, young_after = res.stdout.split()
     assert inside == "False" and built_without_passes == "True", "no automatic collection while building"
