@@ -245,9 +245,7 @@ class Planner:
         start = tuple(servo["commanded_mm"])
         # on a homed machine a move beyond the travel is refused now (before it is planned), not
         # at the start of a cycle that has fed the material
-        loaded = self._prepare(path, data, start, check_travel=servo["homed_mask"] == (1 << self.n) - 1)
-        self._release(self.loaded)
-        self.loaded = loaded
+        self._take(self._prepare(path, data, start, check_travel=servo["homed_mask"] == (1 << self.n) - 1))
         program = self.loaded.program
         self._set(
             program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
@@ -256,12 +254,14 @@ class Planner:
             done_mm=0.0, segment=-1, line=0, eta_s=self.loaded.planned_ticks * self.dt, run_result=int(RunResult.NONE),
         )
 
-    def _release(self, old: LoadedProgram | None) -> None:
-        """Free a replaced program a slice a tick while nothing moves (`_free_a_slice`): dropped at
-        once, the sections of a million-line program take seconds to free, all of it holding the
-        interpreter, and the loop's heartbeat stopped long enough for the supervisor to kill it as
-        hung. Not on a thread: one of normal priority holding the interpreter between slices
-        starved this loop of it under load (a FIFO underrun at the next cycle start)."""
+    def _take(self, loaded: LoadedProgram) -> None:
+        """Make `loaded` the program; the one it replaces is freed a slice a tick while nothing
+        moves (`_free_a_slice`): dropped at once, the sections of a million-line program take
+        seconds to free, all of it holding the interpreter, and the loop's heartbeat stopped long
+        enough for the supervisor to kill it as hung. Not on a thread: one of normal priority
+        holding the interpreter between slices starved this loop of it under load (a FIFO
+        underrun at the next cycle start)."""
+        old, self.loaded = self.loaded, loaded
         if old is None:
             return
         steps, old.steps = old.steps, []
@@ -331,9 +331,7 @@ class Planner:
         start = tuple(servo["commanded_mm"])
         if any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start)):
             # the head moved since loading: the program's first move starts where it now is
-            loaded = self._prepare(self.loaded.path, self.loaded.text, start)
-            self._release(self.loaded)
-            self.loaded = loaded
+            self._take(self._prepare(self.loaded.path, self.loaded.text, start))
         homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
         try:
             preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
