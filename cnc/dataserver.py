@@ -3,10 +3,18 @@
 Each block has exactly one writing process and any number of readers. Consistency is a
 seqlock: the writer makes the block's sequence number odd, writes the body, makes it even;
 a reader copies the body between two reads of the sequence number and retries when they
-differ or are odd. Readers never block the writer, and a reader never waits for long: when
-a writer died mid-write (its sequence number stays odd) the reader gets the body as it is,
-with `consistent=False`, after 50 ms. A reader that finds the writer mid-write spins a
-little, then yields the CPU, so a writer preempted on a loaded machine can finish.
+differ or are odd. Readers never block the writer, and a reader never waits for long:
+
+- `read()` (off the tick path) spins a little, then yields the CPU, so a writer preempted on
+  a loaded machine can finish; a writer that stays in one write for 50 ms has died there, and
+  the reader returns its last consistent copy with `consistent=False`. It remembers that
+  sequence number: while the block stays stuck there, later reads return at once.
+- `read_nowait()` (the tick path) never yields or sleeps: a few spins, then the last
+  consistent copy. `odd_since_ns` says since when the block has been stuck mid-write, so the
+  tick can tell a writer preempted for a moment from a dead one (`cnc.interlock`).
+
+A restarted writer never continues from a torn body: `load_current()` answers False ("unknown")
+for a block left mid-write, and the writer starts from the layout's safe defaults.
 
 The body of a block is packed and unpacked whole with one precompiled `struct.Struct`
 (one C call: the servo's tick path stays cheap), and is also visible as a numpy structured
@@ -33,6 +41,7 @@ _SPINS = 200  # retries before a reader starts yielding the CPU to a preempted w
 _NAP_EVERY = 16  # ...and every 16th retry sleeping: a real-time reader must leave the CPU to any writer
 _NAP_S = 20e-6
 _GIVE_UP_NS = 50_000_000  # a writer in the same write for 50 ms has died mid-write
+_NOWAIT_SPINS = 32  # the tick path's retries: a writer running on another CPU finishes a write within them
 
 SHM_PREFIX = "wjcnc"
 
@@ -117,7 +126,8 @@ class BlockWriter:
         self.block = block
         self.layout = block.layout
         self.values: list[Any] = self.layout.defaults()
-        self._seq = block.seq() & ~1  # resume after a restarted writer without going backwards
+        seq = block.seq()
+        self._seq = seq + (seq & 1)  # even, never backwards: a block left mid-write is made whole by the first publish
         self._pack = self.layout.body.pack_into
         self._buf, self._body_off, self._cell = block.buf, block.body_offset, block.seq_cell
 
@@ -136,10 +146,16 @@ class BlockWriter:
     def get(self, name: str) -> Any:
         return self.values[self.layout.index[name]]
 
-    def load_current(self) -> None:
-        """Start from what is in shared memory (a restarted writer continues its counters)."""
-        values, _ = BlockReader(self.block).read()
-        self.values = list(values)
+    def load_current(self) -> bool:
+        """Start from what is in shared memory (a restarted writer continues its counters); False,
+        and the layout's defaults, when the block was left mid-write: a torn body is unknown, never
+        a state to continue from (zeroed fields would read as commands)."""
+        if self.block.seq() & 1:
+            self.values = self.layout.defaults()
+            return False
+        values, consistent = BlockReader(self.block).read()
+        self.values = list(values) if consistent else self.layout.defaults()
+        return consistent
 
     def publish(self) -> None:
         cell = self._cell
@@ -158,6 +174,9 @@ class BlockReader:
         self._unpack = self.layout.body.unpack_from
         self._buf, self._body_off, self._cell = block.buf, block.body_offset, block.seq_cell
         self._last: tuple | None = None  # the last consistent copy
+        self._stuck = -1  # an odd sequence number this reader gave up on: its writer died mid-write
+        self.odd_since_ns = 0  # read_nowait: when it first found the block stuck at its current odd number (0: not stuck)
+        self._odd_seq = -1
 
     def read(self) -> tuple[tuple, bool]:
         """Return (flat values, consistent).
@@ -165,7 +184,8 @@ class BlockReader:
         When the writer stays in the middle of one write past _GIVE_UP_NS (it died there), the
         last consistent copy this reader had, flagged False: a torn body is never handed out (it
         is partly zeros: the PLC's inputs read as zeros made a false e-stop). A writer that keeps
-        writing is alive, however long the reader has to try."""
+        writing is alive, however long the reader has to try. The wait is paid once: while the
+        block stays at the number given up on, reads return the last copy at once."""
         buf, cell = self._buf, self._cell
         tries, give_up, watched = 0, 0, -1
         while True:
@@ -175,19 +195,47 @@ class BlockReader:
                 if cell[0] == s1:
                     self._last = values
                     return values, True
+            elif s1 == self._stuck:
+                return self._fallback(), False
             tries += 1
             if tries > _SPINS:
                 now = time.monotonic_ns()
                 if s1 != watched:  # the writer has moved on since: alive, the wait starts again
                     watched, give_up = s1, now + _GIVE_UP_NS
                 elif now > give_up:
-                    return (self._last if self._last is not None else self._unpack(buf, self._body_off)), False
+                    self._stuck = s1
+                    return self._fallback(), False
                 if tries % _NAP_EVERY:
                     os.sched_yield()
                 else:
                     # now and then a sleep: a real-time reader's sched_yield only gives the CPU to its
                     # own priority, and a normal-priority writer preempted mid-write on it never finished
                     time.sleep(_NAP_S)
+
+    def read_nowait(self) -> tuple[tuple, bool]:
+        """The tick path's read: (values, consistent) without ever yielding the CPU. A block found
+        mid-write after a few spins gives the last consistent copy, flagged False, and
+        `odd_since_ns` says since when it has been stuck at that sequence number."""
+        buf, cell = self._buf, self._cell
+        s1 = -1
+        for _ in range(_NOWAIT_SPINS):
+            s1 = cell[0]
+            if not s1 & 1:
+                values = self._unpack(buf, self._body_off)
+                if cell[0] == s1:
+                    self._last = values
+                    self.odd_since_ns = 0
+                    return values, True
+        if s1 & 1:
+            if s1 != self._odd_seq:
+                self._odd_seq, self.odd_since_ns = s1, time.monotonic_ns()
+        return self._fallback(), False
+
+    def _fallback(self) -> tuple:
+        """The last consistent copy; before any, the layout's defaults (never the torn body)."""
+        if self._last is None:
+            self._last = tuple(self.layout.defaults())
+        return self._last
 
     def read_dict(self) -> dict[str, Any]:
         """Consistent snapshot as {field: value, list or str}; for readers off the tick path."""

@@ -9,6 +9,10 @@ and a record's slot is `counter % capacity`. The counters are read and written t
 cell first and let the other end see a transient 0). The producer writes records before it
 advances `head`, the consumer copies a record before it advances `tail`; on x86-64 stores
 are not reordered with stores nor loads with loads, which is all the ring needs.
+
+Every record carries the motion epoch its producer was given when the motion began (the
+servo's `motion_epoch`): the servo drops records of any other epoch, so setpoints made before
+a trip, a stop or a reset can never move the machine after it, whoever pushed them when.
 """
 
 from __future__ import annotations
@@ -50,15 +54,16 @@ class Setpoint(NamedTuple):
     flags: int
     segment: int
     line: int
+    epoch: int = 0
 
 
 def setpoint_dtype(n_axes: int) -> np.dtype:
     """numpy dtype of one record; same bytes as the struct the consumer unpacks."""
     return np.dtype(
         {
-            "names": ["position", "velocity", "flags", "segment", "line"],
-            "formats": [(np.float64, (n_axes,)), (np.float64, (n_axes,)), np.uint32, np.uint32, np.int32],
-            "offsets": [0, 8 * n_axes, 16 * n_axes, 16 * n_axes + 4, 16 * n_axes + 8],
+            "names": ["position", "velocity", "flags", "segment", "line", "epoch"],
+            "formats": [(np.float64, (n_axes,)), (np.float64, (n_axes,)), np.uint32, np.uint32, np.int32, np.uint32],
+            "offsets": [0, 8 * n_axes, 16 * n_axes, 16 * n_axes + 4, 16 * n_axes + 8, 16 * n_axes + 12],
             "itemsize": 16 * n_axes + 16,
         }
     )
@@ -86,7 +91,7 @@ class SetpointFifo:
             raise RuntimeError(f"shared memory {shm.name!r} is not a setpoint FIFO")
         self.capacity, self.n_axes = int(capacity), int(n_axes)
         self.dtype = setpoint_dtype(self.n_axes)
-        self._rec = struct.Struct(f"<{2 * self.n_axes}dIIi4x")
+        self._rec = struct.Struct(f"<{2 * self.n_axes}dIIiI")
         self._rec_size = self._rec.size
         self.ring = np.ndarray((self.capacity,), dtype=self.dtype, buffer=shm.buf, offset=_HEADER)
         self._buf = shm.buf
@@ -140,13 +145,14 @@ class SetpointFifo:
         self._head_cell[0] = self._head
         return n
 
-    def push_one(self, position, velocity, flags: int = 0, segment: int = 0, line: int = 0) -> bool:
+    def push_one(self, position, velocity, flags: int = 0, segment: int = 0, line: int = 0, epoch: int = 0) -> bool:
         """Append one record; False when the ring is full."""
         head = self._head
         if head - self.tail() >= self.capacity:
             return False
         self._rec.pack_into(
-            self._buf, _HEADER + (head % self.capacity) * self._rec_size, *position, *velocity, flags, segment, line
+            self._buf, _HEADER + (head % self.capacity) * self._rec_size, *position, *velocity, flags, segment, line,
+            epoch & 0xFFFF_FFFF,
         )
         self._head = head + 1
         self._head_cell[0] = self._head
@@ -154,7 +160,7 @@ class SetpointFifo:
 
     # -- consumer ------------------------------------------------------------------------
     def pop(self) -> tuple | None:
-        """Take the oldest record as a flat tuple (positions..., velocities..., flags, segment, line)."""
+        """Take the oldest record as a flat tuple (positions..., velocities..., flags, segment, line, epoch)."""
         tail = self._tail
         if tail == self._head_cell[0]:
             return None
@@ -163,13 +169,20 @@ class SetpointFifo:
         self._tail_cell[0] = self._tail
         return rec
 
+    def peek(self, i: int = 0) -> tuple | None:
+        """Consumer: the record `i` places after the oldest, without taking it (None when not there yet)."""
+        tail = self._tail
+        if tail + i >= self._head_cell[0]:
+            return None
+        return self._rec.unpack_from(self._buf, _HEADER + ((tail + i) % self.capacity) * self._rec_size)
+
     def pop_setpoint(self) -> Setpoint | None:
         """`pop` with named fields, for callers off the tick path."""
         rec = self.pop()
         if rec is None:
             return None
         n = self.n_axes
-        return Setpoint(rec[:n], rec[n : 2 * n], rec[2 * n], rec[2 * n + 1], rec[2 * n + 2])
+        return Setpoint(rec[:n], rec[n : 2 * n], rec[2 * n], rec[2 * n + 1], rec[2 * n + 2], rec[2 * n + 3])
 
     def pop_many(self, max_records: int) -> np.ndarray:
         """Take up to `max_records` oldest records as a numpy array (a copy)."""

@@ -91,3 +91,58 @@ def test_a_writer_stuck_mid_write_gives_the_reader_its_last_consistent_copy_neve
         assert reader.read() == (tuple(w.values), True)
     finally:
         area.close()
+
+
+def _stuck(area: SharedArea) -> None:
+    """The writer died inside a publish: its sequence number stays odd, its body half written."""
+    block = area.blocks["t"]
+    block.seq_cell[0] = block.seq() + 1
+    area.shm.buf[block.body_offset : block.body_offset + LAYOUT.size - 8] = bytes(LAYOUT.size - 8)
+
+
+def test_a_reader_pays_the_wait_for_a_dead_writer_once_and_the_tick_path_never():
+    import time
+
+    area = SharedArea.create(unique_name("test", "dead"), [LAYOUT])
+    try:
+        w = area.writer("t")
+        w.values = [7] + [1.5] * 5 + [3] + [-7] * 3
+        w.publish()
+        reader, tick_reader, late = area.reader("t"), area.reader("t"), area.reader("t")
+        assert reader.read() == (tuple(w.values), True)
+        assert tick_reader.read_nowait() == (tuple(w.values), True) and tick_reader.odd_since_ns == 0
+        _stuck(area)
+        assert late.read_nowait() == (tuple(LAYOUT.defaults()), False), "never a consistent copy: the safe defaults"
+        t0 = time.monotonic()
+        assert reader.read() == (tuple(w.values), False)
+        first = time.monotonic() - t0
+        t0 = time.monotonic()
+        for _ in range(100):
+            assert reader.read() == (tuple(w.values), False)
+        again = (time.monotonic() - t0) / 100
+        assert first >= 0.05 and again < 0.005, (first, again)  # the give-up wait once, then at once
+        t0 = time.monotonic_ns()
+        assert tick_reader.read_nowait() == (tuple(w.values), False)
+        assert tick_reader.odd_since_ns >= t0, "the tick path notes since when the block is stuck"
+        assert time.monotonic_ns() - t0 < 5_000_000, "and never waits"
+    finally:
+        area.close()
+
+
+def test_a_restarted_writer_starts_from_safe_defaults_never_from_a_torn_body():
+    area = SharedArea.create(unique_name("test", "torn"), [LAYOUT])
+    try:
+        w = area.writer("t")
+        w.values = [7] + [1.5] * 5 + [3] + [-7] * 3
+        w.publish()
+        again = area.writer("t")
+        assert again.load_current() and again.values == w.values, "a whole block: the counters go on"
+        _stuck(area)
+        restarted = area.writer("t")
+        assert not restarted.load_current(), "a block left mid-write is unknown"
+        assert restarted.values == LAYOUT.defaults()
+        restarted.publish()
+        assert area.reader("t").read() == (tuple(LAYOUT.defaults()), True), "its first write makes the block whole"
+        assert area.blocks["t"].seq() % 2 == 0
+    finally:
+        area.close()

@@ -42,7 +42,7 @@ def _consume(name: str, total: int, result) -> None:
         rec = fifo.pop()
         if rec is None:
             continue
-        x, y, vx, vy, flags, segment, line = rec
+        x, y, vx, vy, flags, segment, line, _epoch = rec
         ok = (
             segment == expected % 2**32
             and x == expected * 0.001
