@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .safety import below, minimum_levels
+
 AXIS_NAMES = ("x", "y", "z")
 _REQUIRED: Any = object()
 
@@ -73,6 +75,9 @@ class TimingConfig:
     virtual_client_timeout_s: float = opt(
         0.2, "s", "virtual clock: how long a tick waits for a timer client before counting it as missed", 0.001, 10.0
     )
+    commander_timeout_ms: float = opt(
+        100.0, "ms", "the tick stops the machine when the commander's (control logic's) heartbeat is this late", 10.0, 10000.0
+    )
 
     @property
     def period_s(self) -> float:
@@ -94,6 +99,10 @@ class AxisConfig:
         1000.0, "mm/s", "axis velocity the drive runs at full-scale command", 1.0, 100000.0
     )
     following_error_limit_mm: float = opt(0.5, "mm", "following error that trips the servo", 0.001, 100.0)
+    soft_limit_tolerance_mm: float = opt(
+        0.005, "mm", "a setpoint or start position this close beyond a travel end counts as on it (rounding, a park's "
+        "overshoot); farther beyond, a setpoint trips the soft limit", 0.0, 1.0,
+    )
     kp_1_s: float = opt(100.0, "1/s", "position-loop proportional gain (mm/s of command per mm of error)", 0.0, 10000.0)
     ki_1_s2: float = opt(1000.0, "1/s^2", "position-loop integral gain", 0.0, 1.0e7)
     velocity_ff: float = opt(1.0, "", "velocity feed-forward gain (1 = full setpoint velocity)", 0.0, 2.0)
@@ -128,6 +137,10 @@ class BoardConfig:
     """Which I/O board the hardware server drives."""
 
     kind: str = opt("sim", doc="I/O board implementation", choices=("sim",))
+    output_watchdog_ms: float = opt(
+        20.0, "ms", "the board drops its outputs (drives off, jet closed) when the hardware server has not "
+        "refreshed them for this long", 1.0, 1000.0,
+    )
 
 
 @dataclass(frozen=True)
@@ -214,6 +227,10 @@ class PlannerConfig:
     fifo_high_ms: float = opt(40.0, "ms", "fill the setpoint FIFO up to this much motion (bounds the reaction to hold and override)", 4.0, 4000.0)
     divisor: int = opt(5, "ticks", "the planner runs every Nth base tick", 1, 100)
     jog_velocity_mm_s: float = opt(50.0, "mm/s", "default jog speed", 0.01, 10000.0)
+    jog_deadman_ms: float = opt(
+        250.0, "ms", "a continuous jog stops unless its station refreshes it within this time (a held key: "
+        "the screen refreshes every 100 ms)", 150.0, 10000.0,
+    )
     load_timeout_s: float = opt(
         900.0, "s", "how long loading a program may take: checking and planning it (minutes for a million lines)", 10.0, 7200.0
     )
@@ -279,11 +296,12 @@ class PlcConfig:
 ALARM_LEVELS = ("fatal", "error", "warning", "info")
 # ids the control logic raises by name: a catalogue must declare them (the others it raises when declared)
 CONTROLLER_ALARM_IDS = (
-    "estop", "doors_open", "following_error", "soft_limit", "hard_limit", "watchdog", "fifo_underrun", "process_lost",
-    "plc_link_lost",
+    "estop", "mains_off", "doors_open", "barrier_interrupted", "following_error", "soft_limit", "hard_limit", "watchdog",
+    "fifo_underrun", "process_lost", "plc_link_lost",
     "plc_error", "pump_pressure_fault", "transport_timeout", "procedure_stop", "procedure_timeout", "program_error",
-    "program_message", "wrong_mode", "cycle_done", "internal_error",
-)
+    "program_message", "wrong_mode", "cycle_done", "internal_error", "operator_lost", "press_button", "press_start",
+    "feed_hold",
+)  # and `<axis>_drive` for every axis (cnc.safety)
 
 
 @dataclass(frozen=True)
@@ -708,9 +726,20 @@ def _check_alarms(cfg: MachineConfig) -> None:
         if a.id in ids:
             raise ConfigError(src, where, "id", f"{a.id!r} is already entry #{ids[a.id]}")
         codes[a.code], ids[a.id] = k, k
-    missing = [i for i in CONTROLLER_ALARM_IDS if i not in ids]
-    if cfg.alarm and missing:
-        raise ConfigError(src, "[[alarm]]", "id", f"the catalogue lacks alarms the controller raises: {', '.join(missing)}")
+    if not cfg.alarm:
+        return
+    minimum = minimum_levels(cfg.axis_names)
+    missing = [i for i in (*CONTROLLER_ALARM_IDS, *minimum) if i not in ids]
+    if missing:
+        raise ConfigError(src, "[[alarm]]", "id",
+                          f"the catalogue lacks alarms the controller raises: {', '.join(dict.fromkeys(missing))}")
+    for k, a in enumerate(cfg.alarm, start=1):
+        if a.id in minimum and below(a.level, minimum[a.id]):
+            raise ConfigError(
+                src, f"[[alarm]] #{k} ({a.id})", "level",
+                f"{a.level!r} is below {minimum[a.id]!r}: a safety alarm stops the cut and blocks a start; a machine "
+                "file may reword it or make it graver, never demote it",
+            )
 
 
 def _check_procedures(cfg: MachineConfig) -> None:

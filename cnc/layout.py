@@ -4,7 +4,7 @@
 |-------------|--------------------|-------|
 | hw          | hardware server    | hardware image: tick counter, encoders, digital in, read-backs, watchdog |
 | servo       | servo              | speed commands, drive enables, outputs, commanded/actual position, following error, faults, counters |
-| command     | commander          | what the servo and the board are asked to do: drives enable, fault reset |
+| command     | commander          | what the servo and the board are asked to do: drives enable, fault reset, the commander's token, epoch and heartbeat |
 | supervisor  | supervisor         | safe state forced on a lost process, shutdown, virtual-clock gate, servo tracing |
 | motion      | FIFO producer      | the planner's state and progress, and homing's position references for the servo |
 | sim         | supervisor         | simulated-board environment: e-stop, doors, mains, drive faults, friction |
@@ -56,6 +56,7 @@ class ServoState(enum.IntEnum):
     HOLDING = 1  # drives on, holding the last commanded position
     TRACKING = 2  # drives on, following setpoints from the FIFO
     FAULT = 3  # tripped: speed 0, drives off, jet off until reset
+    STOPPING = 4  # tripped, jet off, the drives still on: the servo brings the axes to rest itself, then FAULT
 
 
 class PlannerState(enum.IntEnum):
@@ -93,6 +94,14 @@ class ServoFault(enum.IntEnum):
     ESTOP = 6
     RESTARTED = 7  # the servo process was restarted: position continuity must be confirmed by reset
     SAFE_STATE = 8  # the supervisor forced the safe state
+    UNDERRUN = 9  # the setpoint FIFO ran dry in the middle of a motion
+    MAINS = 10  # the machine mains went off: the drives have no power
+    DOORS = 11  # a safety door opened
+    SAFETY_CIRCUIT = 12  # the PLC reports the safety circuit open
+    BARRIER = 13  # a light barrier was interrupted while the automatic cycle ran
+    PUMP = 14  # the pump reports a fault, or its pressure fell below the commander's floor with the jet open
+    PLC_LINK = 15  # the PLC's inputs stopped being fresh (link lost, or its process hung or dead)
+    COMMANDER = 16  # the commander (the control logic) stopped beating, or died while writing its block
 
 
 def hw_layout(n: int) -> BlockLayout:
@@ -119,6 +128,8 @@ def hw_layout(n: int) -> BlockLayout:
             F("paused", "I"),  # virtual clock: held at command.virtual_run_until
             F("jet_off_tick", "Q"),  # tick at which the board's jet valve output last closed
             F("last_motion_tick", "Q"),  # last tick at which an axis moved faster than STILL_MM_S
+            F("braking", "I"),  # the hardware server ramps the speed commands to 0 itself (watchdog, safe state)
+            F("commander_token", "Q"),  # the commander whose reset_seq the hardware server follows
         ],
     )
 
@@ -155,6 +166,20 @@ def servo_layout(n: int) -> BlockLayout:
             F("homed_mask", "I"),  # bit i: axis i has a position reference (is homed)
             F("params_change", "Q"),  # the params block's change the servo applies (0: the machine file's values)
             F("params_tick", "Q"),  # the tick it was first applied at
+            F("stop_causes", "I"),  # StopCause bits in effect this tick (cnc.interlock): the jet is held closed
+            F("trip_seq", "Q"),  # +1 at every trip: the commander reports each one, however soon a reset follows
+            F("fault_causes", "I"),  # StopCause bits in effect when the servo tripped
+            F("trip_fault", "I"),  # the last trip (ServoFault), its axis, value and causes: kept after a reset
+            F("trip_axis", "i"),
+            F("trip_value", "d"),
+            F("trip_causes", "I"),
+            F("trip_speed_mm_s", "d"),  # path speed of the setpoints when it tripped
+            F("trip_actual_mm", "d", n),  # measured position when it tripped
+            F("brake_distance_mm", "d"),  # path the servo's own stop has run so far (0 when none)
+            F("brake_tick", "Q"),  # the tick the servo's latest own stop began (a trip's, or the commander's)
+            F("motion_epoch", "Q"),  # +1 whenever the motion under way is void: setpoints of another epoch are dropped
+            F("stale_dropped", "Q"),  # setpoints dropped because their epoch was not the servo's
+            F("commander_token", "Q"),  # the commander whose reset_seq the servo follows
         ],
     )
 
@@ -164,9 +189,17 @@ def command_layout(n: int) -> BlockLayout:
         "command",
         [
             F("servo_enable", "I"),
-            F("reset_seq", "Q"),  # +1 = reset faults (servo and watchdog)
+            F("reset_seq", "Q"),  # +1 = reset faults (servo and watchdog) ...
+            F("reset_tick", "Q"),  # ... the watchdog that tripped at or before this hardware tick (the commander saw it)
+            F("reset_trip_seq", "Q"),  # ... the servo, if it has not tripped again since this trip_seq (the commander saw it)
             F("output_inhibit", "I"),  # DigitalOut bits held off whatever the setpoints say (jet off first on a fault)
             F("output_force", "I"),  # DigitalOut bits switched on while the axes hold still (jet test)
+            F("token", "Q"),  # random per commander start: a new commander's counters are a new baseline
+            F("epoch", "Q"),  # +1 at every stop the commander decides: motion commands of an older epoch are void
+            F("heartbeat", "Q"),  # +1 every scan: the tick watches it (StopCause.COMMANDER)
+            F("arm", "I"),  # StopCause bits the commander arms besides those always armed (BARRIER in a cycle)
+            F("pressure_floor_bar", "d"),  # while the jet is open the pump must hold at least this (0: no floor)
+            F("stop_seq", "Q"),  # +1 = the servo stops the motion under way itself, along its path (an alarm's stop)
         ],
     )
 
@@ -183,6 +216,7 @@ def supervisor_layout() -> BlockLayout:
             F("lost_proc", "I"),  # the last one lost (Proc)
             F("lost_restarted", "I"),  # ... and whether it was restarted
             F("lost_why", "s", 120),  # ... and how it was lost
+            F("members", "I"),  # bit per process (Proc) this controller runs: what the tick may expect to hear from
         ],
     )
 
@@ -195,6 +229,7 @@ def motion_layout(n: int) -> BlockLayout:
             F("position_ref_mask", "I"),  # axes it applies to
             F("position_ref_counts", "q", n),  # this encoder count ...
             F("position_ref_mm", "d", n),  # ... is this machine position
+            F("position_ref_unhome", "I"),  # axes that lose their reference with this request (homing them again)
             F("state", "I"),  # PlannerState
             F("homing_axis", "i"),  # axis being homed, -1
             F("program_seq", "Q"),  # +1 at every program loaded
@@ -233,6 +268,7 @@ def sim_layout(n: int) -> BlockLayout:
             F("drive_fault_mask", "I"),
             F("friction_scale", "d", n),
             F("planner_stall", "I"),  # the planner pushes no setpoints (a planner starved of CPU)
+            F("limit_switch_mask", "I"),  # bits 2i, 2i+1: axis i's min, max limit switch forced active (a tripped switch)
         ],
     )
 
@@ -300,6 +336,8 @@ def logic_layout() -> BlockLayout:
             F("message", "s", 200),  # last refusal or notice
             F("lost_seen", "Q"),  # the supervisor's lost_seq this logic (or the one before it) has reported
             F("underrun_seen", "Q"),  # the servo's underrun_tick the logic has reported
+            F("trip_seen", "Q"),  # the servo's trip_seq the logic (or the one before it) has reported
+            F("watchdog_seen", "Q"),  # the hardware server's watchdog_trip_tick the logic has reported
         ],
     )
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 from pathlib import Path
 
 from .bus.keys import Keys
@@ -41,6 +42,15 @@ def run_hardware(rt: Runtime, ready) -> None:
     child_setup(rt, "hardware")
     area = _attach(rt)
     board = make_board(rt.config)
+    server = None
+
+    def terminated(signum, frame) -> None:
+        board.safe_state()  # first the outputs: speed 0, drives off, jet closed; then anything else
+        if server is not None:
+            server.terminate()
+        log.error("hardware server: terminated (signal %d): the board is in its safe state", signum)
+        raise SystemExit(0)
+    signal.signal(signal.SIGTERM, terminated)
     session, token = _token(rt, "hardware")
     clock = make_clock(rt.clock, rt.config.timing.period_s)
     kind = ClockKind.VIRTUAL

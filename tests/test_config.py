@@ -110,3 +110,47 @@ def test_paths_in_the_machine_file_are_taken_from_its_directory_and_the_history_
     plain = load_machine(plain_file)
     assert default_history_path(plain) == str(tmp_path / "state" / "waterjet" / plain.machine.name / "history.sqlite")
     assert program_dir(plain, default_history_path(plain)) == str(tmp_path / "state" / "waterjet" / plain.machine.name / "programs")
+
+
+def _shipped_with(replace: tuple[str, str] | None = None, drop_alarm: str | None = None) -> str:
+    text = MACHINE_FILE.read_text()
+    if replace:
+        assert replace[0] in text
+        text = text.replace(*replace)
+    if drop_alarm:
+        blocks = text.split("[[alarm]]\n")
+        text = "[[alarm]]\n".join(b for b in blocks if f'id = "{drop_alarm}"\n' not in b)
+    return text
+
+
+def test_a_safety_alarm_may_be_reworded_or_made_graver_but_never_demoted():
+    doors = 'id = "doors_open"\nlevel = "error"\ntext = "Safety doors closed"'
+    reworded = loads_machine(_shipped_with((doors, 'id = "doors_open"\nlevel = "fatal"\ntext = "Door open"')), "m.toml")
+    entry = next(a for a in reworded.alarm if a.id == "doors_open")
+    assert (entry.level, entry.text) == ("fatal", "Door open")
+    with pytest.raises(ConfigError, match=r"m\.toml: \[\[alarm\]\] #\d+ \(doors_open\) level: 'warning' is below 'error'"):
+        loads_machine(_shipped_with((doors, 'id = "doors_open"\nlevel = "warning"\ntext = "Safety doors closed"')), "m.toml")
+
+
+@pytest.mark.parametrize("alarm_id", ["x_drive", "barrier_interrupted", "operator_lost", "press_button", "mains_off"])
+def test_a_catalogue_without_an_alarm_the_controller_raises_is_refused_naming_it(alarm_id):
+    with pytest.raises(ConfigError, match=rf"m\.toml: \[\[alarm\]\] id: the catalogue lacks alarms the controller raises: "
+                                          rf"{alarm_id}"):
+        loads_machine(_shipped_with(drop_alarm=alarm_id), "m.toml")
+
+
+def test_every_servo_fault_and_stop_cut_cause_has_its_alarm_in_the_shipped_catalogue():
+    from cnc.interlock import CAUSE_FAULTS, StopCause
+    from cnc.layout import ServoFault
+    from cnc.safety import fault_alarm, minimum_levels
+
+    config = load_machine(MACHINE_FILE)
+    ids = {a.id: a.level for a in config.alarm}
+    for fault in ServoFault:
+        if fault == ServoFault.NONE:
+            continue
+        for axis in range(len(config.axis_names)):
+            alarm = fault_alarm(fault, config.axis_names, axis)
+            assert alarm in ids and ids[alarm] in ("error", "fatal"), (fault, alarm)
+    assert {cause for cause, _ in CAUSE_FAULTS} == set(StopCause)
+    assert set(minimum_levels(config.axis_names)) <= set(ids)

@@ -10,6 +10,7 @@ from cnc.fifo import SetpointFifo, SetpointFlag, setpoint_dtype
 from cnc.hw.board import AxisIn, DigitalIn, DigitalOut
 from cnc.layout import ServoFault, ServoState, controller_layouts
 from cnc.ptp import move_setpoints
+from cnc.brake import StopProfile, stop_distance_bound_mm
 from cnc.servo import Servo
 
 from .conftest import enable_and_hold, feed, machine_config
@@ -84,17 +85,25 @@ def test_estop_trips_the_servo_and_reset_recovers_only_once_released(direct_cont
     assert sup.servo()["fault"] == ServoFault.NONE
 
 
-def test_fifo_running_dry_mid_motion_counts_underruns_and_holds_position(direct_controller):
+def test_the_fifo_running_dry_mid_motion_is_a_controlled_stop_straight_on_then_a_latched_trip(direct_controller):
+    """A starved planner must not stop the head dead (a following-error trip, drives off, the table
+    coasting): the servo closes the jet and brakes along the current velocity, jerk-limited, then trips."""
     sup = direct_controller
     start = enable_and_hold(sup)
-    slow = move_setpoints(sup.config, start, [start[0] + 20.0, start[1]], velocity_scale=0.05)
+    slow = move_setpoints(sup.config, start, [start[0] + 20.0, start[1]], velocity_scale=0.05, flags=SetpointFlag.JET_ON)
     half = slow[: len(slow) // 2]
     assert half["flags"][-1] & SetpointFlag.IN_MOTION
     feed(sup, half)
-    sup.wait_until(lambda: sup.servo()["underruns"] >= 10, 10.0, "underruns to be counted")
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT, 10.0, "the underrun trip")
     s = sup.servo()
-    assert s["fault"] == ServoFault.NONE
-    assert s["commanded_mm"][0] == pytest.approx(float(half["position"][-1][0]))
+    assert s["fault"] == ServoFault.UNDERRUN and s["underruns"] == 1
+    v = float(half["velocity"][-1][0])
+    assert s["trip_speed_mm_s"] == pytest.approx(v, rel=1e-6)
+    bound = stop_distance_bound_mm(v, 0.0, 5000.0, 200000.0) - 1.0  # the braking part of the bound
+    last = float(half["position"][-1][0])
+    assert last < s["actual_mm"][0] <= last + bound + 0.01, "stopped straight on, within its braking distance"
+    assert s["brake_distance_mm"] == pytest.approx(StopProfile(v, 0.0, 5000.0, 200000.0).distance, rel=1e-6)
+    assert not sup.hw()["digital_out"] & DigitalOut.JET_VALVE and s["drive_enable_mask"] == 0
 
 
 def test_setpoint_output_flags_drive_the_jet_valve(direct_controller):
@@ -142,7 +151,7 @@ class BareServo:
         self.area = SharedArea.create(unique_name("test", "servo"), controller_layouts(2))
         self.fifo = SetpointFifo.create(unique_name("test", "sfifo"), fifo_capacity, 2)
         self.hw = self.area.writer("hw")
-        self.hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED))
+        self.hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED | DigitalIn.MAINS_ON))
         self.hw.set("axis_inputs", [int(AxisIn.DRIVE_READY)] * 2)
         self.hw.set("encoder_counts", list(encoder_counts))
         self.command = self.area.writer("command")
@@ -190,9 +199,9 @@ def test_servo_counts_overruns_and_consumes_the_skipped_ticks_setpoints():
         assert seen == [0, 1, 2, 6, 7, 9], "one setpoint per elapsed tick"
 
 
-def test_setpoint_records_carry_position_velocity_flags_segment_and_line():
+def test_setpoint_records_carry_position_velocity_flags_segment_line_and_epoch():
     dt = setpoint_dtype(2)
-    assert dt.names == ("position", "velocity", "flags", "segment", "line")
+    assert dt.names == ("position", "velocity", "flags", "segment", "line", "epoch")
     assert dt.itemsize == 48
 
 
@@ -265,16 +274,17 @@ def test_setpoints_left_in_the_fifo_are_dropped_while_the_drives_are_off(direct_
     assert held == pytest.approx(start, abs=0.01), "nothing stale ran when the drives came back"
 
 
-def test_the_commanders_output_inhibit_closes_the_jet_at_once_and_force_opens_it_only_at_rest():
+def test_the_commanders_inhibit_closes_the_jet_at_once_and_a_jet_test_opens_it_only_when_asked_at_rest():
     """A fault closes the jet before the stop (inhibit wins over the setpoints, within the tick);
-    the jet test opens it only while the axes hold still."""
+    the jet test opens it only while the axes hold still, and only when asked for while they do: a
+    jet test asked for during a motion, or left on through one, never opens the jet by itself."""
     from cnc.hw.board import DigitalOut
 
     jet = int(DigitalOut.JET_VALVE)
     with BareServo(fifo_capacity=64) as bare:
         for k in range(4):
             flags = SetpointFlag.IN_MOTION | (SetpointFlag.JET_ON if k < 2 else 0)
-            bare.fifo.push_one((0.001 * k, 0.0), (1.0, 0.0), flags, segment=k)
+            bare.fifo.push_one((0.001 * k, 0.0), (1.0, 0.0), flags if k < 3 else 0, segment=k)
         assert bare.run(1)["digital_out"] & jet
         bare.order(output_inhibit=jet)
         s = bare.run(2)
@@ -284,7 +294,17 @@ def test_the_commanders_output_inhibit_closes_the_jet_at_once_and_force_opens_it
         assert not s["digital_out"] & jet and s["state"] == ServoState.TRACKING, "no jet test while moving"
         for tick in range(4, 10):
             s = bare.run(tick)
-        assert s["state"] == ServoState.HOLDING and s["digital_out"] & jet, "jet test at rest"
+        assert s["state"] == ServoState.HOLDING and not s["digital_out"] & jet, "asked for while moving: void"
+        bare.order(output_force=0)
+        bare.run(10)
+        bare.order(output_force=jet)
+        assert bare.run(11)["digital_out"] & jet, "asked for at rest: the jet test opens the jet"
+        bare.fifo.push_one((0.01, 0.0), (1.0, 0.0), SetpointFlag.IN_MOTION)
+        bare.fifo.push_one((0.011, 0.0), (0.0, 0.0), 0)
+        assert not bare.run(12)["digital_out"] & jet, "a motion ends the jet test"
+        for tick in range(13, 16):
+            s = bare.run(tick)
+        assert s["state"] == ServoState.HOLDING and not s["digital_out"] & jet, "and it does not reopen at rest"
 
 
 def test_control_parameters_written_between_two_ticks_apply_from_the_next_tick_whole():
@@ -318,3 +338,97 @@ def test_control_parameters_written_between_two_ticks_apply_from_the_next_tick_w
         assert bare.servo.fe_lim[1] == 0.25 and bare.servo.kp[0] == values[kp_x.index]
         s = bare.run(3)
         assert s["params_change"] == 1 and s["params_tick"] == 2, "applied once"
+
+
+def _home_both(bare: BareServo, tick: int) -> int:
+    """Home both axes where the encoders stand (counts are machine micrometres)."""
+    bare.order(position_ref_counts=[0, 0], position_ref_mm=[0.0, 0.0], position_ref_mask=0b11, position_ref_seq=1)
+    bare.run(tick)
+    assert bare.area.reader("servo").read_dict()["homed_mask"] == 0b11
+    return tick + 1
+
+
+def test_a_setpoint_on_the_travel_end_within_the_tolerance_runs_clamped_onto_it_beyond_it_trips():
+    """A program parking at X0 rounds to -1.4e-14 mm: it must run, not trip the soft limit."""
+    with BareServo(fifo_capacity=64, encoder_counts=(0, 0)) as bare:
+        tick = _home_both(bare, 1)
+        bare.fifo.push_one((-1.4e-14, 0.0), (0.0, 0.0), 0)
+        s = bare.run(tick)
+        assert s["state"] == ServoState.HOLDING and s["commanded_mm"][0] == 0.0, "clamped onto the end"
+        bare.fifo.push_one((-0.004, 0.0), (0.0, 0.0), 0)
+        s = bare.run(tick + 1)
+        assert s["state"] == ServoState.HOLDING and s["commanded_mm"][0] == 0.0, "within 5 um: still clamped"
+        bare.fifo.push_one((-0.02, 0.0), (0.0, 0.0), 0)
+        s = bare.run(tick + 2)
+        assert s["fault"] == ServoFault.SOFT_LIMIT and s["fault_value"] == -0.02
+
+
+def test_an_axis_beyond_its_travel_may_move_back_in_but_not_further_out():
+    with BareServo(fifo_capacity=64, encoder_counts=(-30, 0)) as bare:  # 30 um below X0 (a park's overshoot)
+        tick = _home_both(bare, 1)
+        s = bare.run(tick)
+        assert s["commanded_mm"][0] == pytest.approx(-0.030), "the loop closed where the table stands"
+        bare.fifo.push_one((-0.020, 0.0), (1.0, 0.0), SetpointFlag.IN_MOTION)
+        bare.fifo.push_one((-0.010, 0.0), (0.0, 0.0), 0)
+        for k in (1, 2):
+            s = bare.run(tick + k)
+        assert s["state"] == ServoState.HOLDING and s["commanded_mm"][0] == pytest.approx(-0.010), "inward runs"
+        bare.fifo.push_one((-0.015, 0.0), (0.0, 0.0), 0)
+        s = bare.run(tick + 3)
+        assert s["fault"] == ServoFault.SOFT_LIMIT, "outward trips"
+
+
+def test_on_an_active_hard_limit_switch_after_the_reset_the_axis_moves_away_from_it_only():
+    with BareServo(fifo_capacity=64) as bare:
+        hw = bare.hw
+        assert bare.run(1)["state"] == ServoState.HOLDING
+        hw.set("axis_inputs", [int(AxisIn.DRIVE_READY | AxisIn.LIMIT_MIN), int(AxisIn.DRIVE_READY)])
+        s = bare.run(2)
+        assert s["fault"] == ServoFault.HARD_LIMIT, "the switch becoming active trips"
+        for tick in range(3, 40):
+            s = bare.run(tick)
+        assert s["state"] == ServoState.FAULT
+        bare.order(reset_trip_seq=s["trip_seq"], reset_seq=1)
+        hw.set("reset_seq", 1)
+        s = bare.run(41)
+        s = bare.run(42)
+        assert s["state"] == ServoState.HOLDING, "reset while still on the switch: the loop closes"
+        epoch = s["motion_epoch"]
+        bare.fifo.push_one((0.01, 0.0), (1.0, 0.0), SetpointFlag.IN_MOTION, epoch=epoch)
+        bare.fifo.push_one((0.02, 0.0), (0.0, 0.0), 0, epoch=epoch)
+        assert bare.run(43)["state"] == ServoState.TRACKING and bare.run(44)["state"] == ServoState.HOLDING, "away: runs"
+        bare.fifo.push_one((0.01, 0.0), (0.0, 0.0), 0, epoch=epoch)
+        assert bare.run(45)["fault"] == ServoFault.HARD_LIMIT, "further onto the switch: trips"
+
+
+def test_setpoints_of_another_motion_epoch_are_dropped_and_counted():
+    with BareServo(fifo_capacity=64) as bare:
+        epoch = bare.run(1)["motion_epoch"]
+        bare.fifo.push_one((0.5, 0.0), (0.0, 0.0), 0, epoch=epoch + 7)  # made before a trip, a stop or a reset
+        bare.fifo.push_one((0.001, 0.0), (0.0, 0.0), 0, epoch=epoch)
+        s = bare.run(2)
+        assert s["stale_dropped"] == 1 and s["commanded_mm"][0] == pytest.approx(0.001)
+
+
+def test_a_reset_clears_only_a_trip_the_commander_saw_from_the_same_commander_once_the_stop_ran_out():
+    with BareServo(fifo_capacity=64) as bare:
+        bare.run(1)
+        bare.hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.MAINS_ON))  # a door opens ...
+        s = bare.run(2)
+        assert s["state"] == ServoState.FAULT or s["state"] == ServoState.STOPPING
+        bare.hw.set("digital_in", int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED | DigitalIn.MAINS_ON))
+        for tick in range(3, 40):
+            s = bare.run(tick)
+        assert s["state"] == ServoState.FAULT and s["trip_seq"] == 1
+        # a reset asked for before the trip was seen (its trip_seq is older): the trip stays latched
+        bare.order(reset_trip_seq=0, reset_seq=1)
+        bare.hw.set("reset_seq", 1)
+        assert bare.run(40)["state"] == ServoState.FAULT
+        # another commander's counters are a baseline, not a request
+        bare.order(token=99, reset_trip_seq=1, reset_seq=5)
+        bare.hw.set("reset_seq", 5)
+        assert bare.run(41)["state"] == ServoState.FAULT
+        bare.order(reset_seq=6)
+        bare.hw.set("reset_seq", 6)
+        bare.run(42)
+        assert bare.run(43)["state"] == ServoState.HOLDING, "the same commander, after it saw the trip"

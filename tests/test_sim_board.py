@@ -523,3 +523,44 @@ def test_bad_arguments_are_rejected_naming_the_argument(call, argument):
 def test_start_position_beyond_end_stops_is_a_config_error():
     with pytest.raises(ConfigError, match=r"sim\.axes\.x.*start_position_mm"):
         board_at(-20.0)
+
+
+def test_the_output_watchdog_drops_every_output_when_nobody_refreshes_them():
+    """The IOBoard contract: outputs not refreshed within the watchdog's timeout (the board's own
+    time) are dropped by the board itself: drives off, jet closed; the next write re-arms it."""
+    board = board_at(800.0)
+    board.arm_output_watchdog(0.005)
+    inputs = run(board, 50, 2.0, out=int(DigitalOut.JET_VALVE))
+    assert inputs.digital_out == DigitalOut.JET_VALVE and all(a & AxisIn.DRIVE_ENABLED for a in inputs.axis_inputs)
+    moving = board.velocity_mm_s(X)
+    for _ in range(4):  # the host stops refreshing (run's last tick counted): within the timeout they stand
+        board.advance(DT_S)
+        board.read_inputs(inputs)
+    assert inputs.digital_out == DigitalOut.JET_VALVE and not board.watchdog_expired
+    board.advance(DT_S)
+    board.read_inputs(inputs)
+    assert board.watchdog_expired and inputs.digital_out == 0, "the jet closed by the board itself"
+    assert not any(a & AxisIn.DRIVE_ENABLED for a in inputs.axis_inputs), "the drives off"
+    for _ in range(200):
+        board.advance(DT_S)
+    assert abs(board.velocity_mm_s(X)) < moving, "the axis no longer driven"
+    inputs = run(board, 1, 0.0, out=int(DigitalOut.JET_VALVE))
+    assert inputs.digital_out == DigitalOut.JET_VALVE and not board.watchdog_expired, "a write re-arms it"
+
+
+def test_a_mains_loss_takes_the_drives_power_and_the_outputs():
+    board = board_at(800.0)
+    inputs = run(board, 20, 2.0, out=int(DigitalOut.JET_VALVE))
+    board.set_mains(False)
+    inputs = run(board, 1, 2.0, out=int(DigitalOut.JET_VALVE))
+    assert not inputs.digital_in & DigitalIn.MAINS_ON and inputs.digital_out == 0
+    assert not any(a & AxisIn.DRIVE_ENABLED for a in inputs.axis_inputs)
+
+
+def test_a_limit_switch_can_be_forced_active_wherever_the_table_stands():
+    board = board_at(800.0)
+    board.force_limit_switch(X, True, False)
+    inputs = run(board, 1)
+    assert inputs.axis_inputs[X] & AxisIn.LIMIT_MIN and not inputs.axis_inputs[X] & AxisIn.LIMIT_MAX
+    board.force_limit_switch(X, False, False)
+    assert not run(board, 1).axis_inputs[X] & (AxisIn.LIMIT_MIN | AxisIn.LIMIT_MAX)

@@ -4,6 +4,11 @@ The hardware server is the only caller. Each base tick it writes outputs (speed 
 drive enables, digital outputs), lets the board advance to the next sample (a real board
 latches its inputs on the hardware sync signal; the simulated board integrates its plant),
 then reads the inputs. Buffers are filled in place so the tick path allocates nothing.
+
+What the software cannot replace, a real board must add: an output watchdog that drops the
+outputs when the host stops refreshing them (`arm_output_watchdog`), and a hardwired e-stop
+circuit that cuts the drives' power and the jet valve whatever the host does (the board only
+reports it, as `DigitalIn.ESTOP_OK`).
 """
 
 from __future__ import annotations
@@ -81,6 +86,15 @@ class IOBoard(abc.ABC):
     @abc.abstractmethod
     def safe_state(self) -> None:
         """Watchdog action: speed commands 0, drives disabled, jet valve and outputs closed, at once."""
+
+    @abc.abstractmethod
+    def arm_output_watchdog(self, timeout_s: float) -> None:
+        """The board's own output watchdog: when `write_outputs` (or `safe_state`) has not been called
+        for `timeout_s` of the board's time, the board drops its outputs by itself (speed commands 0,
+        drives disabled, every digital output off) until the next write. A real board implements it
+        in hardware (a charge pump or a watchdog timer on the interface card), so that a host that
+        stops (a crash, a hung kernel, a pulled cable) cannot leave the jet open or the drives
+        driving; the hardware server arms it at start."""
 
     def close(self) -> None:
         """Release the board (default: nothing to release)."""

@@ -1,12 +1,23 @@
 """Hardware server: owns the I/O board and produces the base tick.
 
-Each tick: write the servo's last outputs to the board (or hold the board in the safe
-state), advance the board to the next sample, read its inputs, bump the tick sequence
-counter, publish the hardware image, wake the timer clients due on this tick. The drive
-watchdog lives here, next to the board: when the servo has missed `watchdog_missed_ticks`
-consecutive ticks, the board disables the drives and closes the jet valve and the trip is
-latched in the hardware image, where the supervisor sees it, until a reset while the servo
-is running again.
+Each tick (`step`): write the servo's last outputs to the board (or bring the board to rest
+itself, below), advance the board to the next sample, read its inputs, bump the tick sequence
+counter, publish the hardware image; then the timer clients due on this tick are woken. Nothing
+on this path waits: the blocks it reads are read with `read_nowait`.
+
+The drive watchdog lives here, next to the board: when the servo has missed
+`watchdog_missed_ticks` consecutive ticks (or left its block mid-write), the watchdog trips.
+The jet closes at once, and the hardware server stops the axes itself rather than letting them
+coast: it ramps the servo's last speed commands down to zero, jerk-limited within the axes'
+deceleration (`cnc.brake.StopProfile` on the speed vector, so the table stops along its current
+direction), through the drives' own velocity loops; then the board goes to its safe state
+(speed 0, drives off, outputs off). The supervisor's safe state (a servo process lost) is
+handled the same way; a shutdown goes to the safe state at once. A trip is latched in the
+hardware image, where the supervisor and the servo see it, until a reset from the commander that
+was asked for at or after the trip, once the ramp has run out and the servo runs again.
+
+Defence in depth: while the board's own inputs show the e-stop circuit open, the mains off or a
+door open, the hardware server drops the jet and abrasive outputs whatever the servo wrote.
 
 The image also records, as the board saw them, the tick the jet valve last closed and the last
 tick an axis moved: how fast the machine reached a safe state after a fault is read there, in
@@ -16,19 +27,49 @@ ticks, whichever process reacted (fault injection, `cnc.faultinject`).
 from __future__ import annotations
 
 import logging
+import math
 import os
 import time
 
+from ..brake import StopProfile
 from ..config import MachineConfig
 from ..dataserver import SharedArea
 from ..layout import HIST_BINS, ClockKind, Proc
-from .board import BoardInputs, DigitalOut, IOBoard
+from .board import BoardInputs, DigitalIn, DigitalOut, IOBoard
 from .clock import RealtimeClock, VirtualClock
 from .timers import TimerClient
 
 log = logging.getLogger(__name__)
 
 STILL_MM_S = 1.0  # an axis slower than this (by its encoder, over one tick) stands still
+_JET_BITS = int(DigitalOut.JET_VALVE | DigitalOut.ABRASIVE)
+_SAFE_INPUTS = int(DigitalIn.ESTOP_OK | DigitalIn.DOORS_CLOSED | DigitalIn.MAINS_ON)
+
+
+class SpeedRamp:
+    """The hardware server's own stop: the last speed commands scaled down along a jerk-limited
+    stop profile, all axes by the same factor (the table stops along its current direction)."""
+
+    def __init__(self, config: MachineConfig, speed_cmd_v: list[float], enable_mask: int) -> None:
+        self.vpm = [a.volts_per_mm_s for a in config.axes]
+        self.accel_ff = [a.accel_ff_s for a in config.axes]  # leads the drives' lag, as the servo's feed-forward does
+        mm_s = [v / k for v, k in zip(speed_cmd_v, self.vpm)]
+        speed = math.sqrt(sum(x * x for x in mm_s))
+        self.direction = [x / speed for x in mm_s] if speed > 0.0 else [0.0] * len(mm_s)
+        self.profile = StopProfile(speed, 0.0, min(a.max_accel_mm_s2 for a in config.axes),
+                                   min(a.max_jerk_mm_s3 for a in config.axes))
+        self.enable_mask = enable_mask
+        self.dt = config.timing.period_s
+        self.t = 0.0
+
+    @property
+    def done(self) -> bool:
+        return self.t >= self.profile.duration
+
+    def next_volts(self) -> list[float]:
+        self.t += self.dt
+        _, v, a = self.profile.at(self.t)
+        return [d * (v + ka * a) * k for d, ka, k in zip(self.direction, self.accel_ff, self.vpm)]
 
 
 class HardwareServer:
@@ -62,84 +103,36 @@ class HardwareServer:
         beat["pid"][Proc.HARDWARE] = os.getpid()
         self.inputs = BoardInputs(self.n)
         self.hw.set("clock_kind", int(clock_kind))
+        board.arm_output_watchdog(config.board.output_watchdog_ms / 1000.0)
+        idx, s_idx = self.hw.layout.index, self.servo.layout.index
+        c_idx, sup_idx = self.command.layout.index, self.supervisor.layout.index
+        self._i = idx
+        self._s = (s_idx["speed_cmd_v"], s_idx["drive_enable_mask"], s_idx["digital_out"], s_idx["tick"],
+                   s_idx["ticks_processed"])
+        self._c = (c_idx["reset_seq"], c_idx["reset_tick"], c_idx["token"])
+        self._sup = (sup_idx["shutdown"], sup_idx["safe_state"], sup_idx["virtual_run_until"])
+        self.still_counts = [STILL_MM_S * self.period_s / a.encoder_resolution_mm for a in config.axes]
+        cmd, _ = self.command.read()
+        v = self.hw.values
+        v[idx["reset_seq"]], v[idx["commander_token"]] = cmd[self._c[0]], cmd[self._c[2]]
+        self.jet_was_on, self.last_counts = False, [0] * self.n
+        self.sim_seq = -1
+        self.ramp: SpeedRamp | None = None
+        self.din = _SAFE_INPUTS
 
     def run(self) -> None:
         self.clock.start()
-        idx = self.hw.layout.index
-        s_idx = self.servo.layout.index
-        i_speed, i_enable, i_dout = s_idx["speed_cmd_v"], s_idx["drive_enable_mask"], s_idx["digital_out"]
-        i_stick, i_sticks = s_idx["tick"], s_idx["ticks_processed"]
-        i_reset = self.command.layout.index["reset_seq"]
-        s_idx = self.supervisor.layout.index
-        i_shutdown, i_safe, i_until = s_idx["shutdown"], s_idx["safe_state"], s_idx["virtual_run_until"]
-        v = self.hw.values
-        i_tick, i_ttime, i_wtime = idx["tick"], idx["tick_time_ns"], idx["wake_time_ns"]
-        i_enc, i_ilc, i_ils, i_ain = idx["encoder_counts"], idx["index_latch_counts"], idx["index_latch_seq"], idx["axis_inputs"]
-        i_din, i_dout_rb = idx["digital_in"], idx["digital_out"]
-        i_trip, i_missed, i_trip_tick = idx["watchdog_tripped"], idx["watchdog_missed"], idx["watchdog_trip_tick"]
-        i_missed_total, i_late, i_safe_rb = idx["servo_missed_total"], idx["late_ticks"], idx["safe_state"]
-        i_reset_ack = idx["reset_seq"]
-        i_jet_off, i_moved = idx["jet_off_tick"], idx["last_motion_tick"]
-        still_counts = [STILL_MM_S * self.period_s / a.encoder_resolution_mm for a in self.config.axes]
-        axes = range(self.n)
-        jet_was_on, last_counts = False, [0] * self.n
-        tick = v[i_tick]
-        last_reset = v[i_reset_ack] = self.command.read()[0][i_reset]
-        sim_seq = -1
-        inputs, board = self.inputs, self.board
+        i_until, i_shutdown = self._sup[2], self._sup[0]
         clients = [(c, c.divisor) for c in self.clients]
         hist, last_bin = self.hist, HIST_BINS - 1
+        tick_i = self._i["tick"]
         while True:
             if self.clock.synchronous:
-                self._gate(tick, i_until, i_shutdown)
+                self._gate(self.hw.values[tick_i], i_until, i_shutdown)
             deadline, woke = self.clock.wait()
-            cmd, _ = self.command.read()
-            sup, _ = self.supervisor.read()
-            if sup[i_shutdown] & 1 << Proc.HARDWARE:
-                board.safe_state()
+            if not self.step(deadline, woke):
                 break
-            servo, _ = self.servo.read()
-            if self.sim_block.seq() != sim_seq:
-                sim_seq = self.sim_block.seq()
-                self._apply_sim(self.sim.read_dict())
-            # watchdog: the servo should have finished the previous tick by now
-            if servo[i_sticks] and servo[i_stick] != tick:
-                v[i_missed] += 1
-                v[i_missed_total] += 1
-                if v[i_missed] >= self.watchdog_limit and not v[i_trip]:
-                    v[i_trip], v[i_trip_tick] = 1, tick + 1
-                    log.error("drive watchdog: servo missed %d ticks, drives disabled", v[i_missed])
-            else:
-                v[i_missed] = 0
-            if cmd[i_reset] != last_reset:
-                last_reset = v[i_reset_ack] = cmd[i_reset]
-                if v[i_trip] and v[i_missed] == 0:
-                    v[i_trip] = 0
-            safe = bool(v[i_trip] or sup[i_safe])
-            if safe:
-                board.safe_state()
-            else:
-                board.write_outputs(list(servo[i_speed]), servo[i_enable], servo[i_dout])
-            board.advance(self.period_s)
-            board.read_inputs(inputs)
-            tick += 1
-            counts = inputs.encoder_counts
-            for i in axes:
-                if abs(counts[i] - last_counts[i]) > still_counts[i]:
-                    v[i_moved] = tick
-                    break
-            last_counts = list(counts)
-            jet_on = bool(inputs.digital_out & DigitalOut.JET_VALVE)
-            if jet_was_on and not jet_on:
-                v[i_jet_off] = tick
-            jet_was_on = jet_on
-            v[i_tick], v[i_ttime], v[i_wtime] = tick, deadline, woke
-            v[i_enc], v[i_ilc], v[i_ils], v[i_ain] = (
-                inputs.encoder_counts, inputs.index_latch_counts, inputs.index_latch_seq, inputs.axis_inputs,
-            )
-            v[i_din], v[i_dout_rb], v[i_safe_rb] = inputs.digital_in, inputs.digital_out, int(safe)
-            v[i_late] = self.clock.late_ticks
-            self.hw.publish()
+            tick = self.hw.values[tick_i]
             woken = [c for c, div in clients if tick % div == 0]
             for c in woken:
                 if self.clock.synchronous:
@@ -157,6 +150,98 @@ class HardwareServer:
                     self.timing["max_ns"][0] = woke - deadline
             self.beat[Proc.HARDWARE] = tick
 
+    def step(self, deadline: int, woke: int) -> bool:
+        """One base tick of the board; False (and the board safe) when shutdown is commanded."""
+        idx, v, board, inputs = self._i, self.hw.values, self.board, self.inputs
+        i_speed, i_enable, i_dout, i_stick, i_sticks = self._s
+        i_shutdown, i_safe, _ = self._sup
+        sup, _ = self.supervisor.read_nowait()
+        if sup[i_shutdown] & 1 << Proc.HARDWARE:
+            board.safe_state()
+            return False
+        cmd, _ = self.command.read_nowait()
+        servo, servo_whole = self.servo.read_nowait()
+        if self.sim_block.seq() != self.sim_seq:
+            env, whole = self.sim.read_nowait()
+            if whole:
+                self.sim_seq = self.sim_block.seq()
+                self._apply_sim(env)
+        tick = v[idx["tick"]]
+        # watchdog: the servo should have finished the previous tick by now (and not be stuck mid-write)
+        if servo[i_sticks] and (servo[i_stick] != tick or not servo_whole):
+            v[idx["watchdog_missed"]] += 1
+            v[idx["servo_missed_total"]] += 1
+            if v[idx["watchdog_missed"]] >= self.watchdog_limit and not v[idx["watchdog_tripped"]]:
+                v[idx["watchdog_tripped"]], v[idx["watchdog_trip_tick"]] = 1, tick + 1
+                log.error("drive watchdog: servo missed %d ticks, the axes are brought to rest", v[idx["watchdog_missed"]])
+        else:
+            v[idx["watchdog_missed"]] = 0
+        self._serve_reset(cmd)
+        stop = bool(v[idx["watchdog_tripped"]] or sup[i_safe])
+        if stop and self.ramp is None:
+            self.ramp = SpeedRamp(self.config, list(servo[i_speed]), servo[i_enable])
+        elif not stop and self.ramp is not None and self.ramp.done:
+            self.ramp = None  # a ramp once begun runs out, whatever is restarted meanwhile
+        safe = False
+        if self.ramp is not None and not self.ramp.done:
+            board.write_outputs(self.ramp.next_volts(), self.ramp.enable_mask, 0)
+        elif self.ramp is not None:
+            board.safe_state()
+            safe = True
+        else:
+            dout = servo[i_dout]
+            if self.din & _SAFE_INPUTS != _SAFE_INPUTS:
+                dout &= ~_JET_BITS
+            board.write_outputs(list(servo[i_speed]), servo[i_enable], dout)
+        board.advance(self.period_s)
+        board.read_inputs(inputs)
+        self.din = inputs.digital_in
+        tick += 1
+        counts = inputs.encoder_counts
+        for i in range(self.n):
+            if abs(counts[i] - self.last_counts[i]) > self.still_counts[i]:
+                v[idx["last_motion_tick"]] = tick
+                break
+        self.last_counts = list(counts)
+        jet_on = bool(inputs.digital_out & DigitalOut.JET_VALVE)
+        if self.jet_was_on and not jet_on:
+            v[idx["jet_off_tick"]] = tick
+        self.jet_was_on = jet_on
+        v[idx["tick"]], v[idx["tick_time_ns"]], v[idx["wake_time_ns"]] = tick, deadline, woke
+        v[idx["encoder_counts"]], v[idx["index_latch_counts"]] = inputs.encoder_counts, inputs.index_latch_counts
+        v[idx["index_latch_seq"]], v[idx["axis_inputs"]] = inputs.index_latch_seq, inputs.axis_inputs
+        v[idx["digital_in"]], v[idx["digital_out"]], v[idx["safe_state"]] = inputs.digital_in, inputs.digital_out, int(safe)
+        v[idx["braking"]] = int(self.ramp is not None and not self.ramp.done)
+        v[idx["late_ticks"]] = self.clock.late_ticks
+        self.hw.publish()
+        return True
+
+    def terminate(self) -> None:
+        """Terminated from outside (SIGTERM, the supervisor's end): the board safe first, then one last
+        image that says so, for whoever reads it after this process is gone."""
+        self.board.safe_state()
+        self.board.read_inputs(self.inputs)
+        idx, v = self._i, self.hw.values
+        v[idx["digital_out"]], v[idx["safe_state"]] = self.inputs.digital_out, 1
+        self.hw.publish()
+
+    def _serve_reset(self, cmd: tuple) -> None:
+        """A reset from the commander clears a watchdog trip that is not newer than the request, once
+        the servo runs again and the ramp has brought the axes to rest. A new commander (another
+        token) is a new baseline, not a request."""
+        idx, v = self._i, self.hw.values
+        i_reset, i_reset_tick, i_token = self._c
+        if cmd[i_token] != v[idx["commander_token"]]:
+            v[idx["commander_token"]], v[idx["reset_seq"]] = cmd[i_token], cmd[i_reset]
+            return
+        if cmd[i_reset] == v[idx["reset_seq"]]:
+            return
+        v[idx["reset_seq"]] = cmd[i_reset]
+        ramping = self.ramp is not None and not self.ramp.done
+        if (v[idx["watchdog_tripped"]] and v[idx["watchdog_missed"]] == 0 and not ramping
+                and v[idx["watchdog_trip_tick"]] <= cmd[i_reset_tick]):
+            v[idx["watchdog_tripped"]] = 0
+
     def _gate(self, tick: int, i_until: int, i_shutdown: int) -> None:
         """Virtual clock: hold time still while the commander has set a tick not to pass."""
         i_paused = self.hw.layout.index["paused"]
@@ -173,17 +258,20 @@ class HardwareServer:
                 self.hw.publish()
             time.sleep(0.0005)
 
-    def _apply_sim(self, env: dict) -> None:
+    def _apply_sim(self, values: tuple) -> None:
         """Pass the commander's simulated environment (e-stop, doors, faults, friction) to a sim board."""
         board = self.board
         if not hasattr(board, "set_estop"):
             return
-        board.set_estop(bool(env["estop_pressed"]))
-        board.set_doors(bool(env["doors_open"]))
-        board.set_mains(not env["mains_off"])
+        ix = self.sim.layout.index
+        board.set_estop(bool(values[ix["estop_pressed"]]))
+        board.set_doors(bool(values[ix["doors_open"]]))
+        board.set_mains(not values[ix["mains_off"]])
+        limits = values[ix["limit_switch_mask"]]
         for i in range(self.n):
-            board.set_drive_fault(i, bool(env["drive_fault_mask"] >> i & 1))
-            board.set_friction_scale(i, env["friction_scale"][i])
+            board.set_drive_fault(i, bool(values[ix["drive_fault_mask"]] >> i & 1))
+            board.set_friction_scale(i, values[ix["friction_scale"]][i])
+            board.force_limit_switch(i, bool(limits >> (2 * i) & 1), bool(limits >> (2 * i + 1) & 1))
 
 
 def make_board(config: MachineConfig) -> IOBoard:
@@ -193,4 +281,3 @@ def make_board(config: MachineConfig) -> IOBoard:
 
         return SimBoard(config)
     raise ValueError(f"{config.source}: [board] kind: no board implementation {config.board.kind!r}")
-

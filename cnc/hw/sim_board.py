@@ -284,13 +284,15 @@ class SimBoard(IOBoard):
 
     Axis i is `config.axis_names[i]` and bit i of the drive-enable mask. Besides `IOBoard`
     it offers fault injection (`set_estop`, `set_doors`, `set_mains`, `set_drive_fault`,
-    `set_friction_scale`) and read-only access to the true plant state (`position_mm`,
-    `velocity_mm_s`) for tests that compare it with the encoder.
+    `set_friction_scale`, `force_limit_switch`) and read-only access to the true plant state
+    (`position_mm`, `velocity_mm_s`) for tests that compare it with the encoder.
 
-    A drive's power stage is on while its enable bit is set, it has no fault and the e-stop
-    is not pressed; only then does it accelerate the axis. The e-stop circuit also cuts the
-    digital outputs. `safe_state()` zeroes commands, enables and outputs until the next
-    `write_outputs()`.
+    A drive's power stage is on while its enable bit is set, it has no fault, the e-stop is not
+    pressed and the mains are on; only then does it accelerate the axis. The e-stop circuit and
+    a mains loss also cut the digital outputs. `safe_state()` zeroes commands, enables and
+    outputs until the next `write_outputs()`. The output watchdog (`arm_output_watchdog`) counts
+    the board's own time, which `advance()` moves: outputs not refreshed within its timeout are
+    dropped, as a real board's watchdog drops them.
     """
 
     def __init__(self, config: MachineConfig) -> None:
@@ -305,6 +307,10 @@ class SimBoard(IOBoard):
         self._estop_pressed = False
         self._doors_open = False
         self._mains_on = True
+        self._forced_limits = [0] * self.n_axes
+        self._watchdog_s = 0.0  # 0: not armed
+        self._since_write_s = 0.0
+        self.watchdog_expired = False  # the outputs were dropped because nobody refreshed them
 
     # -- IOBoard -------------------------------------------------------------------------
 
@@ -319,10 +325,17 @@ class SimBoard(IOBoard):
             plants[i].set_command_v(speed_cmd_v[i])
         self._enable_mask = int(drive_enable_mask)
         self._digital_out = int(digital_out) & _ALL_OUTPUTS
+        self._since_write_s = 0.0
+        self.watchdog_expired = False
 
     def advance(self, dt_s: float) -> None:
         if not 0.0 < dt_s < math.inf:
             raise ValueError(f"dt_s must be a positive time, got {dt_s!r}")
+        if self._watchdog_s > 0.0:
+            self._since_write_s += dt_s
+            if self._since_write_s > self._watchdog_s + 1e-12 and not self.watchdog_expired:
+                self._drop_outputs()
+                self.watchdog_expired = True
         substeps = self._substeps
         plants = self._plants
         for i in range(self.n_axes):
@@ -335,7 +348,7 @@ class SimBoard(IOBoard):
         for i in range(self.n_axes):
             plant = plants[i]
             into.encoder_counts[i] = plant.encoder_counts(plant.position_mm)
-            into.axis_inputs[i] = plant.input_word(self._power_on(i))
+            into.axis_inputs[i] = plant.input_word(self._power_on(i)) | self._forced_limits[i]
             into.index_latch_counts[i] = plant.index_latch_counts
             into.index_latch_seq[i] = plant.index_latch_seq
         digital_in = 0
@@ -346,16 +359,27 @@ class SimBoard(IOBoard):
         if self._mains_on:
             digital_in |= _MAINS_ON
         into.digital_in = digital_in
-        into.digital_out = 0 if self._estop_pressed else self._digital_out
+        into.digital_out = 0 if self._estop_pressed or not self._mains_on else self._digital_out
 
     def safe_state(self) -> None:
+        self._drop_outputs()
+        self._since_write_s = 0.0
+
+    def arm_output_watchdog(self, timeout_s: float) -> None:
+        if not 0.0 < timeout_s < math.inf:
+            raise ValueError(f"timeout_s must be a positive time, got {timeout_s!r}")
+        self._watchdog_s = float(timeout_s)
+        self._since_write_s = 0.0
+
+    def _drop_outputs(self) -> None:
         for plant in self._plants:
             plant.set_command_v(0.0)
         self._enable_mask = 0
         self._digital_out = 0
 
     def _power_on(self, axis: int) -> bool:
-        return (self._enable_mask >> axis) & 1 == 1 and not self._plants[axis].fault and not self._estop_pressed
+        return ((self._enable_mask >> axis) & 1 == 1 and not self._plants[axis].fault and not self._estop_pressed
+                and self._mains_on)
 
     # -- fault injection and true plant state ---------------------------------------------
 
@@ -368,8 +392,14 @@ class SimBoard(IOBoard):
         self._doors_open = bool(open_)
 
     def set_mains(self, on: bool) -> None:
-        """Switch the mains contactor read-back (DigitalIn.MAINS_ON)."""
+        """Switch the machine mains on (True) or off (False): off, the drives lose their power and the
+        outputs are cut (DigitalIn.MAINS_ON reads back the contactor)."""
         self._mains_on = bool(on)
+
+    def force_limit_switch(self, axis: int, at_min: bool, at_max: bool) -> None:
+        """Hold axis `axis`'s limit switches active whatever the table's position (a tripped or
+        stuck switch); False, False gives them back to the table."""
+        self._forced_limits[self._check_axis(axis)] = (_LIMIT_MIN if at_min else 0) | (_LIMIT_MAX if at_max else 0)
 
     def set_drive_fault(self, axis: int, fault: bool) -> None:
         """Give axis `axis` a drive fault (True) or clear it: no DRIVE_READY, no power stage."""
