@@ -54,11 +54,19 @@ class Reference:
 
 
 @dataclass
+class Unhome:
+    """`axis` loses its position reference (homing it again: its soft limits no longer apply, and a
+    homing that fails leaves it unhomed); resume once the servo applied it."""
+
+    axis: int
+
+
+@dataclass
 class Settle:
     """Resume once every setpoint pushed so far has run and the servo holds (positions are then current)."""
 
 
-HomingStep = Push | Reference | Settle
+HomingStep = Push | Reference | Unhome | Settle
 
 
 class Homing:
@@ -87,6 +95,8 @@ class Homing:
         a = self.config.axis[self.config.axis_names[i]]
         yield Settle()  # the previous axis' park move has run: the commanded position is where it ends
         self._check_servo(name)
+        if self.servo()["homed_mask"] >> i & 1:
+            yield Unhome(i)  # homing again: the search travels beyond the travel end, onto the switch
         position = list(self.servo()["commanded_mm"])
         # 1-2. search the switch (unless already on it), then stop
         search = a.home_search_velocity_mm_s

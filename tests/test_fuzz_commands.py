@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cnc.bus.messages import (
-    LOGIC_COMMANDS, MAX_CYCLES, PLANNER_COMMANDS, Acknowledge, CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogStop,
+    LOGIC_COMMANDS, MAX_CYCLES, PLANNER_COMMANDS, Acknowledge, CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop,
     LoadProgram, LockRequest, LogSetting, LogStart, LogStop, Override, ProcedureConfirm, ProcedureEnd, ProcedureStart,
     ProcedureStop, Pump, Reset, Resume, SaveParams, SchemaVersionError, SetMode, SetParam, Start, Stop, UploadProgram,
     decode, encode,
@@ -26,7 +26,7 @@ FUZZ = settings(max_examples=300, deadline=None, derandomize=True, suppress_heal
 
 VALID: list[msgspec.Struct] = [  # one well-formed command of every kind a door or the logger decodes
     SetMode("AUTO"), CycleStart(2), Start(), Hold(), Resume(), Stop(), Reset(), Drives(True), Home(["x", "y"]),
-    Jog("x", 5.0, 1.0), JogStop(), GoTo({"x": 10.0, "y": 20.0}, 50.0), LoadProgram("/programs/part.ngc"), Override(50.0),
+    Jog("x", 5.0, 1.0), JogStop(), JogRefresh(), GoTo({"x": 10.0, "y": 20.0}, 50.0), LoadProgram("/programs/part.ngc"), Override(50.0),
     Pump(True, 1000.0), JetTest(False), Acknowledge(3), ProcedureStart("transport"), ProcedureConfirm(), ProcedureStop(),
     ProcedureEnd(), LockRequest(False), UploadProgram("part.ngc", "G0 X1\nM2\n"), SetParam(120.0), SaveParams(),
     LogStart([LogSetting("x.following_error", "triggered", enable_when="jet")], "run"), LogStop(),

@@ -117,7 +117,7 @@ def test_every_command_is_refused_with_a_reason_when_it_does_not_fit(homed, tmp_
     assert "out of range: 0 to 200 %" in refused(sup, Override(250.0))
     assert "nothing to hold" in refused(sup, Hold())
     assert "nothing to resume" in refused(sup, Resume())
-    assert "nothing is moving" in refused(sup, Stop())
+    assert "nothing to stop" in refused(sup, Stop())
     assert "not jogging" in refused(sup, JogStop())
     assert "no axis 'q'" in refused(sup, Jog("q"))
     assert "jog speed 900 mm/s is out of range" in refused(sup, Jog("x", 900.0))

@@ -438,6 +438,16 @@ class LogRunData(msgspec.Struct, frozen=True):
 # -- commands to the planner (answered with a Reply) ------------------------------------------
 
 
+class Stamp(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Who issued a motion command, and when: the commander's per-start token and the epoch (its
+    count of stops) it was issued in. The planner carries out a motion command only with the
+    current commander's token and epoch: one issued before a stop or a fault never moves the
+    machine after it. Set by the commander (the control logic); an operator's is replaced."""
+
+    token: int
+    epoch: int
+
+
 class LoadProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Interpret and check a program file; it becomes the program `Start` runs."""
 
@@ -448,6 +458,7 @@ class LoadProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Run the loaded program from its beginning (cycle start)."""
 
+    stamp: Stamp | None = None
     version: int = SCHEMA_VERSION
 
 
@@ -461,6 +472,7 @@ class Hold(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class Resume(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Continue after a hold or a program stop."""
 
+    stamp: Stamp | None = None
     version: int = SCHEMA_VERSION
 
 
@@ -484,6 +496,7 @@ class Jog(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     axis: str
     velocity_mm_s: float = 0.0
     distance_mm: float | None = None
+    stamp: Stamp | None = None
     version: int = SCHEMA_VERSION
 
 
@@ -493,11 +506,21 @@ class JogStop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     version: int = SCHEMA_VERSION
 
 
+class JogRefresh(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """The station still holds the jog key: a continuous jog not refreshed within `[planner]
+    jog_deadman_ms` stops by itself (a crashed screen or a pulled cable must not jog on). It
+    travels on the same lane as a stop."""
+
+    stamp: Stamp | None = None
+    version: int = SCHEMA_VERSION
+
+
 class GoTo(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Move in a straight line to a position (axes left out stay); at feed_mm_s, or the axis limits when None."""
 
     position_mm: dict[str, float]
     feed_mm_s: float | None = None
+    stamp: Stamp | None = None
     version: int = SCHEMA_VERSION
 
 
@@ -505,6 +528,7 @@ class Home(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Home these axes in this order (all axes, in machine order, when empty)."""
 
     axes: list[str] = msgspec.field(default_factory=list)
+    stamp: Stamp | None = None
     version: int = SCHEMA_VERSION
 
 
@@ -528,8 +552,10 @@ class Reply(msgspec.Struct, frozen=True):
 
 PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "load": LoadProgram, "start": Start, "hold": Hold, "resume": Resume, "stop": Stop, "override": Override,
-    "jog": Jog, "jog_stop": JogStop, "goto": GoTo, "home": Home,
+    "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo, "home": Home,
 }
+MOTION_COMMANDS = (Start, Resume, Jog, JogRefresh, GoTo, Home)  # carried out only with the commander's Stamp
+REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset")  # never queued behind slow work
 
 
 # -- commands to the control logic (the machine's commander; answered with a Reply) ---------
@@ -611,7 +637,8 @@ class ProcedureEnd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 LOGIC_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "mode": SetMode, "start": CycleStart, "hold": Hold, "resume": Resume, "stop": Stop, "reset": Reset,
-    "drives": Drives, "home": Home, "jog": Jog, "jog_stop": JogStop, "goto": GoTo, "load": LoadProgram,
+    "drives": Drives, "home": Home, "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo,
+    "load": LoadProgram,
     "override": Override, "pump": Pump, "jet_test": JetTest, "acknowledge": Acknowledge,
     "procedure_start": ProcedureStart, "procedure_confirm": ProcedureConfirm, "procedure_stop": ProcedureStop,
     "procedure_end": ProcedureEnd,

@@ -1,4 +1,5 @@
-"""Pre-flight: a program starts only on a homed machine and only when every move stays within travel.
+"""Pre-flight: a program starts only on a homed machine and only when every move stays within travel
+(within each axis' `soft_limit_tolerance_mm` of its ends).
 
 The check runs on the interpreted program before any setpoint is made, and a refusal names
 the first offending source line, the axis and the values, so the operator can fix the
@@ -49,8 +50,11 @@ def preflight(segments: np.ndarray, config: MachineConfig, homed: dict[str, bool
                     line=int(segments["line"][k]), axis=axis,
                 )
             continue
-        below = lo[:, i] < a.travel_min_mm - 1e-9
-        above = hi[:, i] > a.travel_max_mm + 1e-9
+        # within soft_limit_tolerance_mm of an end counts as on it: the servo clamps such setpoints
+        # onto the end (a program parking at X0 rounds to -1e-14; a park overshoots by micrometres)
+        tol = a.soft_limit_tolerance_mm + 1e-9
+        below = lo[:, i] < a.travel_min_mm - tol
+        above = hi[:, i] > a.travel_max_mm + tol
         bad = below | above
         if bad.any():
             k = int(np.flatnonzero(bad)[0])

@@ -13,6 +13,21 @@ steps (`homing.py`) between refills. The planner is the only writer of the `moti
 its state, the loaded program, progress (segment, line, path done, ETA from the planned
 profile), the lowest FIFO fill seen during the run, program events and failures, and the
 position references homing gives the servo.
+
+No stale motion. A motion command (start, resume, jog, its refresh, go-to, homing) is carried
+out only with the commander's stamp: its per-start token and the epoch it was issued in, as the
+commander's block says now; one issued before a stop or a fault is refused, also when it waited
+behind a long re-plan (the stamp is checked again before the motion begins). Every setpoint is
+stamped with the servo's motion epoch read when its motion began: the servo drops setpoints of
+any other, and a motion whose epoch the servo has moved on from (a trip, a reset, drives off) is
+over here too. Stop, hold and a jog's refresh are served also while a start re-plans.
+
+A continuous jog is a dead-man's: it stops unless its station refreshes it within `[planner]
+jog_deadman_ms`, measured on both the controller's clock and the wall clock (the station lives in
+wall time; on the virtual clock the ticks run faster, and a jog refreshed in wall time must not
+stop between refreshes). Feed override 0 % while the jet is open (or about to open) is a feed
+hold: the head decelerates on the path, the jet closes at rest, and only an explicit resume,
+with the override above 0 %, pierces again and goes on.
 """
 
 from __future__ import annotations
@@ -24,6 +39,7 @@ import math
 import os
 import sys
 import threading
+import time
 from pathlib import Path
 
 import msgspec
@@ -35,11 +51,14 @@ from gcode.interp import Interpreter
 from gcode.program import Program
 
 from ..bus.keys import Keys
-from ..bus.messages import PLANNER_COMMANDS, GoTo, Home, Jog, LoadProgram, Override, Reply, SchemaVersionError, decode, encode
+from ..bus.messages import (
+    MOTION_COMMANDS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Override, Reply, SchemaVersionError, decode,
+    encode,
+)
 from ..config import MachineConfig
 from ..dataserver import SharedArea
 from ..fifo import SetpointFifo
-from ..homing import Homing, HomingError, Push, Reference
+from ..homing import Homing, HomingError, Push, Reference, Unhome
 from ..layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
 from ..params import registry, with_values
@@ -87,7 +106,7 @@ class Planner:
         self.high = min(fifo.capacity, max(self.low + 1, round(config.planner.fifo_high_ms / 1000.0 / self.dt)))
         self.out = area.writer("motion")
         self.out.load_current()
-        self.hw_r, self.servo_r = area.reader("hw"), area.reader("servo")
+        self.hw_r, self.servo_r, self.command_r = area.reader("hw"), area.reader("servo"), area.reader("command")
         self.sim_r = area.reader("sim")  # the simulated machine's fault knobs (planner_stall)
         self._i_stall = self.sim_r.layout.index["planner_stall"]
         self.shutdown = area.blocks["supervisor"].array["shutdown"]
@@ -105,6 +124,11 @@ class Planner:
         self.homing_obj: Homing | None = None
         self.waiting_for: tuple | None = None  # homing: ("drain",) or ("reference", seq)
         self.override = 1.0
+        self.motion_epoch = 0  # the servo's epoch the motion under way belongs to (stamped on its setpoints)
+        self.jog_continuous = False
+        self.jog_life = (0, 0)  # (tick, monotonic ns) of the continuous jog's last refresh
+        self.deadman = (round(config.planner.jog_deadman_ms / 1000.0 / self.dt), int(config.planner.jog_deadman_ms * 1e6))
+        self.start_cancelled = ""  # a stop or hold served while a start re-planned: the start is not carried out
         cap = fifo.capacity
         self.ring_done = np.zeros(cap)
         self.ring_segment = np.full(cap, -1, dtype=np.int64)
@@ -203,14 +227,25 @@ class Planner:
         except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
             return Reply(False, f"{verb}: malformed command: {exc}")
         try:
-            getattr(self, f"_cmd_{verb}")(msg)
+            if isinstance(msg, MOTION_COMMANDS):
+                self._check_stamp(msg)
+            reply = getattr(self, f"_cmd_{verb}")(msg)
         except Refused as exc:
             return Reply(False, f"{verb}: {exc}")
         except Exception as exc:  # a bug: the planner stays up, the motion stops, the reason is reported
             log.exception("planner: %s failed", verb)
             self._fail(f"{verb} failed: {exc!r}")
             return Reply(False, f"{verb}: internal error: {exc!r}")
-        return Reply(True)
+        return reply if isinstance(reply, Reply) else Reply(True)
+
+    def _check_stamp(self, msg) -> None:
+        """Only the current commander's motion commands of its current epoch move the machine."""
+        cmd = self.command_r.read_dict()
+        stamp = msg.stamp
+        if stamp is None or stamp.token != cmd["token"]:
+            raise Refused("not from the machine's commander (motion commands come from the control logic)")
+        if stamp.epoch != cmd["epoch"]:
+            raise Refused(f"issued before the last stop (epoch {stamp.epoch}, now {cmd['epoch']}): not carried out")
 
     def _state(self) -> PlannerState:
         return PlannerState(self.out.get("state"))
@@ -222,7 +257,7 @@ class Planner:
 
     def _require_servo(self, what: str, moving_ok: bool = False) -> dict:
         s = self.servo_r.read_dict()
-        if s["state"] == ServoState.FAULT:
+        if s["state"] in (ServoState.FAULT, ServoState.STOPPING):
             raise Refused(f"cannot {what}: the servo is tripped ({ServoFault(s['fault']).name}); reset first")
         if s["state"] == ServoState.TRACKING and moving_ok:
             return s
@@ -307,11 +342,27 @@ class Planner:
         helper = threading.Thread(target=prepare, name="prepare-program", daemon=True)
         helper.start()
         while helper.is_alive():
-            helper.join(0.1)
+            helper.join(0.02)
             self.beat[Proc.PLANNER] += 1
+            self._serve_realtime()
         if isinstance(outcome[0], BaseException):
             raise outcome[0]
         return outcome[0]
+
+    def _serve_realtime(self) -> None:
+        """While a program is prepared (seconds, for a large one): stop, hold and a jog's refresh are
+        answered now. Nothing moves meanwhile; a stop or hold cancels the start being prepared."""
+        for verb in ("stop", "hold", "jog_stop", "jog_refresh"):
+            while (query := self.queryables[verb].try_recv()) is not None:
+                if verb in ("stop", "hold") and self.preparing_start:
+                    self.start_cancelled = f"cancelled by a {verb} while it was being prepared"
+                    reply = Reply(True, f"the start was {self.start_cancelled}")
+                else:
+                    reply = self._answer(verb, query)
+                query.reply(query.key_expr, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
+                query.drop()
+
+    preparing_start = False
 
     def _interpret(self, path: str, data: bytes, start: tuple) -> Program:
         xyz = [0.0, 0.0, 0.0]
@@ -323,7 +374,7 @@ class Planner:
         except GCodeError as exc:
             raise Refused(exc.render()) from None
 
-    def _cmd_start(self, _msg) -> None:
+    def _cmd_start(self, msg) -> None:
         if self.loaded is None:
             raise Refused("no program is loaded")
         self._require_idle("start")
@@ -331,7 +382,15 @@ class Planner:
         start = tuple(servo["commanded_mm"])
         if any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start)):
             # the head moved since loading: the program's first move starts where it now is
-            self._take(self._prepare(self.loaded.path, self.loaded.text, start))
+            self.preparing_start, self.start_cancelled = True, ""
+            try:
+                self._take(self._prepare(self.loaded.path, self.loaded.text, start))
+            finally:
+                self.preparing_start = False
+            if self.start_cancelled:
+                raise Refused(f"the start was {self.start_cancelled}")
+            self._check_stamp(msg)  # a stop may have come while it was prepared
+            servo = self._require_servo("start")
         homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
         try:
             preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
@@ -343,36 +402,52 @@ class Planner:
         self._set(run_seq=self.out.get("run_seq") + 1, run_result=int(RunResult.NONE),
                   run_start_tick=self.hw_r.read_dict()["tick"], planned_s=self.loaded.planned_ticks * self.dt)
 
-    def _cmd_hold(self, _msg) -> None:
+    def _cmd_hold(self, _msg) -> Reply:
+        """A feed hold of a program; a jog, go-to or homing (which cannot continue) stops."""
+        if self.homing is not None:
+            self._abort_homing("stopped by a hold")
+            return Reply(True, "homing stopped")
+        if self.runner is not None and self.runner_kind != PlannerState.RUNNING:
+            self.runner.stop()
+            return Reply(True, f"{self.runner_kind.name.lower()} stopped")
         if self.runner is None or self.runner.state != RunState.RUNNING:
             raise Refused(f"nothing to hold ({self._state().name})")
         self.runner.hold()
         self._publish_state()
+        return Reply(True)
 
     def _cmd_resume(self, _msg) -> None:
         if self.runner is None or self.runner.state not in (RunState.HOLDING, RunState.HELD, RunState.PAUSED):
             raise Refused(f"nothing to resume ({self._state().name})")
+        if self.override <= 0.0 and self.runner_kind == PlannerState.RUNNING:
+            raise Refused("the feed override is 0 %: raise it before resuming")
         # the hold's last setpoints may still be running out: what resume adds follows them
         self._require_servo("resume", moving_ok=True)
         self.runner.resume()
         self.track_fill = False  # the refill after a standstill starts from an empty FIFO
         self._publish_state()
 
-    def _cmd_stop(self, _msg) -> None:
+    def _cmd_stop(self, _msg) -> Reply:
         if self.homing is not None:
             self._abort_homing("stopped by the operator")
-            return
+            return Reply(True)
         if self.runner is None:
-            raise Refused("nothing is moving")
+            raise Refused("nothing to stop: nothing moves")
         self.runner.stop()
         self._publish_state()
+        return Reply(True)
 
     def _cmd_override(self, msg: Override) -> None:
         if not (math.isfinite(msg.percent) and 0.0 <= msg.percent <= 200.0):
             raise Refused(f"override {msg.percent:g} % is out of range: 0 to 200 %")
         self.override = msg.percent / 100.0
         if self.runner is not None and self.runner_kind == PlannerState.RUNNING:
+            held = self.runner.state
             self.runner.set_override(self.override)
+            if self.runner.state != held and self.runner.state in (RunState.HOLDING, RunState.HELD):
+                self._event("feed_hold", "feed override 0 % with the jet open: the feed holds, the jet closes at rest; "
+                            "raise the override and resume to pierce again", self.runner.line_now)
+            self._publish_state()
         self._set(override=self.override)
 
     def _cmd_jog(self, msg: Jog) -> None:
@@ -388,26 +463,52 @@ class Planner:
             raise Refused(f"jog speed {speed:g} mm/s is out of range: up to {a.max_velocity_mm_s:g} mm/s for {axis.upper()}")
         here = list(servo["commanded_mm"])
         homed = bool(servo["homed_mask"] >> i & 1)
+        travel = f"the travel {a.travel_min_mm:g} to {a.travel_max_mm:g} mm"
         if msg.distance_mm is not None:
             if not math.isfinite(msg.distance_mm) or msg.distance_mm == 0.0:
                 raise Refused(f"jog distance {msg.distance_mm!r} must be a non-zero number of mm")
             target = here[i] + msg.distance_mm
-            if homed and not a.travel_min_mm <= target <= a.travel_max_mm:
-                raise Refused(f"{axis.upper()} would reach {target:.3f} mm, outside the travel {a.travel_min_mm:g} to {a.travel_max_mm:g} mm")
+            if homed and _beyond(a, target) > max(a.soft_limit_tolerance_mm, _beyond(a, here[i])):
+                raise Refused(f"{axis.upper()} would reach {target:.3f} mm, outside {travel}")
         else:
             direction = math.copysign(1.0, msg.velocity_mm_s) if msg.velocity_mm_s else 1.0
             if homed:
                 target = a.travel_max_mm if direction > 0 else a.travel_min_mm
+                if (target - here[i]) * direction <= 0.0:
+                    raise Refused(f"{axis.upper()} is at {here[i]:.3f} mm, at or beyond the end of {travel} that way: "
+                                  f"jog {'negative' if direction > 0 else 'positive'}")
             else:  # no soft limits before homing: the hard limit switch is what stops it
                 target = here[i] + direction * 2.0 * (a.travel_max_mm - a.travel_min_mm)
         end = list(here)
         end[i] = target
         self._manual(here, end, speed, PlannerState.JOGGING)
+        self.jog_continuous = msg.distance_mm is None and self.runner is not None
+        self._refreshed()
 
     def _cmd_jog_stop(self, _msg) -> None:
         if self.runner is None or self.runner_kind != PlannerState.JOGGING:
             raise Refused(f"not jogging ({self._state().name})")
         self.runner.stop()
+
+    def _cmd_jog_refresh(self, _msg: JogRefresh) -> None:
+        if not (self.runner is not None and self.runner_kind == PlannerState.JOGGING and self.jog_continuous):
+            raise Refused(f"no continuous jog to refresh ({self._state().name})")
+        self._refreshed()
+
+    def _refreshed(self) -> None:
+        self.jog_life = (self.hw_r.read_dict()["tick"], time.monotonic_ns())
+
+    def _deadman(self) -> None:
+        """A continuous jog whose station has not refreshed it in time stops (on both clocks)."""
+        if not (self.jog_continuous and self.runner is not None and self.runner_kind == PlannerState.JOGGING):
+            return
+        tick, ns = self.jog_life
+        if self.runner.state == RunState.RUNNING and (self.hw_r.read_dict()["tick"] - tick > self.deadman[0]
+                                                      and time.monotonic_ns() - ns > self.deadman[1]):
+            self.runner.stop()
+            self.jog_continuous = False
+            self._event("jog_stopped", f"the station did not refresh the jog within {self.config.planner.jog_deadman_ms:g} ms "
+                        "(dead-man): the jog stopped", 0)
 
     def _cmd_goto(self, msg: GoTo) -> None:
         self._require_idle("go to a position")
@@ -440,6 +541,7 @@ class Planner:
         self.homing_obj = Homing(self.config, self.hw_r.read_dict, self.servo_r.read_dict)
         self.homing = self.homing_obj.steps(axes)
         self.waiting_for = None
+        self.motion_epoch = self.servo_r.read_dict()["motion_epoch"]
         self._set(state=int(PlannerState.HOMING))
 
     # -- starting and ending motion ------------------------------------------------------------
@@ -454,6 +556,8 @@ class Planner:
         if kind == PlannerState.RUNNING:
             runner.set_override(self.override)
         self.runner, self.runner_kind = runner, kind
+        self.motion_epoch = self.servo_r.read_dict()["motion_epoch"]
+        self.jog_continuous = False
         self.run_first = self.fifo.head()
         self.track_fill = False
         self._set(state=int(kind), fifo_min_fill=-1, segment=-1, line=0, done_mm=0.0)
@@ -467,28 +571,36 @@ class Planner:
         self.runner, self.runner_kind = None, PlannerState.IDLE
         self._set(state=int(PlannerState.IDLE))
 
-    def _fail(self, why: str) -> None:
-        """Stop what runs (the servo has dropped the setpoints when it tripped) and report why."""
+    def _fail(self, why: str, report: bool = True) -> None:
+        """Stop what runs (the servo has dropped the setpoints when it tripped) and say why; with
+        `report`, as a failure the commander raises an alarm for (error_seq)."""
         self.homing = self.homing_obj = None
         self._set(homing_axis=-1)
         if self.runner is not None:
             self._end_run(RunResult.FAULT)
-        self._set(state=int(PlannerState.IDLE), error_seq=self.out.get("error_seq") + 1, error=why)
+        self._set(state=int(PlannerState.IDLE), error=why)
+        if report:
+            self._set(error_seq=self.out.get("error_seq") + 1)
         log.error("planner: %s", why)
 
     # -- each wake --------------------------------------------------------------------------
     def on_tick(self) -> None:
         servo = self.servo_r.read_dict()
         busy = self.runner is not None or self.homing is not None
-        if busy and servo["state"] in (ServoState.FAULT, ServoState.DISABLED):
+        void = busy and servo["motion_epoch"] != self.motion_epoch
+        if busy and (servo["state"] in (ServoState.FAULT, ServoState.DISABLED) or void):
             names = self.config.axis_names
             axis = f" on axis {names[servo['fault_axis']].upper()}" if 0 <= servo["fault_axis"] < len(names) else ""
             why = (f"the servo tripped ({ServoFault(servo['fault']).name}{axis})" if servo["state"] == ServoState.FAULT
-                   else "the drives were disabled")
-            self._fail(f"motion stopped: {why}")
+                   else "the drives were disabled" if servo["state"] == ServoState.DISABLED
+                   else "the servo ended it (a trip, a reset or the drives)")
+            # the servo's own trip, or a stop the commander had it make, is reported by the commander;
+            # not a program failure (the drives switched off under a motion is one)
+            self._fail(f"motion stopped: {why}", report=servo["state"] == ServoState.DISABLED)
         elif self.homing is not None:
             self._step_homing(servo)
         elif self.runner is not None:
+            self._deadman()
             self._feed(servo)
         else:
             self._free_a_slice()
@@ -510,10 +622,10 @@ class Planner:
             records, done = runner.take(0)  # the record that leaves the servo at rest, if one is due
             self._push(records, done)
         for event in runner.events:
-            self._set(event_seq=self.out.get("event_seq") + 1, event=f"{event.kind}: {event.text} (line {event.line})")
+            self._event(event.kind, event.text, event.line)
         runner.events.clear()
         self._publish_state()
-        if runner.finished and self.fifo.fill() == 0 and servo["state"] != ServoState.TRACKING:
+        if runner.finished and self.fifo.fill() == 0 and servo["state"] not in (ServoState.TRACKING, ServoState.STOPPING):
             self._end_run(RunResult.DONE if runner.state == RunState.DONE else RunResult.ABORTED)
 
     def _stalled(self) -> bool:
@@ -524,6 +636,7 @@ class Planner:
     def _push(self, records: np.ndarray, done: np.ndarray) -> None:
         if not len(records):
             return
+        records["epoch"] = self.motion_epoch & 0xFFFF_FFFF
         head = self.fifo.head()
         taken = self.fifo.push(records)
         if taken != len(records):  # cannot happen: bursts never exceed the room left
@@ -578,6 +691,8 @@ class Planner:
             self.waiting_for = ("drain",)
         elif isinstance(step, Reference):
             self.waiting_for = ("reference", self._reference(step))
+        elif isinstance(step, Unhome):
+            self.waiting_for = ("reference", self._unhome(step.axis))
         else:
             self.waiting_for = ("settle",)
 
@@ -586,7 +701,13 @@ class Planner:
         mm = list(self.out.get("position_ref_mm"))
         counts[step.axis], mm[step.axis] = int(step.counts), float(step.position_mm)
         seq = self.out.get("position_ref_seq") + 1
-        self._set(position_ref_counts=counts, position_ref_mm=mm, position_ref_mask=1 << step.axis, position_ref_seq=seq)
+        self._set(position_ref_counts=counts, position_ref_mm=mm, position_ref_mask=1 << step.axis, position_ref_unhome=0,
+                  position_ref_seq=seq)
+        return seq
+
+    def _unhome(self, axis: int) -> int:
+        seq = self.out.get("position_ref_seq") + 1
+        self._set(position_ref_mask=0, position_ref_unhome=1 << axis, position_ref_seq=seq)
         return seq
 
     def _abort_homing(self, why: str) -> None:
@@ -600,8 +721,15 @@ class Planner:
         self._set(state=int(PlannerState.IDLE), homing_axis=-1, error_seq=self.out.get("error_seq") + 1, error=f"homing {why}")
 
     # -----------------------------------------------------------------------------------
+    def _event(self, kind: str, text: str, line: int) -> None:
+        self._set(event_seq=self.out.get("event_seq") + 1, event=f"{kind}: {text}" + (f" (line {line})" if line else ""))
+
     def _set(self, **values) -> None:
         for key, value in values.items():
             self.out.set(key, value)
         self.out.publish()
 
+
+def _beyond(axis, position: float) -> float:
+    """How far `position` lies beyond the axis' travel (0 inside)."""
+    return max(axis.travel_min_mm - position, position - axis.travel_max_mm, 0.0)

@@ -4,7 +4,8 @@
 velocities, output flags, segment and source line) and the program position of each, for
 progress. The operator's controls act from the next record made:
 
-- feed override (0 to 2; rapids follow it up to 1) replans the motion under way;
+- feed override (0 to 2; rapids follow it up to 1) replans the motion under way; 0 % while the
+  jet is open, or about to open, is a hold (below), never a standstill with the jet open;
 - hold decelerates along the path to a stop; resume continues from exactly there;
 - stop is a hold that ends the program once at rest;
 - a program stop (M0, M1, M60) waits at its point for `resume` (cycle start).
@@ -32,7 +33,8 @@ from .stream import SectionStream, WindowJob
 
 _IN_MOTION = int(SetpointFlag.IN_MOTION)
 _SEGMENT_START = int(SetpointFlag.SEGMENT_START)
-_JET_OFF_MASK = ~int(SetpointFlag.JET_ON | SetpointFlag.ABRASIVE)
+_JET_BITS = int(SetpointFlag.JET_ON | SetpointFlag.ABRASIVE)
+_JET_OFF_MASK = ~_JET_BITS
 _AXES = ("x", "y", "z")
 
 
@@ -90,6 +92,9 @@ class ProgramRunner:
     def set_override(self, ratio: float) -> None:
         self.override = ratio
         self._ready.clear()  # planned under the old override
+        if ratio <= 0.0 and self.state == RunState.RUNNING and (self.flags_now | self._flags_ahead()) & _JET_BITS:
+            self.hold()  # standing still with the jet open drills through: a hold, which only a resume ends
+            return
         if self.stream is not None and self.state in (RunState.RUNNING,):
             self.stream.set_override(ratio, min(ratio, 1.0))
 
@@ -119,8 +124,8 @@ class ProgramRunner:
             self._next_step()
 
     def stop(self) -> None:
-        if self.state in (RunState.DONE, RunState.ABORTED):
-            return
+        if self.state in (RunState.DONE, RunState.ABORTED, RunState.STOPPING):
+            return  # a second stop changes nothing (ending the stream early would starve the servo)
         if self.stream is not None and self.state in (RunState.RUNNING, RunState.HOLDING) and not self.stream.at_rest:
             self.stream.hold()
             self.state = RunState.STOPPING
@@ -163,6 +168,9 @@ class ProgramRunner:
 
     def _make(self, n: int):
         """The next samples of whatever runs now (or a step change, returning nothing)."""
+        if self.override <= 0.0 and self._opens_jet_now():
+            self.hold()  # at 0 % nothing may open the jet: it would stand still open
+            return self._nothing()
         if self.repierce:
             k = min(n, self.repierce)
             self.repierce -= k
@@ -252,6 +260,13 @@ class ProgramRunner:
             f[-1] &= ~_IN_MOTION
             if self.jet_closed:
                 f[-1] &= _JET_OFF_MASK
+        if self.close_on_hold and self.state in (RunState.HOLDING, RunState.STOPPING):
+            # the hold's last samples settle at rest while the smoothing runs out: the jet closes with
+            # the first one the head stands still at, not after them (it would drill there meanwhile)
+            still = np.all(np.abs(out["velocity"]) < 1e-6, axis=1)
+            if still.any():
+                f[int(np.argmax(still)):] &= _JET_OFF_MASK
+                self.jet_closed = self.jet_closed or bool(self.flags_now & ~_JET_OFF_MASK or flags[:count].any())
         out["flags"] = f
         out["segment"], out["line"] = seg[:count], line[:count]
         self.flags_now, self.segment_now, self.line_now = int(f[-1]), int(seg[count - 1]), int(line[count - 1])
@@ -266,6 +281,14 @@ class ProgramRunner:
             self.jet_closed = True
         if self.state == RunState.ABORTED and self.flags_now & int(SetpointFlag.JET_ON | SetpointFlag.ABRASIVE):
             self.jet_closed = True  # an aborted program always leaves the jet closed
+
+    def _opens_jet_now(self) -> bool:
+        """Whether the samples about to be made stand still with the jet open (a pierce, a dwell)."""
+        if self.repierce:
+            return bool(self._flags_ahead() & _JET_BITS)
+        if self.stream is None and self.pause_left:
+            return bool(self.steps[self.index].flags & _JET_BITS)
+        return False
 
     def _flags_ahead(self) -> int:
         """Output bits of what runs next (the element under way, or the step after a pause)."""
