@@ -6,9 +6,10 @@ query's attachment (`{"station": "..."}`). Each is decoded into its typed messag
 malformed payload is refused, never a crash), checked against the command lock, and
 forwarded to the control logic, whose answer (ok, or refused with the reason) is the reply.
 Uploaded programs are checked (size, text encoding), interpreted with the machine's dialect
-(errors with line and column), stored, then loaded. Commands and queries are served by two
-worker threads, so that a long program load never delays a history query, and no Zenoh
-callback thread ever waits.
+(errors with line and column), stored, then loaded. Commands and queries are served by worker
+threads, so that a long program load never delays a history query, and no Zenoh callback thread
+ever waits. The realtime commands (stop, hold, jog stop, a jog's refresh, reset) and the loss of
+the lock holder's station have a lane of their own: they never queue behind a slow command.
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ import zenoh
 from .alarms import AlarmHistory, AlarmLevel, HistoryError
 from .bus.keys import Keys
 from .bus.messages import (
-    LOGIC_COMMANDS, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo,
-    ProgramPath, Reply, SchemaVersionError,
+    LOGIC_COMMANDS, REALTIME_VERBS, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue, ProcedureInfo,
+    ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SchemaVersionError,
     UploadProgram, decode, encode,
 )
 from .config import MachineConfig
@@ -74,13 +75,17 @@ class Door:
         self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
         self.uploaded: dict[str, tuple[str, str, Any]] = {}  # program hash -> (name, text, interpreted Program)
         self.commands: queue.Queue = queue.Queue()
+        self.realtime: queue.Queue = queue.Queue()  # stop, hold, jog stop and refresh, reset, a lost operator
         self.queries: queue.Queue = queue.Queue()
         # uploads have their own worker: interpreting a big (or endlessly looping) program takes
         # seconds, and a hold or a stop must not wait behind it
         self.uploads: queue.Queue = queue.Queue()
         verbs = [*LOGIC_COMMANDS, "lock"]
         self.declared = [
-            session.declare_queryable(keys.cmd(verb), lambda q, v=verb: self.commands.put((v, q))) for verb in verbs
+            session.declare_queryable(
+                keys.cmd(verb), lambda q, v=verb, lane=(self.realtime if verb in REALTIME_VERBS else self.commands):
+                lane.put((v, q)))
+            for verb in verbs
         ]
         self.declared.append(session.declare_queryable(keys.cmd("program"), lambda q: self.uploads.put(("program", q))))
         self.declared += [
@@ -94,7 +99,7 @@ class Door:
         self.stations = session.liveliness().declare_subscriber(keys.stations, self._on_station, history=True)
         self.workers = [threading.Thread(target=self._serve, args=(q, h), name=f"door-{n}", daemon=True)
                         for n, q, h in (("cmd", self.commands, self._command), ("upload", self.uploads, self._command),
-                                        ("query", self.queries, self._query))]
+                                        ("realtime", self.realtime, self._command), ("query", self.queries, self._query))]
         for w in self.workers:
             w.start()
 
@@ -103,7 +108,7 @@ class Door:
         for q in self.declared:
             q.undeclare()
         self.lock_pub.undeclare()
-        for q in (self.commands, self.uploads, self.queries):
+        for q in (self.commands, self.uploads, self.realtime, self.queries):
             q.put(None)
         for w in self.workers:
             w.join(2.0)
@@ -175,15 +180,21 @@ class Door:
         if sample.kind == zenoh.SampleKind.PUT:
             self.lock.station_alive(station)
         elif self.lock.station_lost(station):
-            self.commands.put(("lost-operator", station))
+            self.realtime.put(("lost-operator", station))
         self._publish_lock()
 
     def _operator_lost(self, station: str) -> None:
+        """The lock holder's station is gone: a cut holds (or goes on, `[gateway] on_operator_lost`);
+        a jog, go-to or homing, which that station was steering, stops."""
         state = self.machine_state()
         log.warning("gateway: operator station %r lost (machine %s)", station, state)
+        why = f"operator station {station!r} lost (network, host or program)"
         if self.config.gateway.on_operator_lost == "hold" and state == "RUNNING":
-            reply = self.logic.request(Hold(why=f"operator station {station!r} lost (network, host or program): feed hold"))
+            reply = self.logic.request(Hold(why=f"{why}: feed hold"))
             log.warning("gateway: feed hold after the operator was lost: %s", "ok" if reply.ok else reply.reason)
+        elif state in ("JOGGING", "HOMING"):
+            reply = self.logic.request(Hold(why=f"{why}: the {state.lower()} stopped"))
+            log.warning("gateway: %s stopped after the operator was lost: %s", state.lower(), "ok" if reply.ok else reply.reason)
 
     def _publish_lock(self) -> None:
         self.lock_pub.put(encode(self.lock.state()))

@@ -5,11 +5,15 @@ It owns the shared-memory segments (created at start, unlinked at stop, nothing 
 the simulated board with no PLC serial port configured, the PLC simulator on a pty pair.
 Processes start in dependency order (servo waits for ticks, then the hardware server
 ticks, then the planner, the PLC link, the control logic and the gateway) and are watched
-by exit and by heartbeat. When a critical process dies the board is forced into the safe
-state; what may be restarted is restarted: the gateway, the PLC link and the control logic
-freely (the logic rebuilds its active alarms from the history), the servo into a latched
-fault that a reset clears; the hardware server owns the board, so its loss stops the
-controller; losing the planner or the control logic in mid-motion forces the safe state.
+by exit and by heartbeat, also while one of them is being restarted (a restart is started here
+and finished by a later poll). When the servo dies the board is brought to rest by the hardware
+server (its speed ramp, then the safe state); what may be restarted is restarted: the gateway,
+the PLC link, the planner and the control logic freely (the logic rebuilds its active alarms
+from the history), the servo into a latched fault that a reset clears; the hardware server owns
+the board, so its loss stops the controller (by policy: a new controller started on the same
+history recovers as after any fault). Losing the planner or the control logic in mid-motion is
+the tick's to handle: the FIFO runs dry or the commander's heartbeat stops, and the servo stops
+the axes under control itself.
 The control logic is the machine's commander; started without it (`MOTION_ONLY`, for tests
 of motion and for `waterjet simulate`) the supervisor's process commands the servo and asks
 the planner itself, and without the planner too (`DIRECT_FEED`) it feeds the FIFO and
@@ -21,6 +25,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import secrets
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -35,7 +40,7 @@ from .dataserver import BlockWriter, SharedArea, unique_name
 from .fifo import SetpointFifo
 from .hw.timers import TimerClient
 from .layout import Proc, ServoFault, ServoState, controller_layouts
-from .bus.messages import Drives, Reset
+from .bus.messages import Drives, Reset, Stamp
 from .logic.client import LogicClient
 from .planner.client import PlannerClient
 from .procs import PROCESS_MAINS
@@ -95,6 +100,18 @@ class _Child:
     restarts: list[float] = field(default_factory=list)
 
 
+@dataclass
+class _Starting:
+    """A process being restarted: started, not yet ready; later polls finish it."""
+
+    name: str
+    process: Any
+    ready: Any
+    deadline: float
+    restarts: list[float]
+    made_safe: bool
+
+
 class Supervisor:
     """One controller instance. Use as a context manager, or `start()` ... `stop()`."""
 
@@ -123,6 +140,7 @@ class Supervisor:
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
         self.ctx = multiprocessing.get_context("spawn")
         self.children: dict[str, _Child] = {}
+        self.starting: dict[str, _Starting] = {}  # restarts under way
         self.events: list[str] = []  # what the supervisor noticed, for the log and for tests
         self.failed: str | None = None
         self.area: SharedArea | None = None
@@ -149,8 +167,10 @@ class Supervisor:
         # the commander's block: the control logic's when it runs, else this process's
         self.command: BlockWriter | None = None if "logic" in self.process_names else self.area.writer("command")
         if self.command is not None:
+            self.command.set("token", secrets.randbits(63))
             self.command.publish()
         self.control: BlockWriter = self.area.writer("supervisor")
+        self.control.set("members", sum(1 << POLICIES[name].slot for name in self.process_names) | 1 << Proc.SUPERVISOR)
         self.control.publish()
         # without a planner process the supervisor feeds the FIFO, and so writes `motion`
         self.motion_writer: BlockWriter | None = None if "planner" in self.process_names else self.area.writer("motion")
@@ -187,7 +207,7 @@ class Supervisor:
                 history_path=self.history_path,
                 zenoh_credentials=controller_credentials(cfg),
             )
-            self.planner = PlannerClient(self.router, self.keys)
+            self.planner = PlannerClient(self.router, self.keys, stamp=self.stamp if self.command is not None else None)
             self.logic = LogicClient(self.router, self.keys)
             for stage in START_STAGES:  # each stage's processes start together, once the stage before is ready
                 if "plc_link" in stage and self._sim_pending is not None:
@@ -200,15 +220,16 @@ class Supervisor:
         log.info("controller %s up (%s clock): %s", cfg.machine.name, self.clock, ", ".join(self.process_names))
         return self
 
+    def _launch(self, name: str) -> tuple[Any, Any]:
+        ready = self.ctx.Event()
+        proc = self.ctx.Process(target=PROCESS_MAINS[name], args=(self.runtime, ready), name=f"wj-{name}")
+        proc.start()
+        return proc, ready
+
     def _spawn(self, *names: str) -> None:
         """Start these processes together and wait until each reports ready (a start-up is mostly
         imports: on two cores, processes that do not depend on each other start in half the time)."""
-        started = []
-        for name in names:
-            ready = self.ctx.Event()
-            proc = self.ctx.Process(target=PROCESS_MAINS[name], args=(self.runtime, ready), name=f"wj-{name}")
-            proc.start()
-            started.append((name, proc, ready))
+        started = [(name, *self._launch(name)) for name in names]
         deadline = time.monotonic() + self.config.supervisor.start_timeout_s
         for name, proc, ready in started:
             while not ready.wait(0.05):
@@ -272,6 +293,10 @@ class Supervisor:
             child.process.kill()
             child.process.join(2.0)
         self.children.clear()
+        for pending in self.starting.values():
+            pending.process.kill()
+            pending.process.join(2.0)
+        self.starting.clear()
         if self._sim_pending is not None:  # start-up failed before the simulator was waited for
             try:
                 self._sim_pending()
@@ -320,9 +345,10 @@ class Supervisor:
 
     # -- watching ------------------------------------------------------------------------
     def poll(self) -> None:
-        """Check exits, heartbeats and the watchdog once; act on what is found."""
+        """Check exits, heartbeats, restarts under way and the watchdog once; act on what is found."""
         now = time.monotonic()
         self._beats[Proc.SUPERVISOR] += 1
+        self._finish_restarts(now)
         # a paused virtual clock stops the processes that beat once a tick: that is no hang
         paused = self.clock == "virtual" and bool(self.area.reader("hw").read_dict()["paused"])
         for name, child in list(self.children.items()):
@@ -345,10 +371,10 @@ class Supervisor:
     def _on_death(self, name: str, why: str) -> None:
         policy = POLICIES[name]
         self._note(f"{name} process {why}")
-        moving = policy.slot in (Proc.PLANNER, Proc.LOGIC) and self.servo()["state"] == ServoState.TRACKING
-        made_safe = policy.slot in (Proc.SERVO, Proc.HARDWARE) or moving
+        # without the servo (or the board) the hardware server brings the axes to rest itself, then
+        # holds the board safe; the planner's and the logic's losses the servo handles in the tick
+        made_safe = policy.slot in (Proc.SERVO, Proc.HARDWARE)
         if made_safe:
-            # without the servo, the board or (mid-motion) the planner nothing may move: jet off, drives off
             self.control.set("safe_state", 1)
             self.control.publish()
         child = self.children.pop(name)
@@ -365,18 +391,29 @@ class Supervisor:
             self.failed = f"{name} process {why}; the controller cannot run without it"
             self._note(self.failed)
             return
-        self.children[name] = child
-        child.restarts = recent + [now]
-        try:
-            self._spawn(name)
-            self._note(f"{name} process restarted" + (" into a latched fault: reset to continue" if policy.restart == "faulted" else ""))
-            if made_safe:  # the process is back: the latched servo fault and alarm now wait for the operator's reset
-                self.control.set("safe_state", 0)
-                self.control.publish()
-        except SupervisorError as exc:
-            self.children.pop(name, None)
-            self.failed = f"{name} could not be restarted: {exc}"
-            self._note(self.failed)
+        process, ready = self._launch(name)
+        self.starting[name] = _Starting(name, process, ready, now + self.config.supervisor.start_timeout_s,
+                                        recent + [now], made_safe)
+
+    def _finish_restarts(self, now: float) -> None:
+        """Restarts under way: the ready ones join the watched processes; the others may still start."""
+        for name, pending in list(self.starting.items()):
+            if pending.ready.is_set():
+                del self.starting[name]
+                child = _Child(name, pending.process, now, restarts=pending.restarts)
+                child.last_beat_change = now
+                self.children[name] = child
+                self._note(f"{name} process restarted"
+                           + (" into a latched fault: reset to continue" if POLICIES[name].restart == "faulted" else ""))
+                if pending.made_safe:  # back: the latched servo fault and its alarm now wait for the operator's reset
+                    self.control.set("safe_state", 0)
+                    self.control.publish()
+            elif not pending.process.is_alive() or now > pending.deadline:
+                del self.starting[name]
+                pending.process.kill()
+                self.failed = (f"{name} could not be restarted: it "
+                               + ("exited during start-up" if not pending.process.is_alive() else "did not report ready in time"))
+                self._note(self.failed)
 
     def _note(self, text: str) -> None:
         log.error("supervisor: %s", text) if "restarted" not in text else log.warning("supervisor: %s", text)
@@ -400,17 +437,35 @@ class Supervisor:
             if not reply.ok:
                 raise SupervisorError(reply.reason)
             return
+        if not on:
+            self.command.set("epoch", self.command.get("epoch") + 1)  # motion asked for before is void
         self.command.set("servo_enable", int(on))
         self.command.publish()
 
     def reset(self) -> None:
-        """Clear latched faults: servo faults, the drive watchdog, a supervisor-forced safe state."""
+        """Clear latched faults: servo faults, the drive watchdog, a supervisor-forced safe state
+        (those that tripped before now: a trip after the reset stays latched)."""
         self.control.set("safe_state", 0)
         self.control.publish()
         if self.command is None:
             self.logic.request(Reset())
             return
+        self.command.set("reset_tick", self.hw()["tick"])
+        self.command.set("reset_trip_seq", self.servo()["trip_seq"])
         self.command.set("reset_seq", self.command.get("reset_seq") + 1)
+        self.command.publish()
+
+    def stamp(self) -> Stamp:
+        """The commander's stamp for a motion command (this process commands: no control logic)."""
+        if self.command is None:
+            raise RuntimeError("the control logic commands this controller: motion goes through it")
+        return Stamp(self.command.get("token"), self.command.get("epoch"))
+
+    def stop_motion(self) -> None:
+        """A stop as the commander decides it: motion commands issued before are void from now."""
+        if self.command is None:
+            raise RuntimeError("the control logic commands this controller")
+        self.command.set("epoch", self.command.get("epoch") + 1)
         self.command.publish()
 
     def set_position_reference(self, axis: int, counts: int, position_mm: float) -> int:

@@ -19,8 +19,8 @@ from PySide6.QtWidgets import (
 )
 
 from cnc.bus.messages import (
-    CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogStop, LockRequest, Override, ProcedureStart, Pump, Reset,
-    Resume, SetMode, Stop,
+    CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop, LockRequest, Override, ProcedureStart, Pump,
+    Reset, Resume, SetMode, Stop,
 )
 
 from .adapter import ModelAdapter
@@ -30,6 +30,7 @@ from .program import ProgramPanel
 JOG_STEPS_MM = (None, 0.01, 0.1, 1.0, 10.0, 100.0)  # None: continuous while held
 JOG_KEYS = {Qt.Key.Key_Left: ("x", -1), Qt.Key.Key_Right: ("x", 1), Qt.Key.Key_Down: ("y", -1), Qt.Key.Key_Up: ("y", 1)}
 OVERRIDE_SEND_DELAY_MS = 120  # the slider sends its value after this pause (not a command per pixel)
+JOG_REFRESH_MS = 100  # a held jog key is refreshed this often: the controller stops a jog not refreshed in 250 ms
 
 
 def _button(text: str, tip: str = "", checkable: bool = False) -> QPushButton:
@@ -134,7 +135,9 @@ class CommandBar(QWidget):
 
 
 class JogPad(QGroupBox):
-    """Jog buttons (held: continuous; or a step per click) and the arrow keys (`key_event`)."""
+    """Jog buttons (held: continuous; or a step per click) and the arrow keys (`key_event`). While a
+    continuous jog is held the pad refreshes it every JOG_REFRESH_MS: the controller's dead-man stops
+    a jog whose station stops refreshing it (this screen crashed, or lost its network)."""
 
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, parent: QWidget | None = None) -> None:
         super().__init__("Jog (arrow keys)", parent)
@@ -165,6 +168,9 @@ class JogPad(QGroupBox):
         layout.addLayout(form)
         layout.addStretch(1)
         self._jogging: tuple[str, int] | None = None
+        self._refresh = QTimer(self)
+        self._refresh.setInterval(JOG_REFRESH_MS)
+        self._refresh.timeout.connect(lambda: self.commands.send(JogRefresh()))
         enable_while_commanding(adapter, [*self.buttons.values()])
 
     def start(self, axis: str, sign: int) -> None:
@@ -176,6 +182,7 @@ class JogPad(QGroupBox):
         if step is None:
             self._jogging = (axis, sign)
             self.commands.send(Jog(axis, velocity_mm_s=sign * speed))
+            self._refresh.start()
         else:
             self.commands.send(Jog(axis, velocity_mm_s=speed, distance_mm=sign * step))
 
@@ -183,12 +190,14 @@ class JogPad(QGroupBox):
         """End a continuous jog (a step ends by itself)."""
         if self._jogging == (axis, sign):
             self._jogging = None
+            self._refresh.stop()
             self.commands.send(JogStop())
 
     def stop_all(self) -> None:
         """The window lost the keyboard or the page changed: a held jog must not run on."""
         if self._jogging is not None:
             self._jogging = None
+            self._refresh.stop()
             self.commands.send(JogStop())
 
     def key_event(self, event: QKeyEvent) -> bool:

@@ -259,6 +259,8 @@ class MainWindow(QMainWindow):
         return self.banner.text() if self.banner.isVisibleTo(self) else ""
 
     def _show_reply(self, label: str, reply: Reply) -> None:
+        if label == "JogRefresh":
+            return  # ten a second while a jog key is held: the jog's own reply says what happened
         if reply.ok:
             self.command_line.setStyleSheet("color: #1b5e20;")
             self.command_line.setText(f"✔ {label}" + (f": {reply.reason}" if reply.reason else ""))

@@ -139,3 +139,35 @@ def test_losing_the_hardware_server_is_fatal_and_leaves_the_servo_safe(virtual_c
         time.sleep(0.01)
     assert sup.failed and "hardware process exited with code -9" in sup.failed
     assert sup.control.get("safe_state") == 1
+
+
+def test_while_one_process_is_restarted_the_others_are_still_watched(virtual_controller):
+    """A restart takes its start-up time (imports, a Zenoh session): meanwhile the supervisor goes on
+    polling, so a second process lost then is noticed then, not after the first is back."""
+    sup = virtual_controller
+    first, second = sup.children["gateway"].process.pid, sup.children["planner"].process.pid
+    os.kill(first, signal.SIGKILL)
+    sup.wait_until(lambda: "gateway" in sup.starting, 10.0, "the gateway's restart under way")
+    os.kill(second, signal.SIGKILL)
+    sup.wait_until(lambda: any("planner process exited" in e for e in sup.events), 10.0, "the planner's loss noticed")
+    noticed_while_restarting = "gateway" in sup.starting
+    sup.wait_until(lambda: all(n in sup.children for n in ("gateway", "planner")) and not sup.starting, 60.0, "both back")
+    assert noticed_while_restarting, "the second loss was noticed while the first restart was still under way"
+    assert sup.children["gateway"].process.pid != first and sup.children["planner"].process.pid != second
+    assert sup.failed is None
+
+
+def test_a_terminated_hardware_server_leaves_the_board_safe_first(virtual_controller):
+    """SIGTERM (the supervisor's end, a system shutdown): the board goes to its safe state before
+    anything else; its last image says so."""
+    from cnc.fifo import SetpointFlag
+    from cnc.hw.board import DigitalOut
+
+    sup = virtual_controller
+    held = enable_and_hold(sup)
+    sup.fifo.push_one(held, (0.0, 0.0), SetpointFlag.JET_ON, epoch=sup.servo()["motion_epoch"])
+    sup.wait_until(lambda: sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 5.0, "the jet open")
+    os.kill(sup.children["hardware"].process.pid, signal.SIGTERM)
+    sup.children["hardware"].process.join(10.0)
+    hw = sup.hw()
+    assert hw["safe_state"] == 1 and not hw["digital_out"] & DigitalOut.JET_VALVE, "the last image: safe, jet closed"

@@ -288,7 +288,8 @@ def test_with_access_control_only_authenticated_operators_command_the_running_co
 
 def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_allow_it(controller, session, keys):
     from cnc.bus.messages import (
-        Acknowledge, Drives, GoTo, Hold, Jog, JogStop, JetTest, LoadProgram, Override, ProcedureConfirm, ProcedureEnd,
+        Acknowledge, Drives, GoTo, Hold, Jog, JogRefresh, JogStop, JetTest, LoadProgram, Override, ProcedureConfirm,
+        ProcedureEnd,
         ProcedureStart, ProcedureStop, Pump, Resume, Stop,
     )
     from cnc.bus.operator import OPERATOR_COMMANDS
@@ -306,6 +307,7 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
         "home": (Home(["q"]), "drives are not enabled"),
         "jog": (Jog("x", 10.0), "drives"),
         "jog_stop": (JogStop(), "not jogging"),
+        "jog_refresh": (JogRefresh(), "no continuous jog to refresh"),
         "goto": (GoTo({"x": 100.0}), "drives"),
         "load": (LoadProgram("/nonexistent/part.ngc"), "cannot read the program"),
         "override": (Override(250.0), "out of range: 0 to 200"),

@@ -6,10 +6,14 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from cnc.alarms.catalogue import AlarmAction, AlarmLevel, Catalogue, CatalogueEntry
 from cnc.alarms.history import MAX_PAGE, AlarmHistory
 from cnc.bus.messages import ActiveAlarm, AlarmEvent, AlarmList
+
+if TYPE_CHECKING:
+    from cnc.alarms.recorder import Recorder
 
 
 @dataclass
@@ -38,8 +42,10 @@ class AlarmBook:
 
     Every change is appended to the history, committed, applied to the list and only then handed
     to `publish`, all under one lock: subscribers see entries in sequence order, and every entry
-    they see is on disk. At construction the list is rebuilt by replaying the history, so a
-    crashed and restarted owner still knows its alarms.
+    they see is on disk. With a `Recorder` the list changes at once and the entry is numbered at
+    once, while storing and publishing happen in order on the recorder's thread (the control
+    logic's scan never waits for a disk or the network). At construction the list is rebuilt by
+    replaying the history, so a crashed and restarted owner still knows its alarms.
     """
 
     def __init__(
@@ -48,11 +54,13 @@ class AlarmBook:
         history: AlarmHistory,
         publish: Callable[[AlarmEvent], None],
         clock_ns: Callable[[], int] = time.time_ns,
+        recorder: "Recorder | None" = None,
     ) -> None:
         self.catalogue = catalogue
         self.history = history
         self._publish = publish
         self._clock_ns = clock_ns
+        self.recorder = recorder
         # Reentrant: a publish callback may read the book (active(), blocking()) on this thread.
         self._lock = threading.RLock()
         self._records: dict[tuple[str, str], _Record] = {}
@@ -94,7 +102,8 @@ class AlarmBook:
             )
         with self._lock:
             event = self._store(self._event_from_catalogue(entry, AlarmAction.RAISED, detail, source))
-            self._publish(event)
+            if self.recorder is None:
+                self._publish(event)
             return event
 
     # -- the operator side -------------------------------------------------------------------
@@ -173,16 +182,31 @@ class AlarmBook:
         )
 
     def _store(self, fields: dict) -> AlarmEvent:
+        if self.recorder is not None:
+            f = fields
+            event = AlarmEvent(self._last_seq + 1, self._clock_ns(), f["code"], f["id"], AlarmLevel(f["level"]).text,
+                               AlarmAction(f["action"]).value, f["text"], f["detail"], f["source"], f["cause"], f["remedy"])
+            self._last_seq = event.seq
+            self.recorder.submit(lambda: self._record(event))
+            return event
         event = self.history.append(stamp_ns=self._clock_ns(), **fields)
         self._last_seq = event.seq
         return event
 
+    def _record(self, event: AlarmEvent) -> None:
+        """The recorder's thread: store, then publish."""
+        self.history.append_event(event)
+        self.recorder.committed_seq = event.seq
+        self._publish(event)
+
     def _commit(self, fields: dict) -> None:
         """Store, apply, then publish: in this order, so that what subscribers hear is on disk and
-        a publish callback that reads the book sees the change."""
+        a publish callback that reads the book sees the change (with a recorder: numbered and
+        applied now, stored then published by the recorder)."""
         event = self._store(fields)
         self._apply(event)
-        self._publish(event)
+        if self.recorder is None:
+            self._publish(event)
 
     def _apply(self, event: AlarmEvent) -> None:
         """One entry's effect on the list; the same for live changes and for the replay."""

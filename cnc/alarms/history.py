@@ -174,6 +174,23 @@ class AlarmHistory:
                 raise
         return AlarmEvent(seq, *row)
 
+    def append_event(self, event: AlarmEvent) -> None:
+        """Store an entry whose sequence number its owner has already given it (`AlarmBook` with a
+        `Recorder`: numbers are handed out in the scan, stored in order off it). Committed and
+        fsynced before this returns."""
+        self._check_writable("append")
+        row = (event.seq, event.stamp_ns, event.code, event.id, event.level, event.action, event.text, event.detail,
+               event.source, event.cause, event.remedy)
+        with self._lock, self._failing_as(f"cannot store entry {event.seq} {event.id} {event.action}"):
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                self._db.execute(f"INSERT INTO entry ({', '.join(_COLUMNS)}) VALUES (?{', ?' * 10})", row)
+                self._db.execute("COMMIT")
+            except BaseException:
+                if self._db.in_transaction:
+                    self._db.execute("ROLLBACK")
+                raise
+
     def prune(self, keep_days: float, now_ns: int | None = None, keep_from_seq: int | None = None) -> int:
         """Delete the entries older than `keep_days`; returns how many. Entries from `keep_from_seq`
         on are kept whatever their age (the owner of the active list passes its oldest raise, so

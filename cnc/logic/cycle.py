@@ -36,6 +36,7 @@ class CycleHost(Protocol):
 
     def plc(self, snap: Snapshot, var_id: str) -> float: ...
     def send_planner(self, command, on_reply=None) -> None: ...
+    def void_motion(self) -> None: ...
     def fault(self, alarm_id: str, detail: str) -> None: ...
     def notice(self, alarm_id: str, detail: str) -> None: ...
     def start_procedure(self, procedure_id: str) -> str: ...
@@ -81,7 +82,12 @@ class AutoCycle:
         if self.held or not self.active:
             return
         self.held, self.held_at = True, now
-        if self.phase == CyclePhase.CUTTING:
+        if self.phase == CyclePhase.CUTTING and self.sub == "start":
+            # the start is still on its way (a long re-plan): it must not run after the hold; the hold
+            # cancels it if the planner is preparing it, and resume asks again
+            self.host.void_motion()
+            self.host.send_planner(Hold())
+        elif self.phase == CyclePhase.CUTTING:
             self.host.send_planner(Hold(), self._on_planner)
 
     def resume(self, now: float) -> None:
@@ -89,7 +95,10 @@ class AutoCycle:
             return
         self.held = False
         self.deadline += now - self.held_at  # timeouts stand still while held
-        if self.phase == CyclePhase.CUTTING:
+        if self.phase == CyclePhase.CUTTING and self.sub in ("start", "restart"):
+            self.sub, self.start_reply = "start", None
+            self.host.send_planner(Start(), self._on_start)
+        elif self.phase == CyclePhase.CUTTING:
             self.host.send_planner(Resume(), self._on_planner)
 
     def stop(self) -> None:
@@ -160,11 +169,18 @@ class AutoCycle:
         self.start_reply = reply
 
     def _cutting(self, snap: Snapshot, now: float) -> None:
+        if self.sub == "restart":
+            return  # held before the start ran: resume starts it
         if self.sub == "start":
             if self.start_reply is None:
                 return
             if not self.start_reply.ok:
-                self.host.fault("program_error", self.start_reply.reason)
+                if self.stopping:
+                    self._finish(stopped=True)  # stopped before it ran
+                elif self.held:
+                    self.sub = "restart"
+                else:
+                    self.host.fault("program_error", self.start_reply.reason)
                 return
             self.sub = "run"
         self._follow_jet(snap, now)

@@ -8,18 +8,29 @@ of the blocks, serves the commands that arrived, evaluates the interlocks, steps
 automatic cycle and the guided procedure, and publishes what changed. It never waits: the
 planner is asked without blocking (`PlannerLink`), and answers are acted on in a later scan.
 
-Interlocks: e-stop, doors, safety barriers, drive faults, servo trips, the PLC link and the
-pump raise their alarms; an alarm that stops the cut (fatal or error) closes the jet at once
-(`output_inhibit`, applied by the servo within a tick), then stops the motion under control
-along the path (the planner's stop), aborts the cycle and leaves the PLC's transport outputs
-off. Such alarms latch until the operator resets them, and the reset is refused, alarm by
-alarm, while their cause is present.
+Interlocks are decided in the tick, not here (`cnc.interlock`): the servo closes the jet and
+stops the axes itself on an e-stop, a door, a barrier the logic arms during the cycle, the pump,
+the PLC link or a silent commander, and on its own trips. The logic arms (barriers while the cycle
+runs, the pump's pressure floor while cutting), beats a heartbeat every scan that the tick
+watches, and tells people: each cause raises its alarm, each servo trip (`trip_seq`, however soon
+a reset follows) its own. An alarm that stops the cut (fatal or error) also holds the jet closed
+from here (`output_inhibit`), stops the planner on the path, aborts the cycle and leaves the PLC's
+transport outputs off. Alarms latch until the operator resets them; the reset is refused, alarm
+by alarm, while their cause is present, and does nothing while the axes still run out a stop.
+Storing and publishing the alarms happens off the scan (`cnc.alarms.recorder`): the scan never
+waits for a disk or the network.
+
+The logic is the commander: it stamps every motion command it forwards to the planner with its
+per-start token and the epoch it counts stops in (a stop, a fault, a jog stop, drives off), so a
+motion asked for before a stop never runs after it; a jet test ends with any motion, homing or
+drives change; stop and hold are always forwarded, whatever the planner runs.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import secrets
 import time
 from typing import Any, Callable
 
@@ -27,16 +38,19 @@ import msgspec
 import zenoh
 
 from ..alarms import AlarmBook, AlarmHistory, AlarmLevel, Catalogue
+from ..alarms.recorder import Recorder
 from ..bus.keys import Keys
 from ..bus.messages import (
-    LOGIC_COMMANDS, AlarmEvent, GoTo, Home, Jog, JogStop, LoadProgram, Override, Reply, Resume, SchemaVersionError,
-    Stop, decode, encode,
+    LOGIC_COMMANDS, MOTION_COMMANDS, AlarmEvent, GoTo, Hold, Home, Jog, JogRefresh, JogStop, LoadProgram, Override,
+    Reply, Resume, SchemaVersionError, Stamp, Stop, decode, encode,
 )
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
 from ..dataserver import SharedArea
 from ..hw.board import AxisIn, DigitalOut
+from ..interlock import StopCause
 from ..jobs import JobHistory, jobs_path
 from ..layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
+from ..safety import fault_alarm
 from .cycle import AutoCycle
 from .procedures import ProcedureRefused, ProcedureRunner
 from .requests import PlannerLink
@@ -46,12 +60,9 @@ from .states import CyclePhase, MachineState, Mode
 log = logging.getLogger(__name__)
 
 JET_BITS = int(DigitalOut.JET_VALVE | DigitalOut.ABRASIVE)
-_SERVO_ALARMS = {
-    ServoFault.FOLLOWING_ERROR: "following_error", ServoFault.SOFT_LIMIT: "soft_limit",
-    ServoFault.HARD_LIMIT: "hard_limit", ServoFault.WATCHDOG: "watchdog",
-    ServoFault.RESTARTED: "process_lost", ServoFault.SAFE_STATE: "process_lost",
-}
 _MANUAL_MOTION = (PlannerState.JOGGING, PlannerState.MOVING)
+_MOVING = (PlannerState.RUNNING, PlannerState.HOLDING, PlannerState.STOPPING, PlannerState.HOMING,
+           PlannerState.JOGGING, PlannerState.MOVING)
 PLC_RESET_PULSE_S = 0.5  # how long the PLC's reset coil stays on: several link cycles
 DEFERRED = "deferred"  # a command handler's answer: the reply follows when the planner has answered
 
@@ -73,9 +84,13 @@ class Logic:
         self.reader = SignalReader(config, area)
         self.outputs = PlcOutputs(config, area)
         self.command = area.writer("command")
-        self.command.load_current()
+        if not self.command.load_current():
+            log.warning("control logic: the commander's block was left mid-write: starting from safe defaults")
+        self.command.set("token", secrets.randbits(63))  # a new commander: the tick and the planner start afresh
+        self.command.publish()  # at once: the tick takes its counters as they are now, before any request
         self.out = area.writer("logic")
-        self.out.load_current()
+        if not self.out.load_current():
+            log.warning("control logic: its block was left mid-write: the losses and trips it reported are unknown")
         self.shutdown = area.blocks["supervisor"].array["shutdown"]
         self.supervisor = area.reader("supervisor")
         hb = area.blocks["heartbeat"].array[0]
@@ -83,6 +98,7 @@ class Logic:
         hb["pid"][Proc.LOGIC] = os.getpid()
         self.scan_hist = area.blocks["logic_scan"].array
         self.wake_hist = area.blocks["logic_wake"].array
+        self.recorder = Recorder("logic-recorder")
         self.alarm_pub = session.declare_publisher(
             self.keys.event_alarm, encoding=zenoh.Encoding.APPLICATION_JSON,
             congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.INTERACTIVE_HIGH, express=True,
@@ -94,7 +110,8 @@ class Logic:
         if missing:
             raise ValueError(f"{config.source}: the control logic needs an [[alarm]] catalogue with: {', '.join(missing)}")
         self.history = AlarmHistory(history_path)
-        self.book = AlarmBook(Catalogue(config), self.history, publish=self._publish_alarm)
+        self.book = AlarmBook(Catalogue(config), self.history, publish=self._publish_alarm, recorder=self.recorder)
+        self.recorder.committed_seq = self.book.last_seq
         self.book.prune(config.logic.history_keep_days)
         self.procedures = ProcedureRunner(
             config.procedure, raise_alarm=self._procedure_alarm, known_signals=self.reader.known(), source=config.source
@@ -125,6 +142,14 @@ class Logic:
         self.present: set[str] = {a.id for a in self.book.active().alarms if a.active}
         self.drives_wanted = bool(self.command.get("servo_enable"))
         self.inhibit = int(self.command.get("output_inhibit"))
+        self.inhibit_release = False  # a reset or a start asked for the inhibit to go, once nothing runs out a stop
+        self.barriers_latched = bool(self.command.get("arm") & StopCause.BARRIER)  # a restarted logic keeps them armed
+        self.lost_told, self.trips_told = self.out.get("lost_seen"), self.out.get("trip_seen")
+        self.watchdog_told = self.out.get("watchdog_seen")
+        # counters whose alarms the recorder has stored, published with the block (both keys from the
+        # start: the recorder's thread only changes values, never the dict's size, while a scan reads it)
+        self.told: dict[str, int] = {"lost_seen": self.lost_told, "trip_seen": self.trips_told,
+                                     "watchdog_seen": self.watchdog_told}
         self._set(mode=int(self.mode), state=int(self.state), alarm_seq=self.book.last_seq, alarm_level=-1)
         self._publish_procedure()
 
@@ -170,7 +195,7 @@ class Logic:
         self._pump(snap)
         self._derive_state(snap)
         self._write_outputs(now)
-        self._put(scans=self.out.get("scans") + 1, scan_us=self.last_scan_ns // 1000)
+        self._put(scans=self.out.get("scans") + 1, scan_us=self.last_scan_ns // 1000, **self.told)
         self.out.publish()
         self.last_scan_ns = time.perf_counter_ns() - t0
         self._record(self.scan_hist, self.last_scan_ns)
@@ -179,6 +204,7 @@ class Logic:
         for q in (*self.queryables.values(), self.q_active):
             q.undeclare()
         self.jobs.close()
+        self.recorder.close()  # what is queued is stored and published first
         self.alarm_pub.undeclare()
         self.procedure_pub.undeclare()
         self.token.undeclare()
@@ -190,7 +216,7 @@ class Logic:
             while (query := queryable.try_recv()) is not None:
                 reply = self._answer(verb, query, snap, now)
                 if reply is not None:  # None: answered later, when the planner has answered
-                    _reply(query, reply)
+                    self._reply(query, reply)
 
     def _answer(self, verb: str, query, snap: Snapshot, now: float) -> Reply | None:
         try:
@@ -206,14 +232,26 @@ class Logic:
             return None
         return result if result is not None else Reply(True)
 
+    def _stamp(self, command):
+        """A motion command as the commander sends it: with its token and the current epoch."""
+        if isinstance(command, MOTION_COMMANDS):
+            return msgspec.structs.replace(command, stamp=Stamp(self.command.get("token"), self.command.get("epoch")))
+        return command
+
+    def _stop_epoch(self) -> None:
+        """A stop the commander decides: motion commands issued before it are void from now on."""
+        self.command.set("epoch", self.command.get("epoch") + 1)
+        self.command.publish()
+
     def _forward(self, command, query, then: Callable[[Reply], None] | None = None, timeout_s: float | None = None) -> str:
         """Ask the planner; the operator's query is answered with the planner's reply."""
+        command = self._stamp(command)
         def on_reply(reply: Reply) -> None:
             if then is not None:
                 then(reply)
             if not reply.ok:
                 self._note(reply.reason)
-            _reply(query, reply)
+            self._reply(query, reply)
         self.planner.send(command, on_reply, timeout_s)
         return DEFERRED
 
@@ -254,46 +292,58 @@ class Logic:
             raise Refused("no program is loaded")
         if self.procedures.running:
             raise Refused(f"a procedure is running ({self.procedures.state().title}): end it first")
-        self.inhibit = 0
+        signals = self.reader.signals(snap, self.state.name, self.mode.name)
+        broken = [b for b in ("front", "rear") if signals.get(f"plc.barrier_{b}_ok") is False]
+        if broken:  # the cycle arms the barriers: it would stop at once
+            raise Refused(f"the {' and '.join(broken)} light barrier{'s are' if len(broken) > 1 else ' is'} interrupted")
+        self.jet_test = False
+        self.inhibit_release = True
         self.cycle.start(msg.cycles, now)
 
     def _cmd_hold(self, msg, snap, now, query) -> str | None:
+        """Hold is always passed on: a program holds on its path; a jog, go-to or homing stops."""
         if msg.why and "operator_lost" in self.book.catalogue:
             self._tell("operator_lost", msg.why[:200], "gateway")
         if self.cycle.active and not self.cycle.held:
-            self.cycle.hold(now)
+            self.cycle.hold(now)  # the sequence waits; in the cutting phase the planner holds on the path
             return None
-        if snap.motion["state"] in _MANUAL_MOTION:
-            return self._forward(Stop(), query)
-        raise Refused(f"nothing to hold ({self.state.name})")
+        if snap.motion["state"] in (*_MANUAL_MOTION, PlannerState.HOMING):
+            self._stop_epoch()
+        return self._forward(Hold(why=msg.why), query)
 
     def _cmd_resume(self, msg, snap, now, query) -> str | None:
         self._require_no_blocking("resume")
         if self.cycle.held:
             self.cycle.resume(now)
             return None
-        if self.cycle.active and snap.motion["state"] == PlannerState.PAUSED:
-            return self._forward(Resume(), query)  # a program stop (M0/M1): cycle start continues
+        if self.cycle.active and snap.motion["state"] in (PlannerState.PAUSED, PlannerState.HELD, PlannerState.HOLDING):
+            return self._forward(Resume(), query)  # a program stop (M0/M1) or a feed hold at override 0 %
         raise Refused(f"nothing to resume ({self.state.name})")
 
     def _cmd_stop(self, msg, snap, now, query) -> str | None:
+        """Stop is always passed on (the planner says whether anything moved); motion asked for
+        before it is void."""
+        self._stop_epoch()
         if self.cycle.active:
             self.cycle.stop()
+            self.planner.send(Stop())  # whatever the planner runs; the cycle's own stop is the answer
             return None
-        if snap.motion["state"] in (*_MANUAL_MOTION, PlannerState.HOMING):
-            return self._forward(Stop(), query)
-        raise Refused("nothing to stop")
+        return self._forward(Stop(), query)
 
     def _cmd_reset(self, msg, snap, now, query) -> Reply:
-        """Reset: servo and watchdog faults, the PLC's faults, then every alarm whose cause has gone."""
+        """Reset: servo and watchdog faults that tripped before it, the PLC's faults, then every
+        alarm whose cause has gone. Nothing, while the axes still run out a stop."""
+        if snap.servo["state"] == ServoState.STOPPING or snap.hw["braking"]:
+            raise Refused("the axes are still stopping: reset once they stand still")
+        # the reset covers the trips this scan has seen, and no later one
+        self.command.set("reset_tick", snap.hw["tick"])
+        self.command.set("reset_trip_seq", snap.servo["trip_seq"])
         self.command.set("reset_seq", self.command.get("reset_seq") + 1)
-        self.inhibit = 0
+        self.inhibit_release = True
+        self.jet_test = False
+        self.barriers_latched = False
         self.plc_reset_until = now + PLC_RESET_PULSE_S
         self.drives_wanted = True
-        # alarms latched by the servo go with its reset (it re-trips, and they come back, if the cause persists)
-        for fault_alarm in {*_SERVO_ALARMS.values()} & self.present:
-            self.present.discard(fault_alarm)
-            self.book.clear(fault_alarm)
         if self.cycle.stopped:
             self.cycle.stopped = False
         still = self.book.reset()
@@ -306,24 +356,33 @@ class Logic:
             self._require_no_blocking("switch the drives on")
         else:
             self._require_still("switch the drives off")
+            self._stop_epoch()
+        self.jet_test = False
         self.drives_wanted = msg.on
 
     def _cmd_home(self, msg: Home, snap, now, query) -> str:
         self._require_mode(Mode.MANUAL, "homing")
         self._require_no_blocking("home")
+        self.jet_test = False
         return self._forward(msg, query)
 
     def _cmd_jog(self, msg: Jog, snap, now, query) -> str:
         self._require_mode(Mode.MANUAL, "jog")
         self._require_no_blocking("jog")
+        self.jet_test = False
         return self._forward(msg, query)
 
     def _cmd_jog_stop(self, msg: JogStop, snap, now, query) -> str:
+        self._stop_epoch()
+        return self._forward(msg, query)
+
+    def _cmd_jog_refresh(self, msg: JogRefresh, snap, now, query) -> str:
         return self._forward(msg, query)
 
     def _cmd_goto(self, msg: GoTo, snap, now, query) -> str:
         self._require_mode(Mode.MANUAL, "go to position")
         self._require_no_blocking("move")
+        self.jet_test = False
         return self._forward(msg, query)
 
     def _cmd_load(self, msg: LoadProgram, snap, now, query) -> str:
@@ -355,8 +414,10 @@ class Logic:
             return
         self._require_mode(Mode.MANUAL, "jet test")
         self._require_no_blocking("open the jet")
-        if snap.servo["state"] != ServoState.HOLDING:
+        if snap.servo["state"] != ServoState.HOLDING or snap.motion["state"] != PlannerState.IDLE:
             raise Refused("the jet test needs the drives on and the axes at rest")
+        if snap.servo["stop_causes"]:
+            raise Refused(f"the jet stays closed while {_causes_text(snap.servo['stop_causes'])}")
         need = self.config.pump.pierce_pressure_bar - self.config.pump.tolerance_bar
         pressure = self.reader.plc_value(snap, "pump_pressure")
         if pressure < need:
@@ -392,7 +453,10 @@ class Logic:
         return self.reader.plc_value(snap, var_id)
 
     def send_planner(self, command, on_reply=None) -> None:
-        self.planner.send(command, on_reply)
+        self.planner.send(self._stamp(command), on_reply)
+
+    def void_motion(self) -> None:
+        self._stop_epoch()
 
     def fault(self, alarm_id: str, detail: str) -> None:
         """An event that stops the cut (a timeout, a refused program): latched until reset."""
@@ -465,17 +529,12 @@ class Logic:
         if link_ok and signals.get("plc.safety_circuit_ok") is False:
             estop.append("the PLC reports the safety circuit open")
         c["estop"] = "; ".join(estop) or None
+        c["mains_off"] = None if signals["din.mains_on"] else "the machine mains are off"
         c["doors_open"] = None if signals["din.doors_closed"] else "a safety door is open"
         for i, name in enumerate(self.names):
-            if f"{name}_drive" in self.book.catalogue:
-                ready = hw["axis_inputs"][i] & AxisIn.DRIVE_READY
-                c[f"{name}_drive"] = None if ready else f"the {name.upper()} drive is not ready"
-        # a fault the servo still shows while it has not acted on our reset is the one just reset
-        reset_pending = servo["reset_seq"] != self.command.get("reset_seq")
-        fault = ServoFault(servo["fault"]) if servo["state"] == ServoState.FAULT and not reset_pending else ServoFault.NONE
-        for f, alarm_id in _SERVO_ALARMS.items():
-            if c.get(alarm_id) is None:
-                c[alarm_id] = self._servo_detail(servo) if fault == f else None
+            ready = hw["axis_inputs"][i] & AxisIn.DRIVE_READY
+            c[f"{name}_drive"] = None if ready else f"the {name.upper()} drive is not ready"
+        causes = servo["stop_causes"]
         if has_plc:
             c["plc_link_lost"] = None if link_ok or plc["state"] == LinkState.CONNECTING and not plc["losses"] else (
                 f"no answer from the PLC for {self.config.plc.lost_after_cycles} exchanges" if plc["losses"]
@@ -484,10 +543,14 @@ class Logic:
             stopped = link_ok and signals.get("plc.plc_running") is False
             c["plc_error"] = (f"PLC alarm {plc_alarm}" if plc_alarm else "the PLC is not in automatic operation" if stopped
                               and self.cycle.active else None)
-            c["pump_pressure_fault"] = self._pump_fault(snap, signals, cutting)
+            c["pump_pressure_fault"] = self._pump_fault(snap, signals, cutting) or (
+                "the tick found the pump faulted or its pressure below the floor with the jet open"
+                if causes & StopCause.PUMP else None)
             barriers = [b for b in ("front", "rear") if link_ok and signals.get(f"plc.barrier_{b}_ok") is False]
             c["barrier_interrupted"] = f"{' and '.join(barriers)} barrier interrupted" if barriers and running else None
-        return {k: v for k, v in c.items() if k in self.book.catalogue}
+            if causes & StopCause.PLC_LINK and c["plc_link_lost"] is None and plc["state"] == LinkState.OK:
+                c["plc_link_lost"] = "the PLC's inputs stopped arriving (the PLC-link process is hung)"
+        return c
 
     def _losses(self, snap: Snapshot) -> None:
         """A controller process lost (the supervisor says which and how) or the setpoint FIFO run
@@ -495,42 +558,79 @@ class Logic:
         The counts seen live in the logic's block, so a restarted logic reports what its
         predecessor could not: its own death among them."""
         sup = self.supervisor.read_dict()
-        if sup["lost_seq"] > self.out.get("lost_seen"):
-            self._put(lost_seen=sup["lost_seq"])
+        if sup["lost_seq"] > self.lost_told:
+            self.lost_told = sup["lost_seq"]
             what = f"{Proc(sup['lost_proc']).name.lower()} process {sup['lost_why']}"
             self.fault("process_lost", what + ("; restarted" if sup["lost_restarted"] else "; not restarted"))
-        dry_at = snap.servo["underrun_tick"]
-        if dry_at > self.out.get("underrun_seen"):
-            self._put(underrun_seen=dry_at)
-            if "fifo_underrun" in self.book.catalogue:
-                self.fault("fifo_underrun", f"the servo found the FIFO empty at tick {dry_at} during a motion: "
-                                            "the jet closed, the axes held")
+            self._committed(lost_seen=self.lost_told)
+        servo = snap.servo
+        trips = servo["trip_seq"] - self.trips_told
+        if trips < 0:  # a servo restarted from an unknown block counts afresh
+            trips = 1
+        if trips > 0:
+            # every trip is told, also one a reset right after it has already cleared in the servo
+            self.trips_told = servo["trip_seq"]
+            alarm_id = fault_alarm(ServoFault(servo["trip_fault"]), self.names, servo["trip_axis"])
+            if alarm_id not in self.present:  # a cause whose own alarm stands already says it
+                more = f" ({trips} trips since the last report)" if trips > 1 else ""
+                self.fault(alarm_id, self._servo_detail(servo) + more)
+            self._committed(trip_seen=self.trips_told)
+        dog = snap.hw["watchdog_trip_tick"]
+        if snap.hw["watchdog_tripped"] and dog != self.watchdog_told:
+            self.watchdog_told = dog
+            self.fault("watchdog", f"the servo missed {self.config.timing.watchdog_missed_ticks} ticks (tick {dog}): "
+                                   "the hardware server brought the axes to rest and holds the board safe")
+            self._committed(watchdog_seen=dog)
+
+    def _committed(self, **counters: int) -> None:
+        """What the logic's block says was told, once its alarm is stored: a logic killed before
+        that has its successor tell it again rather than nobody."""
+        self.recorder.submit(lambda: self.told.update(counters))
 
     def _servo_detail(self, servo: dict) -> str:
-        axis = servo["fault_axis"]
+        """The servo's last trip, in words (its trip_* fields outlive a reset)."""
+        axis = servo["trip_axis"]
         where = f" on axis {self.names[axis].upper()}" if 0 <= axis < len(self.names) else ""
-        value = f" ({servo['fault_value']:.3f})" if servo["fault_value"] else ""
-        return f"servo tripped: {ServoFault(servo['fault']).name}{where}{value}"
+        value = f" ({servo['trip_value']:.3f})" if servo["trip_value"] else ""
+        causes = f": {_causes_text(servo['trip_causes'])}" if servo["trip_causes"] else ""
+        speed = f", at {servo['trip_speed_mm_s']:.0f} mm/s" if servo["trip_speed_mm_s"] >= 0.5 else ""
+        return f"servo tripped: {ServoFault(servo['trip_fault']).name}{where}{value}{causes}{speed}"
 
     def _pump_fault(self, snap: Snapshot, signals: dict[str, object], cutting: bool) -> str | None:
         if signals.get("plc.pump_fault"):
             return "the pump reports a fault"
-        if not (cutting and snap.jet_on):
-            return None
         pump = self.config.pump
-        pressure = self.reader.plc_value(snap, "pump_pressure")
         set_bar = self.outputs.get("pump_pressure_set")
         floor = set_bar if self.pump_reached else self.reached_bar
+        if not (cutting and snap.jet_on):
+            return None
+        pressure = self.reader.plc_value(snap, "pump_pressure")
         if floor and pressure < floor - pump.drop_bar:
             return f"pressure fell to {pressure:.0f} bar while cutting at {floor:.0f} bar"
         if not self.pump_reached and self.clock() - self.set_changed_at > pump.ramp_timeout_s:
             return f"the pump did not reach {set_bar:.0f} bar within {pump.ramp_timeout_s:g} s while cutting"
         return None
 
+    def _pressure_floor(self) -> float:
+        """The pressure the tick holds the pump to while the jet cuts: the last set point reached (or
+        the one in force, once reached) less `[pump] drop_bar`; from the state at the end of the scan,
+        so a set point lowered for the next pierce lowers the floor in the same publication."""
+        if self.cycle.phase != CyclePhase.CUTTING:
+            return 0.0
+        floor = self.outputs.get("pump_pressure_set") if self.pump_reached else self.reached_bar
+        return max(0.0, floor - self.config.pump.drop_bar) if floor else 0.0
+
     def _safe_stop(self, why: str) -> None:
-        """Jet off first (the servo drops the bits within a tick), then a controlled stop on the path."""
+        """Jet off first (the servo drops the bits within a tick), then a controlled stop on the path
+        that the servo runs itself from its next tick (`stop_seq`; the planner is told to stop too);
+        motion asked for before it is void."""
         self.inhibit = JET_BITS
+        self.inhibit_release = False
         self.jet_test = False
+        self.command.set("stop_seq", self.command.get("stop_seq") + 1)  # the servo stops on the path, in its next tick
+        self.barriers_latched = self.barriers_latched or (self.cycle.active and not self.cycle.held)
+        self._write_command()
+        self._stop_epoch()
         if self.snap is not None and self.snap.motion["state"] not in (PlannerState.IDLE,):
             self.planner.send(Stop())
         if self.cycle.active:
@@ -557,7 +657,9 @@ class Logic:
                 self._tell("program_error", m["error"], "planner")
         if m["event_seq"] != self.last_event_seq:
             self.last_event_seq = m["event_seq"]
-            if m["event"]:
+            if m["event"].startswith("feed_hold:"):
+                self._tell("feed_hold", m["event"].partition(": ")[2], "planner")
+            elif m["event"]:
                 self._tell("program_message", m["event"], "planner")
 
     def _prompts(self, snap: Snapshot, signals: dict[str, object]) -> None:
@@ -619,20 +721,35 @@ class Logic:
             state = MachineState.IDLE
         self.state = state
 
-    def _write_outputs(self, now: float) -> None:
-        force = int(DigitalOut.JET_VALVE) if self.jet_test else 0
+    def _write_command(self) -> None:
+        """The commander's block: drives, the outputs held off or forced, what the tick should arm,
+        and the heartbeat the tick watches (+1 every scan)."""
+        snap = self.snap
+        if self.inhibit_release and snap is not None:
+            at_rest = (snap.motion["state"] in (PlannerState.IDLE, PlannerState.HELD, PlannerState.PAUSED)
+                       and snap.servo["state"] not in (ServoState.TRACKING, ServoState.STOPPING))
+            if at_rest and not snap.servo["stop_causes"]:  # never while a stop runs out with its jet bits
+                self.inhibit, self.inhibit_release = 0, False
         c = self.command
-        enable = int(self.drives_wanted)
-        if (c.get("servo_enable"), c.get("output_inhibit"), c.get("output_force")) != (enable, self.inhibit, force):
-            c.set("servo_enable", enable)
-            c.set("output_inhibit", self.inhibit)
-            c.set("output_force", force)
+        c.set("servo_enable", int(self.drives_wanted))
+        c.set("output_inhibit", self.inhibit)
+        c.set("output_force", int(DigitalOut.JET_VALVE) if self.jet_test else 0)
+        # the barriers guard the transport zone while the cycle runs, and stay armed after a fault stopped
+        # it until the reset: the tick latches an interruption the logic saw first (and aborted the cycle for)
+        running = self.cycle.active and not self.cycle.held
+        c.set("arm", int(StopCause.BARRIER) if running or self.barriers_latched else 0)
+        c.set("pressure_floor_bar", self._pressure_floor())
+        c.set("heartbeat", c.get("heartbeat") + 1)
         c.publish()
+
+    def _write_outputs(self, now: float) -> None:
+        self._write_command()
+        enable = int(self.drives_wanted)
         self.heartbeat = (self.heartbeat + 1) & 0xFFFF
         self.outputs.set("cnc_heartbeat", self.heartbeat)
         self.outputs.set("plc_reset", int(now < self.plc_reset_until))
         self.outputs.publish()
-        seq = self.book.last_seq
+        seq = self.recorder.committed_seq  # what a subscriber can already find in the history
         if seq != self.out.get("alarm_seq") or not self.out.get("scans"):  # the alarm summary changes with the history
             level = self.book.highest_level()
             self._put(alarm_seq=seq, alarms_active=len(self.book.active().alarms),
@@ -653,14 +770,15 @@ class Logic:
                 "alarm %s %d %s %s", event.action, event.code, event.text, event.detail)
 
     def _publish_procedure(self) -> None:
-        self.procedure_pub.put(encode(self.procedures.state()))
+        payload = encode(self.procedures.state())
+        self.recorder.submit(lambda: self.procedure_pub.put(payload))
 
     def _procedure_alarm(self, alarm_id: str, detail: str) -> None:
         self._latch(alarm_id, detail, "procedure")
 
     def _serve_queries(self) -> None:
         while (query := self.q_active.try_recv()) is not None:
-            _reply(query, self.book.active())
+            self._reply(query, self.book.active())
 
     def _record_jobs(self, snap: Snapshot) -> None:
         """Each program run into the job history when it ends (the planner's run counters say when)."""
@@ -678,6 +796,11 @@ class Logic:
             ticks = max(0, m["run_end_tick"] - m["run_start_tick"])
             self.jobs.append(m["program_name"], m["program_hash"], self.run_started_ns or time.time_ns(), time.time_ns(),
                              RunResult(m["run_result"]).name, ticks * self.config.timing.period_s)
+
+    def _reply(self, query, message: msgspec.Struct) -> None:
+        """Answered from the recorder's thread, after what the command raised is stored: whoever got
+        an answer finds its entries in the history, and the scan still never waits for the disk."""
+        self.recorder.submit(lambda: _send_reply(query, message))
 
     def _note(self, text: str) -> None:
         self.message = text
@@ -708,6 +831,18 @@ def _stops(level: str) -> bool:
     return level in ("fatal", "error")
 
 
-def _reply(query, message: msgspec.Struct) -> None:
+_CAUSE_TEXT = {
+    StopCause.ESTOP: "the e-stop circuit is open", StopCause.MAINS: "the mains are off", StopCause.DOORS: "a door is open",
+    StopCause.SAFETY_CIRCUIT: "the PLC's safety circuit is open", StopCause.BARRIER: "a light barrier is interrupted",
+    StopCause.PUMP: "the pump is faulted or below its pressure floor",
+    StopCause.PLC_LINK: "the PLC's inputs are not fresh", StopCause.COMMANDER: "the commander's heartbeat stopped",
+}
+
+
+def _causes_text(causes: int) -> str:
+    return ", ".join(text for cause, text in _CAUSE_TEXT.items() if causes & cause)
+
+
+def _send_reply(query, message: msgspec.Struct) -> None:
     query.reply(query.key_expr, encode(message), encoding=zenoh.Encoding.APPLICATION_JSON)
     query.drop()

@@ -9,6 +9,7 @@ from typing import Any
 from ..config import MachineConfig
 from ..dataserver import SharedArea
 from ..hw.board import DigitalIn, DigitalOut
+from ..interlock import StopCause
 from ..layout import LinkState, ServoState
 
 _DIN = {"estop_ok": DigitalIn.ESTOP_OK, "doors_closed": DigitalIn.DOORS_CLOSED, "mains_on": DigitalIn.MAINS_ON}
@@ -26,7 +27,9 @@ class Snapshot:
 
     @property
     def link_ok(self) -> bool:
-        return self.plc["state"] == LinkState.OK
+        """The PLC's inputs can be trusted: the link is up and the tick finds them fresh (a hung
+        PLC-link process leaves its last OK image behind: its input sequence stops advancing)."""
+        return self.plc["state"] == LinkState.OK and not self.servo["stop_causes"] & StopCause.PLC_LINK
 
     @property
     def jet_on(self) -> bool:
