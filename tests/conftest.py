@@ -44,16 +44,41 @@ NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm
              "plc.cycle_ms": 100.0, "plc.timeout_ms": 250.0}
 
 
-# (Reaction, Fault) of every fault injected in this run: the table is printed at its end
+# the Reaction of every fault injected through the real processes in this run: printed at its end
 FAULT_REACTIONS: list = []
+# the cells of the safety matrix (test_safety_matrix.Cell), printed at the end too
+SAFETY_MATRIX: list = []
 
 
 def pytest_terminal_summary(terminalreporter) -> None:
+    if SAFETY_MATRIX:
+        terminalreporter.section("safety matrix: every fault in every state (the tick rig: real hardware server, "
+                                 "board and servo)")
+        for line in matrix_table(SAFETY_MATRIX):
+            terminalreporter.write_line(line)
     if FAULT_REACTIONS:
         from cnc.faultinject import table
 
-        terminalreporter.section("faults injected during a cut (virtual clock)")
-        terminalreporter.write_line(table([r for r, _ in FAULT_REACTIONS], {f.name: f for _, f in FAULT_REACTIONS}))
+        terminalreporter.section("faults injected through the real processes (virtual clock)")
+        terminalreporter.write_line(table(FAULT_REACTIONS))
+
+
+def matrix_table(cells: list) -> list[str]:
+    rows = [("state", "fault", "detect", "jet off", "v mm/s", "stop mm", "bound mm", "trip", "alarm", "reset+move")]
+    for c in cells:
+        if c.trip == "n/a":
+            rows.append((c.state, c.fault, "-", "-", "-", "-", "-", "n/a", c.alarm, "-"))
+            continue
+        bound = "coast (cat. 0)" if c.bound_mm is None else f"{c.bound_mm:.2f}"
+        rows.append((c.state, c.fault, str(c.detect_ticks), c.jet_ticks, f"{c.speed_mm_s:.0f}", f"{c.stop_mm:.2f}", bound,
+                     c.trip + (f" ({c.note})" if c.note else ""), c.alarm, "ok" if c.recovered else "FAILED"))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    lines.append("detect: ticks (1 ms) from the cause (at the board, in the PLC's image, a process falling silent) to the "
+                 "tick that acted; jet off: ticks from that tick to the board's jet valve closed ('-': it was closed); "
+                 "bound: v T_detect + v^2/2a + v a/2j + 1 mm; n/a: the reason is in the alarm column")
+    return lines
 
 
 def fast_plant():
@@ -146,6 +171,8 @@ def feed(sup: Supervisor, setpoints: np.ndarray, timeout_s: float = 60.0) -> Non
     """Push all setpoints into the FIFO as space frees up, supervising meanwhile (no planner process:
     the FIFO has one producer)."""
     assert "planner" not in sup.process_names, "the planner process feeds this FIFO: start the controller with DIRECT_FEED"
+    setpoints = setpoints.copy()
+    setpoints["epoch"] = sup.servo()["motion_epoch"]  # the motion under way now: the servo drops any other
     pushed, deadline = 0, time.monotonic() + timeout_s
     while pushed < len(setpoints):
         pushed += sup.fifo.push(setpoints[pushed:])
