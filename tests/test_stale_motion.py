@@ -1,0 +1,217 @@
+"""No stale motion: a motion asked for before a stop or a fault never moves the machine after it;
+stop and hold reach whatever the planner runs; a continuous jog is a dead-man's."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import pytest
+
+from cnc.bus.messages import (
+    CycleStart, GoTo, Hold, Home, Jog, JogRefresh, LoadProgram, Reset, SetMode, Stamp, Start, Stop,
+)
+from cnc.layout import PlannerState, RunResult, ServoState
+from cnc.logic.states import CyclePhase, MachineState
+from cnc.planner.client import PlannerClient
+from cnc.supervisor import MOTION_ONLY, Supervisor
+
+from .conftest import enable_and_hold, home, logic, machine_config, press_button_when_asked, wait_planner_idle
+
+NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0}
+
+
+def nest(parts: int) -> str:
+    """A nest of small round parts, each pierced, cut as a 24-chord polygon: planning it takes a while."""
+    lines = ["G21 G90 G64 P0.05"]
+    for p in range(parts):
+        x0, y0 = 100 + (p % 25) * 50, 100 + (p // 25) * 50
+        lines += [f"G0 X{x0 + 15:.3f} Y{y0:.3f}", "M3"]
+        lines += [f"G1 X{x0 + 15 * math.cos(2 * math.pi * k / 24):.3f} Y{y0 + 15 * math.sin(2 * math.pi * k / 24):.3f} F6000"
+                  for k in range(1, 25)]
+        lines.append("M5")
+    return "\n".join([*lines, "G0 X60 Y60", "M2", ""])
+
+
+@pytest.fixture(scope="module")
+def homed():
+    with Supervisor(machine_config(**NEAR_HOME), clock="virtual", processes=MOTION_ONLY) as sup:
+        enable_and_hold(sup)
+        home(sup)
+        yield sup
+
+
+def test_a_motion_command_issued_before_a_stop_is_refused_and_nothing_moves(homed):
+    sup = homed
+    before = sup.stamp()
+    sup.stop_motion()  # the commander decides a stop: everything issued before it is void
+    here = list(sup.servo()["commanded_mm"])
+    for command in (Jog("x", 20.0, stamp=before), GoTo({"x": 300.0}, stamp=before),
+                    Home(["x"], stamp=before), JogRefresh(stamp=before)):
+        reply = sup.planner.request(command)
+        assert not reply.ok and "issued before the last stop" in reply.reason, (command, reply.reason)
+    assert sup.fifo.fill() == 0 and sup.servo()["commanded_mm"] == here and sup.motion()["state"] == PlannerState.IDLE
+    assert sup.planner.request(GoTo({"x": 40.0})).ok, "one issued now moves"
+    wait_planner_idle(sup)
+
+
+def test_only_the_commanders_token_moves_the_machine(homed):
+    sup = homed
+    outsider = PlannerClient(sup.router, sup.keys)  # no stamp: not the commander
+    reply = outsider.request(GoTo({"x": 300.0}))
+    assert not reply.ok and "not from the machine's commander" in reply.reason
+    forged = Stamp(sup.stamp().token + 1, sup.stamp().epoch)
+    reply = outsider.request(Jog("x", 20.0, stamp=forged))
+    assert not reply.ok and "not from the machine's commander" in reply.reason
+    assert outsider.request(Stop()).reason.endswith("nothing moves"), "a stop needs no stamp: anyone may stop"
+
+
+def test_a_start_waiting_behind_a_long_replan_is_cancelled_by_a_stop(homed, tmp_path):
+    """The head moved since the program was loaded: the start plans it again from where the head
+    is (seconds, for a large program). A stop that comes meanwhile is answered at once and the
+    start never runs."""
+    sup = homed
+    path = tmp_path / "nest.ngc"
+    path.write_text(nest(80))
+    assert sup.planner.request(LoadProgram(str(path))).ok
+    assert sup.planner.request(GoTo({"x": 45.0, "y": 45.0})).ok  # the head moves away: the start must plan again
+    wait_planner_idle(sup)
+    runs = sup.motion()["run_seq"]
+    answers: dict[str, object] = {}
+    starter = threading.Thread(target=lambda: answers.update(start=sup.planner.request(Start())))
+    starter.start()
+    time.sleep(0.2)  # the planner is in the start's planning (it takes seconds)
+    t0 = time.monotonic()
+    answers["stop"] = sup.planner.request(Stop())
+    stop_s = time.monotonic() - t0
+    starter.join(60.0)
+    assert answers["stop"].ok and "cancelled" in answers["stop"].reason, answers["stop"]
+    assert not answers["start"].ok and "cancelled by a stop" in answers["start"].reason, answers["start"]
+    assert stop_s < 2.0, f"the stop waited {stop_s:.2f} s behind the planning"
+    m = sup.motion()
+    assert m["run_seq"] == runs and m["state"] == PlannerState.IDLE and sup.fifo.fill() == 0, "the start never ran"
+
+
+def test_hold_stops_a_homing_and_a_jog_whatever_the_planner_runs(homed):
+    sup = homed
+    assert sup.planner.request(Home(["x"])).ok
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.HOMING and sup.servo()["state"] == ServoState.TRACKING,
+                   10.0, "homing under way")
+    reply = sup.planner.request(Hold())
+    assert reply.ok and "homing stopped" in reply.reason
+    m = wait_planner_idle(sup)
+    assert "homing stopped by a hold" in m["error"]
+    sup.wait_motion_done()
+    home(sup, ["x"])  # and it homes again: a homed axis may be homed again
+    assert sup.planner.request(Jog("y", 20.0)).ok
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.JOGGING, 10.0, "jogging")
+    assert sup.planner.request(Hold()).ok
+    wait_planner_idle(sup)
+
+
+def test_a_continuous_jog_not_refreshed_stops_by_itself_and_a_refreshed_one_runs_on(homed):
+    """The dead-man, on the virtual clock, where ticks run faster than the wall: a jog refreshed every
+    100 ms of wall time runs on (the limit is waited for on both clocks), one not refreshed stops
+    within jog_deadman_ms of wall time, having run at least that long in machine time."""
+    sup = homed
+    deadman_ms = sup.config.planner.jog_deadman_ms
+    assert sup.planner.request(Jog("x", 10.0)).ok
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.JOGGING, 10.0, "jogging")
+    ticks0 = sup.hw()["tick"]
+    for _ in range(8):  # 0.8 s of refreshes: the jog goes on
+        time.sleep(0.1)
+        assert sup.planner.request(JogRefresh()).ok
+        assert sup.motion()["state"] == PlannerState.JOGGING
+    ran = sup.hw()["tick"] - ticks0
+    assert ran * sup.config.timing.period_s > 3 * deadman_ms / 1000.0, "it ran well past one dead-man period"
+    last = time.monotonic()
+    tick_last = sup.hw()["tick"]
+    m = wait_planner_idle(sup, 10.0)
+    assert "dead-man" in m["event"]
+    assert time.monotonic() - last >= deadman_ms / 1000.0 * 0.9
+    assert (sup.hw()["tick"] - tick_last) * sup.config.timing.period_s >= deadman_ms / 1000.0
+    assert sup.servo()["state"] == ServoState.HOLDING
+
+
+def test_a_program_that_parks_on_the_travel_ends_runs_and_the_machine_goes_on(homed, tmp_path):
+    """G0 X0 Y0 on a machine whose travel starts at 0: no soft-limit trip; the next program loads and
+    starts from there; homing the homed axes again works."""
+    sup = homed
+    park = tmp_path / "park.ngc"
+    park.write_text("G21 G90\nG0 X37.3 Y12.1\nG1 X0.7 Y0.3 F3000\nG0 X0 Y0\nM2\n")
+    assert sup.planner.request(LoadProgram(str(park))).ok
+    assert sup.planner.request(Start()).ok
+    m = wait_planner_idle(sup)
+    s = sup.servo()
+    assert m["run_result"] == RunResult.DONE and s["fault"] == 0 and s["state"] == ServoState.HOLDING
+    assert s["commanded_mm"] == pytest.approx([0.0, 0.0], abs=1e-9) and min(s["commanded_mm"]) >= 0.0
+    again = tmp_path / "again.ngc"
+    again.write_text("G21 G90\nG1 X10 Y10 F3000\nM2\n")
+    reply = sup.planner.request(LoadProgram(str(again)))
+    assert reply.ok, reply.reason
+    assert sup.planner.request(Start()).ok
+    assert wait_planner_idle(sup)["run_result"] == RunResult.DONE
+    home(sup)
+    assert sup.servo()["homed_mask"] == 0b11 and sup.servo()["fault"] == 0
+
+
+def test_a_door_opened_while_the_start_is_planned_voids_it_and_a_reset_goes_on(plc_controller, tmp_path):
+    """The cycle's start waits behind a long re-plan when a door opens: the logic's stop voids it
+    (its epoch is past), nothing moves, and once the door is shut and reset the cycle runs."""
+    from .test_logic_process import command, ready_in_auto
+
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, program=nest(60))
+    command(sup, SetMode("MANUAL"))
+    command(sup, GoTo({"x": 45.0, "y": 45.0}))  # the head moves away: the start plans the program again
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING,
+                   30.0, "the go-to")
+    command(sup, SetMode("AUTO"))
+    runs = sup.motion()["run_seq"]
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0,
+                            "the cutting phase: the start is planned")
+    sup.set_sim(doors_open=1)
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT and logic(sup)["phase"] == CyclePhase.NONE, 30.0,
+                   "the safe stop")
+    time.sleep(1.0)  # longer than the start's planning could still have taken to run
+    assert sup.motion()["run_seq"] == runs, "the start never ran"
+    assert sup.servo()["state"] in (ServoState.HOLDING, ServoState.FAULT) and sup.fifo.fill() == 0
+    sup.set_sim(doors_open=0)
+
+    def reset_to_ready() -> bool:
+        sup.logic.request(Reset())
+        return logic(sup)["state"] == MachineState.READY
+    sup.wait_until(reset_to_ready, 30.0, "READY after the reset")
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: sup.motion()["run_seq"] == runs + 1, 120.0, "the cycle after the reset")
+
+
+def test_stop_is_answered_while_a_long_program_load_is_under_way(plc_controller, tmp_path):
+    """STOP never queues behind slow work: it has its own lane through the gateway, and the planner
+    answers it while it checks and plans a program."""
+    from cnc.bus.keys import Keys
+    from cnc.bus.operator import OperatorStation
+    from cnc.bus.session import open_client
+
+    sup = plc_controller
+    path = tmp_path / "big.ngc"
+    path.write_text(nest(150))  # seconds of planning
+    session = open_client([sup.config.zenoh.listen[0]])
+    station = OperatorStation(session, Keys(sup.config.zenoh.key_prefix, sup.config.machine.name), "panel")
+    try:
+        assert station.take_lock().ok
+        answers: dict[str, object] = {}
+        loader = threading.Thread(target=lambda: answers.update(load=station.request(LoadProgram(str(path)))))
+        loader.start()
+        time.sleep(0.3)  # the load is in the planner's hands
+        stop = station.request(Stop())
+        still_loading = loader.is_alive()
+        loader.join(120.0)
+        assert still_loading, "the stop was answered while the load was still under way"
+        assert stop.reason.startswith("stop: nothing to stop"), stop.reason
+        assert answers["load"].ok, answers["load"].reason
+    finally:
+        station.close()
+        session.close()
