@@ -259,8 +259,15 @@ def pause_on_the_straight(sup: Supervisor, workdir: Path, speed_mm_s: float, att
 
 
 def start_cut(sup: Supervisor, speed_mm_s: float) -> None:
-    """Cycle start, then wait until the head cuts along the long straight at `speed_mm_s`."""
-    ask(sup, CycleStart(cycles=1), "cycle start")
+    """Cycle start, then wait until the head cuts along the long straight at `speed_mm_s`. An alarm
+    that came up after the reset (the PLC's own, for a CNC heartbeat it missed meanwhile) is reset
+    first, as an operator would."""
+    def started() -> bool:
+        reply = sup.logic.request(CycleStart(cycles=1))
+        if not reply.ok and "alarms wait for reset" in reply.reason:
+            reset_until_clear(sup)
+        return reply.ok
+    sup.wait_until(started, 60.0, "cycle start")
     sup.wait_until(lambda: logic_block(sup)["phase"] == CyclePhase.CUTTING and cutting_now(sup), 60.0,
                    "cutting with the jet on")
     sup.wait_until(lambda: on_the_straight(sup, speed_mm_s), 30.0, f"the head cutting at {speed_mm_s:g} mm/s")
@@ -378,11 +385,11 @@ def recover(sup: Supervisor, fault: Fault, workdir: Path, speed_mm_s: float) -> 
     fault.clear(sup)
     seq = sup.area.reader("plc").read_dict()["input_seq"]  # the PLC's image after the clear: two exchanges on
     sup.wait_until(lambda: sup.area.reader("plc").read_dict()["input_seq"] >= seq + 2, 30.0, "the PLC's next images")
-    if fault.hold:
+    if fault.hold:  # the cut goes on: resume pierces again where the jet stopped
         ask(sup, Override(100.0), "the feed override back to 100 %")
         ask(sup, Resume(), "resume after the hold")
         sup.wait_until(lambda: cutting_now(sup), 30.0, "the cut going on after the hold")
-        sup.wait_until(lambda: logic_block(sup)["phase"] == CyclePhase.NONE, 120.0, "the end of that cycle")
+        return
     ready_to_cut(sup, program_path(workdir, speed_mm_s))
     start_cut(sup, speed_mm_s)
 
@@ -395,13 +402,19 @@ def table(reactions: list[Reaction]) -> str:
             "-" if r.bound_mm is None else f"{r.bound_mm:.2f}")
         rows.append((r.fault, f"{r.speed_mm_s:.0f}", _ticks(r.detect_ticks), _ticks(r.jet_off_ticks),
                      f"{r.stop_mm:.2f}" if r.jet_off_ticks >= 0 else "-", bound, r.state, r.alarm, r.restarted or "-"))
-    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip() for row in rows]
-    lines.insert(1, "  ".join("-" * w for w in widths))
+    lines = text_table(rows)
     lines.append("(detect: ticks from the injection to the tick that acted; jet off: ticks from that tick to the jet "
                  "valve closed; bound: v T_detect + v^2/2a + v a/2j + 1 mm, plus the FIFO's lead for a stop the "
                  "planner runs)")
     return "\n".join(lines)
+
+
+def text_table(rows: list[tuple[str, ...]]) -> list[str]:
+    """Rows of text in columns as wide as their widest cell, the first row a heading ruled off."""
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip() for row in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return lines
 
 
 def _ticks(n: int) -> str:

@@ -23,7 +23,6 @@ than trusting the last copy until a timeout (`dead_writer`).
 from __future__ import annotations
 
 import enum
-import os
 from dataclasses import dataclass
 
 from .config import MachineConfig
@@ -45,6 +44,12 @@ class StopCause(enum.IntFlag):
 
 
 CATEGORY_0 = StopCause.ESTOP | StopCause.MAINS  # nothing left to brake with: drives off at once
+# Plain ints for the tick path: IntFlag arithmetic goes through the enum machinery.
+_ESTOP, _MAINS, _DOORS = int(StopCause.ESTOP), int(StopCause.MAINS), int(StopCause.DOORS)
+_SAFETY, _BARRIER, _PUMP = int(StopCause.SAFETY_CIRCUIT), int(StopCause.BARRIER), int(StopCause.PUMP)
+_PLC_LINK, _COMMANDER = int(StopCause.PLC_LINK), int(StopCause.COMMANDER)
+_ESTOP_OK, _MAINS_ON, _DOORS_CLOSED = int(DigitalIn.ESTOP_OK), int(DigitalIn.MAINS_ON), int(DigitalIn.DOORS_CLOSED)
+_LINK_OK = int(LinkState.OK)
 ALWAYS_ARMED = StopCause.ESTOP | StopCause.MAINS | StopCause.DOORS
 PLC_CAUSES = StopCause.SAFETY_CIRCUIT | StopCause.PUMP | StopCause.PLC_LINK
 
@@ -140,12 +145,12 @@ class Interlock:
             self.plc_life = _Life(-1, tick, now_ns)
             self.commander_life = _Life(-1, tick, now_ns)
         causes = 0
-        if not digital_in & DigitalIn.ESTOP_OK:
-            causes |= StopCause.ESTOP
-        if not digital_in & DigitalIn.MAINS_ON:
-            causes |= StopCause.MAINS
-        if not digital_in & DigitalIn.DOORS_CLOSED:
-            causes |= StopCause.DOORS
+        if not digital_in & _ESTOP_OK:
+            causes |= _ESTOP
+        if not digital_in & _MAINS_ON:
+            causes |= _MAINS
+        if not digital_in & _DOORS_CLOSED:
+            causes |= _DOORS
         arm = command[command_index["arm"]]
         if self.commander_watched:
             token = command[command_index["token"]]
@@ -154,7 +159,7 @@ class Interlock:
                 self.commander_life = _Life(-1, tick, now_ns)
             self.commander_life.saw(command[command_index["heartbeat"]], tick, now_ns)
             if commander_dead or self.commander_life.overdue(tick, now_ns, *self.commander_limit):
-                causes |= StopCause.COMMANDER
+                causes |= _COMMANDER
         if plc is not None and self.plc_watched:
             causes |= self._plc(tick, now_ns, plc, plc_index, arm, command[command_index["pressure_floor_bar"]],
                                 jet_open, plc_dead)
@@ -163,18 +168,20 @@ class Interlock:
     def _plc(self, tick: int, now_ns: int, plc: tuple, ix: dict, arm: int, floor_bar: float, jet_open: bool,
              dead: bool) -> int:
         self.plc_life.saw(plc[ix["input_seq"]], tick, now_ns)
-        if dead or plc[ix["state"]] != LinkState.OK or self.plc_life.overdue(tick, now_ns, *self.plc_limit):
-            return int(StopCause.PLC_LINK)  # the PLC's other signals are unknown: not trusted, not stale
+        if dead or plc[ix["state"]] != _LINK_OK or self.plc_life.overdue(tick, now_ns, *self.plc_limit):
+            return _PLC_LINK  # the PLC's other signals are unknown: not trusted, not stale
         inputs = plc[ix["inputs"]]
         causes = 0
         if self.i_safety >= 0 and not inputs[self.i_safety]:
-            causes |= StopCause.SAFETY_CIRCUIT
-        if arm & StopCause.BARRIER and any(not inputs[k] for k in self.i_barriers):
-            causes |= StopCause.BARRIER
+            causes |= _SAFETY
+        if arm & _BARRIER:
+            for k in self.i_barriers:
+                if not inputs[k]:
+                    causes |= _BARRIER
         if self.i_pump_fault >= 0 and inputs[self.i_pump_fault]:
-            causes |= StopCause.PUMP
+            causes |= _PUMP
         if jet_open and floor_bar > 0.0 and self.i_pressure >= 0 and inputs[self.i_pressure] < floor_bar:
-            causes |= StopCause.PUMP
+            causes |= _PUMP
         return causes
 
     def dead_writer(self, odd_since_ns: int, now_ns: int, pid: int) -> bool:

@@ -335,7 +335,6 @@ def logic_layout() -> BlockLayout:
             F("scan_us", "q"),  # duration of the last scan
             F("message", "s", 200),  # last refusal or notice
             F("lost_seen", "Q"),  # the supervisor's lost_seq this logic (or the one before it) has reported
-            F("underrun_seen", "Q"),  # the servo's underrun_tick the logic has reported
             F("trip_seen", "Q"),  # the servo's trip_seq the logic (or the one before it) has reported
             F("watchdog_seen", "Q"),  # the hardware server's watchdog_trip_tick the logic has reported
         ],

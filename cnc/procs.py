@@ -42,11 +42,11 @@ def run_hardware(rt: Runtime, ready) -> None:
     child_setup(rt, "hardware")
     area = _attach(rt)
     board = make_board(rt.config)
-    server = None
+    running: list = []  # the server, once it exists (the handler may come before, or during the end)
 
     def terminated(signum, frame) -> None:
         board.safe_state()  # first the outputs: speed 0, drives off, jet closed; then anything else
-        if server is not None:
+        for server in running:
             server.terminate()
         log.error("hardware server: terminated (signal %d): the board is in its safe state", signum)
         raise SystemExit(0)
@@ -58,6 +58,7 @@ def run_hardware(rt: Runtime, ready) -> None:
         status = enter_realtime(rt.config.timing.realtime_priority, "hardware server")
         kind = ClockKind.REALTIME if status.granted else ClockKind.REALTIME_FALLBACK
     server = HardwareServer(rt.config, area, board, clock, list(rt.timer_clients.values()), kind)
+    running.append(server)
     keep_gc_out()
     set_ready(ready)
     try:
@@ -66,6 +67,7 @@ def run_hardware(rt: Runtime, ready) -> None:
         board.close()
         token.undeclare()
         session.close()
+        running.clear()
         del server  # its numpy views of the segment must go before the segment is closed
         area.close()
 

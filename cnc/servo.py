@@ -52,7 +52,9 @@ log = logging.getLogger(__name__)
 _IN_MOTION = int(SetpointFlag.IN_MOTION)
 _JET_BITS = int(DigitalOut.JET_VALVE | DigitalOut.ABRASIVE)
 _LIMITS = int(AxisIn.LIMIT_MIN | AxisIn.LIMIT_MAX)
+_LIMIT_MIN, _LIMIT_MAX = int(AxisIn.LIMIT_MIN), int(AxisIn.LIMIT_MAX)
 _READY = int(AxisIn.DRIVE_READY)
+_CATEGORY_0 = int(CATEGORY_0)
 # the servo's list that holds each servo-owned control parameter, per axis
 _PARAM_LISTS = {"kp_1_s": "kp", "ki_1_s2": "ki", "velocity_ff": "kv", "accel_ff_s": "ka",
                 "integral_limit_mm_s": "i_lim", "following_error_limit_mm": "fe_lim"}
@@ -293,8 +295,8 @@ class Servo:
         if hw[self._h_trip] or hw[self._h_safe]:  # the hardware server brakes on its own: hands off the outputs
             fault = ServoFault.WATCHDOG if hw[self._h_trip] else ServoFault.SAFE_STATE
             return self._hard_trip(fault, -1, 0.0, tick, causes, actual)
-        if causes & CATEGORY_0:
-            return self._hard_trip(fault_of(causes & CATEGORY_0), -1, 0.0, tick, causes, actual)
+        if causes & _CATEGORY_0:
+            return self._hard_trip(fault_of(causes & _CATEGORY_0), -1, 0.0, tick, causes, actual)
         if state == ServoState.STOPPING and self.commanded and causes:
             self._trip(fault_of(causes), -1, 0.0, tick, causes)  # the commander's stop runs on, and now latches
             self.commanded = False
@@ -455,7 +457,7 @@ class Servo:
         be moved away from)."""
         homed = self.out.values[self._i["homed_mask"]]
         for i in range(self.n):
-            if ain[i] & AxisIn.LIMIT_MIN and pos[i] < commanded[i] or ain[i] & AxisIn.LIMIT_MAX and pos[i] > commanded[i]:
+            if ain[i] & _LIMIT_MIN and pos[i] < commanded[i] or ain[i] & _LIMIT_MAX and pos[i] > commanded[i]:
                 return ServoFault.HARD_LIMIT, i, pos[i]
             if not homed >> i & 1:
                 continue  # before homing a position means nothing (and homing travels onto the switch)

@@ -72,9 +72,9 @@ def matrix_table(cells: list) -> list[str]:
         bound = "coast (cat. 0)" if c.bound_mm is None else f"{c.bound_mm:.2f}"
         rows.append((c.state, c.fault, str(c.detect_ticks), c.jet_ticks, f"{c.speed_mm_s:.0f}", f"{c.stop_mm:.2f}", bound,
                      c.trip + (f" ({c.note})" if c.note else ""), c.alarm, "ok" if c.recovered else "FAILED"))
-    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    lines = ["  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in rows]
-    lines.insert(1, "  ".join("-" * w for w in widths))
+    from cnc.faultinject import text_table
+
+    lines = text_table(rows)
     lines.append("detect: ticks (1 ms) from the cause (at the board, in the PLC's image, a process falling silent) to the "
                  "tick that acted; jet off: ticks from that tick to the board's jet valve closed ('-': it was closed); "
                  "bound: v T_detect + v^2/2a + v a/2j + 1 mm; n/a: the reason is in the alarm column")

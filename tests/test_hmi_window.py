@@ -110,9 +110,12 @@ def test_operator_runs_the_automatic_cycle_end_to_end_from_the_screen(qtbot, plc
     sent: list[str] = []
     screen.commands.replied.connect(lambda label, reply: sent.append(label))
     qtbot.keyPress(w, Qt.Key.Key_Up)
+    # held: the pad refreshes the jog (the controller's dead-man stops a jog nobody refreshes)
+    qtbot.waitUntil(lambda: sent.count("JogRefresh") >= 2, timeout=WAIT_MS)
     qtbot.keyRelease(w, Qt.Key.Key_Up)
-    qtbot.waitUntil(lambda: len(sent) >= 2, timeout=WAIT_MS)
-    assert sent[0].startswith("Jog(axis=y, velocity_mm_s=50") and sent[1] == "JogStop"
+    qtbot.waitUntil(lambda: "JogStop" in sent, timeout=WAIT_MS)
+    assert sent[0].startswith("Jog(axis=y, velocity_mm_s=50") and sent[-1] == "JogStop"
+    assert set(sent[1:-1]) == {"JogRefresh"} and not manual.jog._refresh.isActive(), "released: no more refreshes"
     qtbot.waitUntil(lambda: model.status.axes[1].commanded_mm > y0 and model.status.machine_state == "READY"
                     and model.status.planner_state == "IDLE", timeout=WAIT_MS)
 

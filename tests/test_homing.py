@@ -51,7 +51,8 @@ def test_homing_starts_by_backing_off_when_the_axis_is_already_on_its_switch():
 
 
 def test_a_missing_home_switch_is_reported_naming_the_axis_and_nothing_is_homed():
-    config = machine_config(**{**SIM, "axis.x.home_search_velocity_mm_s": 40.0})  # searching the wrong way
+    # searching the wrong way, from near the far end of the travel (the limit switch comes soon)
+    config = machine_config(**{**SIM, "axis.x.home_search_velocity_mm_s": 40.0, "sim.axes.x.start_position_mm": 1560.0})
     with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
         enable_and_hold(sup)
         ask(sup, Home(["x"]))

@@ -7,13 +7,14 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 
 import pytest
 
 from cnc.alarms import AlarmHistory
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, CycleStart, Drives, Hold, HistoryPage, Jog, JetTest, LoadProgram, ProcedureConfirm,
+    AlarmEvent, AlarmList, CycleStart, Drives, GoTo, Hold, HistoryPage, Jog, JetTest, LoadProgram, ProcedureConfirm,
     ProcedureEnd, ProcedureStart, ProcedureState, ProcedureStop, Pump, Reply, Reset, Resume, SetMode, Stop, decode,
 )
 from cnc.hw.board import DigitalOut
@@ -22,6 +23,7 @@ from cnc.logic.states import CyclePhase, MachineState
 from cnc.supervisor import Supervisor
 
 from .conftest import logic, press_button_when_asked, reset_and_home
+from .test_stale_motion import nest
 
 
 PART = """(a part: pierce, a square with a rounded corner, jet off)
@@ -359,3 +361,65 @@ def test_an_interrupted_light_barrier_stops_the_running_cycle(plc_controller, tm
     command(sup, Reset())
     sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
     events.close()
+
+
+def test_a_door_opened_while_the_start_is_planned_voids_it_and_a_reset_goes_on(plc_controller, tmp_path):
+    """The cycle's start waits behind a long re-plan when a door opens: the logic's stop voids it
+    (its epoch is past), nothing moves, and once the door is shut and reset the cycle runs."""
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, program=nest(60))
+    command(sup, SetMode("MANUAL"))
+    command(sup, GoTo({"x": 45.0, "y": 45.0}))  # the head moves away: the start plans the program again
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING,
+                   30.0, "the go-to")
+    command(sup, SetMode("AUTO"))
+    runs = sup.motion()["run_seq"]
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0,
+                            "the cutting phase: the start is planned")
+    sup.set_sim(doors_open=1)
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT and logic(sup)["phase"] == CyclePhase.NONE, 30.0,
+                   "the safe stop")
+    time.sleep(1.0)  # longer than the start's planning could still have taken to run
+    assert sup.motion()["run_seq"] == runs, "the start never ran"
+    assert sup.servo()["state"] in (ServoState.HOLDING, ServoState.FAULT) and sup.fifo.fill() == 0
+    sup.set_sim(doors_open=0)
+
+    def reset_to_ready() -> bool:
+        sup.logic.request(Reset())
+        return logic(sup)["state"] == MachineState.READY
+    sup.wait_until(reset_to_ready, 30.0, "READY after the reset")
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: sup.motion()["run_seq"] == runs + 1, 120.0, "the cycle after the reset")
+    command(sup, Stop())  # leave the machine idle for the next test
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and sup.motion()["state"] == PlannerState.IDLE,
+                   60.0, "the cycle stopped")
+
+
+def test_stop_is_answered_while_a_long_program_load_is_under_way(plc_controller, tmp_path):
+    """STOP never queues behind slow work: it has its own lane through the gateway, and the planner
+    answers it while it checks and plans a program."""
+    from cnc.bus.keys import Keys
+    from cnc.bus.operator import OperatorStation
+    from cnc.bus.session import open_client
+
+    sup = plc_controller
+    path = tmp_path / "big.ngc"
+    path.write_text(nest(150))  # seconds of planning
+    session = open_client([sup.config.zenoh.listen[0]])
+    station = OperatorStation(session, Keys(sup.config.zenoh.key_prefix, sup.config.machine.name), "panel")
+    try:
+        assert station.take_lock().ok
+        answers: dict[str, object] = {}
+        loader = threading.Thread(target=lambda: answers.update(load=station.request(LoadProgram(str(path)))))
+        loader.start()
+        time.sleep(0.3)  # the load is in the planner's hands
+        stop = station.request(Stop())
+        still_loading = loader.is_alive()
+        loader.join(120.0)
+        assert answers["load"].ok, answers["load"].reason
+        assert still_loading, "the stop was answered while the load was still under way"
+        assert stop.reason.startswith("stop: nothing to stop"), stop.reason
+    finally:
+        station.close()
+        session.close()

@@ -32,7 +32,9 @@ from cnc.safety import fault_alarm
 from .conftest import SAFETY_MATRIX, machine_config
 from .tickrig import Rig
 
-CONFIG = machine_config(**{"sim.axes.x.start_position_mm": 100.0, "sim.axes.y.start_position_mm": 100.0})
+# a short pierce: the cells are about the cut, not the wait before it
+QUICK_PIERCE = {"jet.on_delay_s": 0.0, "jet.pierce_dwell_s": 0.01}
+CONFIG = machine_config(**{"sim.axes.x.start_position_mm": 100.0, "sim.axes.y.start_position_mm": 100.0, **QUICK_PIERCE})
 HOMING_CONFIG = machine_config(**{"sim.axes.x.start_position_mm": 8.0, "sim.axes.y.start_position_mm": 100.0})
 A = min(a.max_accel_mm_s2 for a in CONFIG.axes)
 J = min(a.max_jerk_mm_s3 for a in CONFIG.axes)
@@ -243,7 +245,7 @@ def _run_cell(state: State, fault: Fault) -> Cell:
                 break
             if not rig.alive.servo and rig.hw_block()["safe_state"] and rig.speed_mm_s() < 0.5:
                 break
-        rig.step(50)
+        rig.step(20)
         s, hw = rig.servo_block(), rig.hw_block()
         cause = injected + 1  # the first image that can show it: the board's next sample, the PLC's next block
         watchdog = fault.trip == ServoFault.WATCHDOG
@@ -264,13 +266,13 @@ def _run_cell(state: State, fault: Fault) -> Cell:
         fault.clear(rig)
         if not rig.alive.servo:
             _revive_servo(rig)
-        rig.step(rig.plc_ticks * 2)
+        rig.step(rig.plc_ticks * 2 if fault.via_plc else 5)  # the PLC's next image, for what it reports
         rig.reset()
         rig.step(5)
         recovered = rig.servo_block()["state"] == ServoState.HOLDING and not rig.hw_block()["watchdog_tripped"]
         if recovered:
             here = rig.servo_block()["commanded_mm"][0]
-            target = here + 5.0 if here < 1500.0 else here - 5.0
+            target = here + 2.0 if here < 1500.0 else here - 2.0
             rig.jog(0, 50.0, target)
             rig.run_until(lambda: rig.feeder.runner.finished and rig.fifo.fill() == 0, 2000, "a move after the reset")
             rig.step(30)

@@ -9,15 +9,12 @@ import time
 
 import pytest
 
-from cnc.bus.messages import (
-    CycleStart, GoTo, Hold, Home, Jog, JogRefresh, LoadProgram, Reset, SetMode, Stamp, Start, Stop,
-)
+from cnc.bus.messages import GoTo, Hold, Home, Jog, JogRefresh, LoadProgram, Stamp, Start, Stop
 from cnc.layout import PlannerState, RunResult, ServoState
-from cnc.logic.states import CyclePhase, MachineState
 from cnc.planner.client import PlannerClient
 from cnc.supervisor import MOTION_ONLY, Supervisor
 
-from .conftest import enable_and_hold, home, logic, machine_config, press_button_when_asked, wait_planner_idle
+from .conftest import enable_and_hold, home, machine_config, wait_planner_idle
 
 NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0}
 
@@ -154,64 +151,3 @@ def test_a_program_that_parks_on_the_travel_ends_runs_and_the_machine_goes_on(ho
     assert wait_planner_idle(sup)["run_result"] == RunResult.DONE
     home(sup)
     assert sup.servo()["homed_mask"] == 0b11 and sup.servo()["fault"] == 0
-
-
-def test_a_door_opened_while_the_start_is_planned_voids_it_and_a_reset_goes_on(plc_controller, tmp_path):
-    """The cycle's start waits behind a long re-plan when a door opens: the logic's stop voids it
-    (its epoch is past), nothing moves, and once the door is shut and reset the cycle runs."""
-    from .test_logic_process import command, ready_in_auto
-
-    sup = plc_controller
-    ready_in_auto(sup, tmp_path, program=nest(60))
-    command(sup, SetMode("MANUAL"))
-    command(sup, GoTo({"x": 45.0, "y": 45.0}))  # the head moves away: the start plans the program again
-    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING,
-                   30.0, "the go-to")
-    command(sup, SetMode("AUTO"))
-    runs = sup.motion()["run_seq"]
-    command(sup, CycleStart(cycles=1))
-    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0,
-                            "the cutting phase: the start is planned")
-    sup.set_sim(doors_open=1)
-    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT and logic(sup)["phase"] == CyclePhase.NONE, 30.0,
-                   "the safe stop")
-    time.sleep(1.0)  # longer than the start's planning could still have taken to run
-    assert sup.motion()["run_seq"] == runs, "the start never ran"
-    assert sup.servo()["state"] in (ServoState.HOLDING, ServoState.FAULT) and sup.fifo.fill() == 0
-    sup.set_sim(doors_open=0)
-
-    def reset_to_ready() -> bool:
-        sup.logic.request(Reset())
-        return logic(sup)["state"] == MachineState.READY
-    sup.wait_until(reset_to_ready, 30.0, "READY after the reset")
-    command(sup, CycleStart(cycles=1))
-    press_button_when_asked(sup, lambda: sup.motion()["run_seq"] == runs + 1, 120.0, "the cycle after the reset")
-
-
-def test_stop_is_answered_while_a_long_program_load_is_under_way(plc_controller, tmp_path):
-    """STOP never queues behind slow work: it has its own lane through the gateway, and the planner
-    answers it while it checks and plans a program."""
-    from cnc.bus.keys import Keys
-    from cnc.bus.operator import OperatorStation
-    from cnc.bus.session import open_client
-
-    sup = plc_controller
-    path = tmp_path / "big.ngc"
-    path.write_text(nest(150))  # seconds of planning
-    session = open_client([sup.config.zenoh.listen[0]])
-    station = OperatorStation(session, Keys(sup.config.zenoh.key_prefix, sup.config.machine.name), "panel")
-    try:
-        assert station.take_lock().ok
-        answers: dict[str, object] = {}
-        loader = threading.Thread(target=lambda: answers.update(load=station.request(LoadProgram(str(path)))))
-        loader.start()
-        time.sleep(0.3)  # the load is in the planner's hands
-        stop = station.request(Stop())
-        still_loading = loader.is_alive()
-        loader.join(120.0)
-        assert still_loading, "the stop was answered while the load was still under way"
-        assert stop.reason.startswith("stop: nothing to stop"), stop.reason
-        assert answers["load"].ok, answers["load"].reason
-    finally:
-        station.close()
-        session.close()
