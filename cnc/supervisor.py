@@ -141,6 +141,7 @@ class Supervisor:
         self.ctx = multiprocessing.get_context("spawn")
         self.children: dict[str, _Child] = {}
         self.starting: dict[str, _Starting] = {}  # restarts under way
+        self._release_safe = False  # give the safe state back once the hardware server has acted on it
         self.events: list[str] = []  # what the supervisor noticed, for the log and for tests
         self.failed: str | None = None
         self.area: SharedArea | None = None
@@ -349,6 +350,7 @@ class Supervisor:
         now = time.monotonic()
         self._beats[Proc.SUPERVISOR] += 1
         self._finish_restarts(now)
+        self._release_safe_state()
         # a paused virtual clock stops the processes that beat once a tick: that is no hang
         paused = self.clock == "virtual" and bool(self.area.reader("hw").read_dict()["paused"])
         for name, child in list(self.children.items()):
@@ -395,6 +397,17 @@ class Supervisor:
         self.starting[name] = _Starting(name, process, ready, now + self.config.supervisor.start_timeout_s,
                                         recent + [now], made_safe)
 
+    def _release_safe_state(self) -> None:
+        """The safe state asked for at a servo's loss is given back once the hardware server has acted
+        on it (its ramp under way, or the board safe): a servo restarted faster than the hardware
+        server's next tick would otherwise leave the axes to coast under a drives-off servo."""
+        if self._release_safe and self.control.get("safe_state"):
+            hw = self.hw()
+            if hw["braking"] or hw["safe_state"]:
+                self._release_safe = False
+                self.control.set("safe_state", 0)
+                self.control.publish()
+
     def _finish_restarts(self, now: float) -> None:
         """Restarts under way: the ready ones join the watched processes; the others may still start."""
         for name, pending in list(self.starting.items()):
@@ -406,8 +419,7 @@ class Supervisor:
                 self._note(f"{name} process restarted"
                            + (" into a latched fault: reset to continue" if POLICIES[name].restart == "faulted" else ""))
                 if pending.made_safe:  # back: the latched servo fault and its alarm now wait for the operator's reset
-                    self.control.set("safe_state", 0)
-                    self.control.publish()
+                    self._release_safe = True
             elif not pending.process.is_alive() or now > pending.deadline:
                 del self.starting[name]
                 pending.process.kill()
@@ -445,6 +457,7 @@ class Supervisor:
     def reset(self) -> None:
         """Clear latched faults: servo faults, the drive watchdog, a supervisor-forced safe state
         (those that tripped before now: a trip after the reset stays latched)."""
+        self._release_safe = False
         self.control.set("safe_state", 0)
         self.control.publish()
         if self.command is None:
