@@ -124,6 +124,7 @@ class Interlock:
         self.commander_life = _Life()
         self.token = -1
         self.started = False
+        self.pressure_bar = 0.0  # the pump pressure last read: a PUMP trip's figure
 
     def watched(self) -> int:
         """The causes this controller can raise at all (what it is made of decides)."""
@@ -180,8 +181,10 @@ class Interlock:
                     causes |= _BARRIER
         if self.i_pump_fault >= 0 and inputs[self.i_pump_fault]:
             causes |= _PUMP
-        if jet_open and floor_bar > 0.0 and self.i_pressure >= 0 and inputs[self.i_pressure] < floor_bar:
-            causes |= _PUMP
+        if self.i_pressure >= 0:
+            self.pressure_bar = inputs[self.i_pressure]
+            if jet_open and floor_bar > 0.0 and self.pressure_bar < floor_bar:
+                causes |= _PUMP
         return causes
 
     def dead_writer(self, odd_since_ns: int, now_ns: int, pid: int) -> bool:

@@ -401,6 +401,8 @@ class Servo:
 
     def _trip(self, fault: ServoFault, axis: int, value: float, tick: int, causes: int) -> None:
         v, I = self.out.values, self._i
+        if fault == ServoFault.PUMP and axis < 0:  # the figure that says why: the pressure the tick read
+            value = self.interlock.pressure_bar
         v[I["fault"]], v[I["fault_axis"]], v[I["fault_value"]], v[I["fault_tick"]] = int(fault), axis, value, tick
         v[I["fault_causes"]] = causes
         v[I["trip_fault"]], v[I["trip_axis"]], v[I["trip_value"]], v[I["trip_causes"]] = int(fault), axis, value, causes

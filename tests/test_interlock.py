@@ -111,6 +111,7 @@ def test_barriers_matter_only_while_armed_and_the_pump_floor_only_with_the_jet_o
     img.set_cmd(pressure_floor_bar=3200.0)
     assert img.evaluate(il, 3) == 0, "below the floor with the jet closed: nothing"
     assert img.evaluate(il, 4, jet=True) == StopCause.PUMP
+    assert il.pressure_bar == 900.0, "the reading a PUMP trip reports"
     img.set_input(pump_pressure=3800.0, pump_fault=1)
     assert img.evaluate(il, 5) == StopCause.PUMP, "the pump's own fault counts whatever the jet"
 

@@ -35,6 +35,7 @@ class CycleHost(Protocol):
     outputs: PlcOutputs
 
     def plc(self, snap: Snapshot, var_id: str) -> float: ...
+    def pressure_reached(self, bar: float) -> bool: ...
     def send_planner(self, command, on_reply=None) -> None: ...
     def void_motion(self) -> None: ...
     def fault(self, alarm_id: str, detail: str) -> None: ...
@@ -154,7 +155,7 @@ class AutoCycle:
         pump = self.config.pump
         target = pump.pierce_pressure_bar if pump.pierce_at_low_pressure else pump.cut_pressure_bar
         self._set_pump(target)
-        if abs(self.host.plc(snap, "pump_pressure") - target) <= pump.tolerance_bar:
+        if self.host.pressure_reached(target):
             self._enter(CyclePhase.CUTTING, "start", now, 0.0)
             self.host.outputs.set("cnc_cutting", 1)
             self.run_seq, self.start_reply, self.jet_since = snap.motion["run_seq"], None, None

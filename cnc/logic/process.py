@@ -52,6 +52,7 @@ from ..jobs import JobHistory, jobs_path
 from ..layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..safety import fault_alarm
 from .cycle import AutoCycle
+from .pressure import PlcView, PressureWatch
 from .procedures import ProcedureRefused, ProcedureRunner
 from .requests import PlannerLink
 from .signals import PlcOutputs, SignalReader, Snapshot
@@ -127,9 +128,7 @@ class Logic:
         self.mode = Mode.MANUAL
         self.state = MachineState.IDLE
         self.jet_test = False
-        self.pump_reached = False  # the pressure reached its set point since the last change
-        self.reached_bar = 0.0  # the last set point the pressure reached (0: none since the pump started)
-        self.set_changed_at = 0.0
+        self.pressure = PressureWatch(config.pump)
         self.plc_reset_until = 0.0
         self.heartbeat = 0
         self.last_event_seq = -1
@@ -591,34 +590,27 @@ class Logic:
         """The servo's last trip, in words (its trip_* fields outlive a reset)."""
         axis = servo["trip_axis"]
         where = f" on axis {self.names[axis].upper()}" if 0 <= axis < len(self.names) else ""
-        value = f" ({servo['trip_value']:.3f})" if servo["trip_value"] else ""
+        fault = ServoFault(servo["trip_fault"])
+        if fault == ServoFault.PUMP and axis < 0:
+            value = f" (pressure {servo['trip_value']:.0f} bar)"
+        else:
+            value = f" ({servo['trip_value']:.3f})" if servo["trip_value"] else ""
         causes = f": {_causes_text(servo['trip_causes'])}" if servo["trip_causes"] else ""
         speed = f", at {servo['trip_speed_mm_s']:.0f} mm/s" if servo["trip_speed_mm_s"] >= 0.5 else ""
-        return f"servo tripped: {ServoFault(servo['trip_fault']).name}{where}{value}{causes}{speed}"
+        return f"servo tripped: {fault.name}{where}{value}{causes}{speed}"
 
     def _pump_fault(self, snap: Snapshot, signals: dict[str, object], cutting: bool) -> str | None:
         if signals.get("plc.pump_fault"):
             return "the pump reports a fault"
-        pump = self.config.pump
-        set_bar = self.outputs.get("pump_pressure_set")
-        floor = set_bar if self.pump_reached else self.reached_bar
         if not (cutting and snap.jet_on):
             return None
-        pressure = self.reader.plc_value(snap, "pump_pressure")
-        if floor and pressure < floor - pump.drop_bar:
-            return f"pressure fell to {pressure:.0f} bar while cutting at {floor:.0f} bar"
-        if not self.pump_reached and self.clock() - self.set_changed_at > pump.ramp_timeout_s:
-            return f"the pump did not reach {set_bar:.0f} bar within {pump.ramp_timeout_s:g} s while cutting"
-        return None
+        return self.pressure.fault(self.reader.plc_value(snap, "pump_pressure"), self.clock())
 
     def _pressure_floor(self) -> float:
-        """The pressure the tick holds the pump to while the jet cuts: the last set point reached (or
-        the one in force, once reached) less `[pump] drop_bar`; from the state at the end of the scan,
-        so a set point lowered for the next pierce lowers the floor in the same publication."""
-        if self.cycle.phase != CyclePhase.CUTTING:
-            return 0.0
-        floor = self.outputs.get("pump_pressure_set") if self.pump_reached else self.reached_bar
-        return max(0.0, floor - self.config.pump.drop_bar) if floor else 0.0
+        """The pressure the tick holds the pump to while the jet cuts (`PressureWatch.floor_bar`);
+        from the state at the end of the scan, so a set point lowered for the next pierce lowers
+        the floor in the same publication."""
+        return self.pressure.floor_bar() if self.cycle.phase == CyclePhase.CUTTING else 0.0
 
     def _safe_stop(self, why: str) -> None:
         """Jet off first (the servo drops the bits within a tick), then a controlled stop on the path
@@ -682,21 +674,15 @@ class Logic:
         self.outputs.set("pump_pressure_set", bar if on else 0.0)
 
     def _pump(self, snap: Snapshot) -> None:
-        """Follow the pressure: reached the set point yet, and the last set point it reached (a
-        drop below that while cutting is a fault, even while ramping to a new set point)."""
-        set_bar = self.outputs.get("pump_pressure_set")
-        if not self.outputs.get("pump_on"):
-            self.reached_bar = 0.0
-        if set_bar != getattr(self, "_last_set_bar", None):
-            self._last_set_bar, self.pump_reached, self.set_changed_at = set_bar, False, self.clock()
-            # lowered on purpose (low pressure for the next pierce), the pressure may fall as far as the
-            # new set point, and rise from there when the cutting pressure follows before it got there
-            self.reached_bar = min(self.reached_bar, set_bar)
-        elif not self.pump_reached and self.outputs.get("pump_on"):
-            pressure = self.reader.plc_value(snap, "pump_pressure")
-            self.pump_reached = abs(pressure - set_bar) <= self.config.pump.tolerance_bar
-            if self.pump_reached:
-                self.reached_bar = set_bar
+        """Follow the pressure (cnc.logic.pressure) with the set point in force at the end of the scan."""
+        plc = snap.plc
+        view = PlcView(snap.link_ok, plc["output_seq_sent"], plc["input_seq"],
+                       self.reader.plc_value(snap, "pump_pressure"))
+        self.pressure.follow(self.outputs.get("pump_pressure_set"), bool(self.outputs.get("pump_on")),
+                             self.outputs.image_carrying_changes(), view, self.clock())
+
+    def pressure_reached(self, bar: float) -> bool:
+        return self.pressure.reached_at(bar)
 
     def _derive_state(self, snap: Snapshot) -> None:
         din_estop = "estop" in self.present

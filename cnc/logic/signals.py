@@ -113,6 +113,11 @@ class PlcOutputs:
         k = self.index.get(var_id)
         return self.values[k] if k is not None else 0.0
 
+    def image_carrying_changes(self) -> int:
+        """The image_seq of the output image that carries the values set so far (the next one
+        published, when some are not published yet)."""
+        return self.writer.get("image_seq") + (1 if self.dirty else 0)
+
     def publish(self) -> None:
         if not self.dirty:
             return
