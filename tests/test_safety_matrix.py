@@ -334,3 +334,26 @@ def test_override_0_while_cutting_holds_on_the_path_and_the_jet_closes_at_rest_u
         rig.run_until(lambda: rig.jet[-1], 100, "the re-pierce")
         rig.run_until(lambda: rig.speed_mm_s() > 0.9 * feed, 3000, "the cut going on")
         assert rig.servo_block()["state"] == ServoState.TRACKING
+
+
+def test_a_servo_restarted_before_the_hardware_server_saw_its_loss_still_gets_the_ramp_from_full_speed():
+    """The supervisor asks for the safe state and starts a new servo; the new one (drives off, speed
+    0) may publish before the hardware server's next tick. The hardware server's ramp starts from
+    what it last gave the board, not from that block: the axes are braked, not left to coast."""
+    with Rig(CONFIG) as rig:
+        _cut(500.0)(rig)
+        start, speed = len(rig.positions) - 1, rig.speed_mm_s()
+        rig.alive.servo = False  # killed between two ticks
+        sup = rig.area.writer("supervisor")
+        sup.load_current()
+        sup.set("safe_state", 1)
+        sup.publish()
+        _revive_servo(rig)
+        rig.servo.tick()  # its first tick comes before the hardware server's next: tripped RESTARTED, drives off
+        assert rig.servo_block()["drive_enable_mask"] == 0 and not any(rig.servo_block()["speed_cmd_v"])
+        rig.step(1)
+        assert rig.hw_block()["braking"], "the ramp began"
+        rig.run_until(lambda: rig.hw_block()["safe_state"] and rig.speed_mm_s() < 0.5, 2000, "the ramp to run out")
+        path = rig.positions[start:]
+        stop_mm = sum(math.dist(a, b) for a, b in zip(path, path[1:]))
+        assert stop_mm <= stop_distance_bound_mm(speed, DT, A, J), f"{stop_mm:.2f} mm from {speed:.0f} mm/s"

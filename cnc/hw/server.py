@@ -118,6 +118,9 @@ class HardwareServer:
         self.jet_was_on, self.last_counts = False, [0] * self.n
         self.sim_seq = -1
         self.ramp: SpeedRamp | None = None
+        # what the board was last given (speed commands, drive enables): a ramp starts from these, not from
+        # the servo's block, which a servo restarted before this server's next tick has already zeroed
+        self.applied: tuple[list[float], int] = ([0.0] * self.n, 0)
         self.din = _SAFE_INPUTS
 
     def run(self) -> None:
@@ -179,7 +182,7 @@ class HardwareServer:
         self._serve_reset(cmd)
         stop = bool(v[idx["watchdog_tripped"]] or sup[i_safe])
         if stop and self.ramp is None:
-            self.ramp = SpeedRamp(self.config, list(servo[i_speed]), servo[i_enable])
+            self.ramp = SpeedRamp(self.config, *self.applied)
         elif not stop and self.ramp is not None and self.ramp.done:
             self.ramp = None  # a ramp once begun runs out, whatever is restarted meanwhile
         safe = False
@@ -192,7 +195,8 @@ class HardwareServer:
             dout = servo[i_dout]
             if self.din & _SAFE_INPUTS != _SAFE_INPUTS:
                 dout &= ~_JET_BITS
-            board.write_outputs(list(servo[i_speed]), servo[i_enable], dout)
+            self.applied = (list(servo[i_speed]), servo[i_enable])
+            board.write_outputs(*self.applied, dout)
         board.advance(self.period_s)
         board.read_inputs(inputs)
         self.din = inputs.digital_in
