@@ -4,7 +4,9 @@ the read-only queries (alarm history with filters, job history, the loaded progr
 Commands arrive as queries on `<root>/cmd/<verb>` with the sending station's id in the
 query's attachment (`{"station": "..."}`). Each is decoded into its typed message (a
 malformed payload is refused, never a crash), checked against the command lock, and
-forwarded to the control logic, whose answer (ok, or refused with the reason) is the reply.
+forwarded to the control logic, whose answer (ok, or refused with the reason) is the reply. A
+load names a program in the machine's program directory (`cnc.programs`: nothing outside it,
+no devices or pipes, size checked first, text only).
 Uploaded programs are checked (size, text encoding), interpreted with the machine's dialect
 (errors with line and column), stored, then loaded. Commands and queries are served by worker
 threads, so that a long program load never delays a history query, and no Zenoh callback thread
@@ -39,6 +41,7 @@ from .jobs import JobHistory, jobs_path
 from .lock import LockRefused, OperatorLock
 from .logic.client import LogicClient
 from .machine_dialect import dialect_for
+from .programs import ProgramDirectory, ProgramRefused
 from .rt import collector_paused
 
 log = logging.getLogger(__name__)
@@ -70,6 +73,7 @@ class Door:
         self.config, self.session, self.keys = config, session, keys
         self.history_path = history_path
         self.program_dir = Path(program_dir)
+        self.programs = ProgramDirectory(self.program_dir, config.gcode.max_program_bytes)
         self.machine_state, self.motion = machine_state, motion
         self.lock = OperatorLock()
         self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
@@ -138,10 +142,13 @@ class Door:
                     reply = self._upload(decode(payload, UploadProgram))
                 else:
                     command = decode(payload, LOGIC_COMMANDS[verb])
+                    if isinstance(command, LoadProgram):  # by name, from the program directory only
+                        path, _ = self.programs.read(command.path)
+                        command = LoadProgram(str(path))
                     reply = self.logic.request(command, self._limit_for(command))
         except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
             reply = Reply(False, f"{verb}: malformed command: {exc}")
-        except LockRefused as exc:
+        except (LockRefused, ProgramRefused) as exc:
             reply = Reply(False, f"{verb}: {exc}")
         _reply(query, reply)
 

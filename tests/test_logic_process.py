@@ -8,6 +8,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -403,8 +404,11 @@ def test_stop_is_answered_while_a_long_program_load_is_under_way(plc_controller,
     from cnc.bus.operator import OperatorStation
     from cnc.bus.session import open_client
 
+    from cnc.procs import program_dir
+
     sup = plc_controller
-    path = tmp_path / "big.ngc"
+    path = Path(program_dir(sup.config, sup.runtime.history_path)) / "big.ngc"  # stations load from there
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(nest(150))  # seconds of planning
     session = open_client([sup.config.zenoh.listen[0]])
     station = OperatorStation(session, Keys(sup.config.zenoh.key_prefix, sup.config.machine.name), "panel")

@@ -309,7 +309,7 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
         "jog_stop": (JogStop(), "not jogging"),
         "jog_refresh": (JogRefresh(), "no continuous jog to refresh"),
         "goto": (GoTo({"x": 100.0}), "drives"),
-        "load": (LoadProgram("/nonexistent/part.ngc"), "cannot read the program"),
+        "load": (LoadProgram("/nonexistent/part.ngc"), "outside the program directory"),
         "override": (Override(250.0), "out of range: 0 to 200"),
         "pump": (Pump(True, pressure_bar=-5.0), "out of range"),
         "jet_test": (JetTest(True), "jet test"),
@@ -333,3 +333,30 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
     assert not wrong, wrong
     assert op.request(Drives(True)).ok and op.request(Reset()).ok
     op.close()
+
+
+def test_a_station_loads_programs_by_name_from_the_program_directory_only(controller, session, keys, tmp_path):
+    """`cmd/load` reads nothing outside the program directory: the credentials file is not echoed
+    back, a named pipe does not hang the controller, a plain name inside it loads."""
+    import os
+
+    from cnc.bus.messages import LoadProgram
+
+    programs = tmp_path / "programs"  # beside the history: this controller's program directory
+    programs.mkdir(exist_ok=True)
+    (programs / "part.ngc").write_text("G21 G90\nG0 X20 Y20\nM3\nG1 X40 F600\nM5\nM2\n")
+    os.mkfifo(programs / "pipe.ngc")
+    secret = tmp_path / "credentials"
+    secret.write_text("controller:s3cret-password\n")
+    op = OperatorStation(session, keys, "op")
+    try:
+        assert op.take_lock().ok
+        for name, why in ((str(secret), "outside the program directory"), ("../credentials", "outside the program directory"),
+                          ("pipe.ngc", "is a named pipe"), ("/dev/zero", "outside the program directory")):
+            reply = op.request(LoadProgram(name))
+            assert not reply.ok and why in reply.reason and "s3cret" not in reply.reason, (name, reply)
+        reply = op.request(LoadProgram("part.ngc"))
+        assert reply.ok, reply.reason
+        assert controller.motion()["program_name"] == "part.ngc"
+    finally:
+        op.close()

@@ -62,6 +62,7 @@ from ..homing import Homing, HomingError, Push, Reference, Unhome
 from ..layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
 from ..params import registry, with_values
+from ..programs import ProgramRefused, read_program
 from ..rt import collector_paused, leave_realtime
 from .preflight import PreflightRefusal, preflight
 from .runner import ProgramRunner, RunState
@@ -270,12 +271,10 @@ class Planner:
     def _cmd_load(self, msg: LoadProgram) -> None:
         self._require_idle("load a program")
         path = msg.path
-        try:
-            data = Path(path).read_bytes()
-        except OSError as exc:
-            raise Refused(f"{path}: cannot read the program: {exc.strerror}") from None
-        if len(data) > self.config.gcode.max_program_bytes:
-            raise Refused(f"{path}: the program is {len(data)} bytes; this machine accepts at most {self.config.gcode.max_program_bytes}")
+        try:  # bounded, without blocking, regular text files only: the path comes from a command
+            data = read_program(path, self.config.gcode.max_program_bytes)
+        except ProgramRefused as exc:
+            raise Refused(str(exc)) from None
         servo = self.servo_r.read_dict()
         start = tuple(servo["commanded_mm"])
         # on a homed machine a move beyond the travel is refused now (before it is planned), not
