@@ -37,9 +37,10 @@ def _cmd_up(args: argparse.Namespace) -> int:
         return 1
     print(
         f"waterjet up: machine {config.machine.name!r} running on the {args.clock} clock; "
-        f"Zenoh at {', '.join(config.zenoh.listen)}, status on {sup.keys.status}",
+        f"Zenoh at {', '.join(sup.access.network)}, status on {sup.keys.status}",
         flush=True,
     )
+    print(f"waterjet up: {sup.access.notice}", flush=True)
     try:
         status = sup.run(lambda: stop["requested"])
     finally:
@@ -107,6 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     router.add_arguments(router_p)
     router_p.set_defaults(func=router.run)
+
+    users_p = sub.add_parser("users", help="the machine's accounts: add, remove, list (who may log in, in which role)")
+    from . import userscli
+
+    userscli.add_arguments(users_p)
+    users_p.set_defaults(func=userscli.run)
 
     watch_p = sub.add_parser("watch", help="observe a running controller: live status, alarms and procedures (read-only)")
     from . import watch

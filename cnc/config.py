@@ -398,16 +398,21 @@ class GatewayConfig:
 
 @dataclass(frozen=True)
 class AccessConfig:
-    """Who may do what on the controller's Zenoh router (user/password authentication and
-    access-control rules): operators command and upload programs, observers only watch."""
+    """Who may reach the controller from the network: accounts, or this host only (`cnc.bus.access`).
 
-    enabled: bool = opt(False, doc="authenticate every session and apply the rules below")
-    credentials_file: str = opt(
-        "", doc="user:password lines (relative to the machine file) for every user below and the controller's own"
+    Each station acts in its account's role; without accounts the controller serves its own host
+    only, unless `open_network` opens it to anyone."""
+
+    users_file: str = opt(
+        "", doc="accounts file (name:role:password, mode 0600; `waterjet users`); empty: <machine>.users beside the machine file"
     )
-    controller_user: str = opt("controller", doc="user the controller's own processes authenticate as")
-    operators: list[str] = opt([], doc="users who may query cmd/** and upload programs")
-    observers: list[str] = opt([], doc="users who may subscribe to status, events and query the history, and nothing else")
+    open_network: bool = opt(
+        False, doc="UNSAFE: without accounts, let any host on the network command the machine in `open_role`"
+    )
+    open_role: str = opt("operator", doc="role of every station when open_network: observer, operator or engineer")
+    local_role: str = opt(
+        "engineer", doc="role of a station on the controller's own host (its own account, no login needed)"
+    )
 
 
 @dataclass(frozen=True)
@@ -583,6 +588,12 @@ def _check_value(value: Any, hint: Any, meta: dict, source: str, table: str, key
     return value
 
 
+def cross_check(cfg: MachineConfig) -> None:
+    """The checks between keys and tables of a machine file (ConfigError names the key): for a
+    config changed after loading, such as a control parameter changed online."""
+    _cross_check(cfg)
+
+
 def _cross_check(cfg: MachineConfig) -> None:
     src = cfg.source
     name = cfg.machine.name
@@ -645,13 +656,18 @@ def beside(cfg: MachineConfig, value: str) -> Path:
     return path
 
 
-def credentials_path(cfg: MachineConfig) -> Path:
-    """`[zenoh.access] credentials_file`, resolved against the machine file's directory."""
-    return beside(cfg, cfg.zenoh.access.credentials_file)
+def users_path(cfg: MachineConfig) -> Path:
+    """`[zenoh.access] users_file`, resolved against the machine file's directory; by default
+    `<machine file stem>.users` beside the machine file."""
+    if cfg.zenoh.access.users_file:
+        return beside(cfg, cfg.zenoh.access.users_file)
+    if cfg.source in ("<defaults>", "<string>"):
+        return Path(f"{cfg.machine.name}.users").resolve()
+    return Path(cfg.source).resolve().with_suffix(".users")
 
 
 def read_credentials(path: Path) -> dict[str, str]:
-    """user -> password from `user:password` lines (blank lines and # comments ignored)."""
+    """user -> password from a station's `user:password` login file (blank lines and # comments ignored)."""
     users: dict[str, str] = {}
     for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
         line = line.strip()
@@ -665,24 +681,18 @@ def read_credentials(path: Path) -> dict[str, str]:
 
 
 def _check_access(cfg: MachineConfig) -> None:
+    from .bus.users import ROLES, UsersError, read_users  # the bus builds on this module
+
     src, a = cfg.source, cfg.zenoh.access
-    if not a.enabled:
-        return
-    if not a.credentials_file:
-        raise ConfigError(src, "zenoh.access", "credentials_file", "access control needs a credentials file (user:password lines)")
-    path = credentials_path(cfg)
+    for key in ("open_role", "local_role"):
+        if getattr(a, key) not in ROLES:
+            raise ConfigError(src, "zenoh.access", key, f"{getattr(a, key)!r} is not one of {', '.join(ROLES)}")
     try:
-        users = read_credentials(path)
+        read_users(users_path(cfg))
+    except UsersError as exc:
+        raise ConfigError(src, "zenoh.access", "users_file", str(exc)) from None
     except OSError as exc:
-        raise ConfigError(src, "zenoh.access", "credentials_file", f"{path}: {exc.strerror}") from None
-    except ValueError as exc:
-        raise ConfigError(src, "zenoh.access", "credentials_file", str(exc)) from None
-    if not a.operators:
-        raise ConfigError(src, "zenoh.access", "operators", "name at least one operator user")
-    for key, names in (("controller_user", [a.controller_user]), ("operators", a.operators), ("observers", a.observers)):
-        missing = [u for u in names if u not in users]
-        if missing:
-            raise ConfigError(src, "zenoh.access", key, f"{', '.join(missing)}: not in {path}")
+        raise ConfigError(src, "zenoh.access", "users_file", f"{users_path(cfg)}: {exc.strerror}") from None
 
 
 def _check_plc(cfg: MachineConfig) -> None:

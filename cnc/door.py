@@ -1,10 +1,11 @@
 """The gateway's doors on Zenoh: operator commands behind the command lock, program upload, and
 the read-only queries (alarm history with filters, job history, the loaded program, the lock).
 
-Commands arrive as queries on `<root>/cmd/<verb>` with the sending station's id in the
-query's attachment (`{"station": "..."}`). Each is decoded into its typed message (a
-malformed payload is refused, never a crash), checked against the command lock, and
-forwarded to the control logic, whose answer (ok, or refused with the reason) is the reply. A
+Commands arrive as queries on `<root>/u/<user>/cmd/<verb>`, which the router lets only `<user>`
+send (`cnc.bus.access`), with the station's name (and its Zenoh session) in the query's
+attachment (`{"station": "...", "session": "..."}`). Each is decoded into its typed message (a
+malformed payload is refused, never a crash), checked against the user's role and the command
+lock (held by one user's station), and forwarded to the control logic, whose answer (ok, or refused with the reason) is the reply. A
 load names a program in the machine's program directory (`cnc.programs`: nothing outside it,
 no devices or pipes, size checked first, text only).
 Uploaded programs are checked (size, text encoding), interpreted with the machine's dialect
@@ -30,15 +31,17 @@ import msgspec
 import zenoh
 
 from .alarms import AlarmHistory, AlarmLevel, HistoryError
+from .audit import AuditTrail, AuditWriter, audit_path
+from .bus.access import AccessRefused, require_role
 from .bus.keys import Keys
 from .bus.messages import (
-    LOGIC_COMMANDS, REALTIME_VERBS, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue, ProcedureInfo,
+    LOGIC_COMMANDS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue, ProcedureInfo,
     ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SchemaVersionError,
     UploadProgram, decode, encode,
 )
 from .config import MachineConfig
 from .jobs import JobHistory, jobs_path
-from .lock import LockRefused, OperatorLock
+from .lock import LockRefused, OperatorLock, Token
 from .logic.client import LogicClient
 from .machine_dialect import dialect_for
 from .programs import ProgramDirectory, ProgramRefused
@@ -48,19 +51,29 @@ log = logging.getLogger(__name__)
 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}\Z")
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")  # tab, LF, FF, CR are text; the rest is not
-_QUERY_KEYS = ("history", "jobs", "program", "lock", "procedures")
+_QUERY_KEYS = ("history", "jobs", "audit", "program", "lock", "procedures")
+
+
+def session_of(query: Any) -> str:
+    """The id of the Zenoh session the query says it comes from (attachment "session"); "" when absent.
+    Only a session of the same user could claim another's: the key already says who sent it."""
+    return _attached(query, "session")
 
 
 def station_of(query: Any) -> str:
     """The sending station's id, from the query's attachment (JSON {"station": ...}); "" when absent."""
+    return _attached(query, "station")
+
+
+def _attached(query: Any, field: str) -> str:
     att = query.attachment
     if att is None:
         return ""
     try:
-        station = json.loads(att.to_bytes()).get("station", "")
+        value = json.loads(att.to_bytes()).get(field, "")
     except (ValueError, AttributeError):
         return ""
-    return station if isinstance(station, str) else ""
+    return value if isinstance(value, str) else ""
 
 
 class Door:
@@ -76,6 +89,7 @@ class Door:
         self.programs = ProgramDirectory(self.program_dir, config.gcode.max_program_bytes)
         self.machine_state, self.motion = machine_state, motion
         self.lock = OperatorLock()
+        self.audit = AuditWriter(audit_path(history_path))
         self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
         self.uploaded: dict[str, tuple[str, str, Any]] = {}  # program hash -> (name, text, interpreted Program)
         self.commands: queue.Queue = queue.Queue()
@@ -87,14 +101,15 @@ class Door:
         verbs = [*LOGIC_COMMANDS, "lock"]
         self.declared = [
             session.declare_queryable(
-                keys.cmd(verb), lambda q, v=verb, lane=(self.realtime if verb in REALTIME_VERBS else self.commands):
+                keys.cmd_any(verb), lambda q, v=verb, lane=(self.realtime if verb in REALTIME_VERBS else self.commands):
                 lane.put((v, q)))
             for verb in verbs
         ]
-        self.declared.append(session.declare_queryable(keys.cmd("program"), lambda q: self.uploads.put(("program", q))))
+        self.declared.append(session.declare_queryable(keys.cmd_any("program"), lambda q: self.uploads.put(("program", q))))
         self.declared += [
             session.declare_queryable(keys.alarms_history, lambda q: self.queries.put(("history", q))),
             session.declare_queryable(keys.jobs_history, lambda q: self.queries.put(("jobs", q))),
+            session.declare_queryable(keys.audit_history, lambda q: self.queries.put(("audit", q))),
             session.declare_queryable(keys.program, lambda q: self.queries.put(("program", q))),
             session.declare_queryable(keys.lock, lambda q: self.queries.put(("lock", q))),
             session.declare_queryable(keys.procedures, lambda q: self.queries.put(("procedures", q))),
@@ -116,6 +131,7 @@ class Door:
             q.put(None)
         for w in self.workers:
             w.join(2.0)
+        self.audit.close()
 
     # -- workers ----------------------------------------------------------------------------
     def _serve(self, items: queue.Queue, handle: Callable[[str, Any], None]) -> None:
@@ -131,13 +147,14 @@ class Door:
         if verb == "lost-operator":  # an internal item: the lock holder's station disappeared
             self._operator_lost(query)
             return
-        station = station_of(query)
+        user, station = self.keys.user_of(str(query.key_expr)), station_of(query)
         payload = query.payload.to_bytes() if query.payload is not None else b"{}"
         try:
+            require_role(self.config, user, "operator", verb)
             if verb == "lock":
-                reply = self._lock(station, decode(payload, LockRequest))
+                reply = self._lock(user, station, session_of(query), decode(payload, LockRequest))
             else:
-                self.lock.require(station)
+                self.lock.require(user, station)
                 if verb == "program":
                     reply = self._upload(decode(payload, UploadProgram))
                 else:
@@ -150,12 +167,15 @@ class Door:
             reply = Reply(False, f"{verb}: malformed command: {exc}")
         except (LockRefused, ProgramRefused) as exc:
             reply = Reply(False, f"{verb}: {exc}")
+        except AccessRefused as exc:
+            reply = Reply(False, str(exc))
         _reply(query, reply)
+        self.audit.record(user, station, verb, _as_sent(verb, payload), reply.ok, reply.reason)
 
     def _query(self, what: str, query: Any) -> None:
         params = dict(query.selector.parameters)
         try:
-            answer = {"history": self._history, "jobs": self._jobs, "program": self._program,
+            answer = {"history": self._history, "jobs": self._jobs, "audit": self._audit, "program": self._program,
                       "lock": lambda p: self.lock.state(), "procedures": self._procedures}[what](params)
         except (ValueError, KeyError, HistoryError) as exc:
             query.reply_err(zenoh.ZBytes(f"{what}: {exc}".encode()))
@@ -164,30 +184,34 @@ class Door:
         _reply(query, answer)
 
     # -- the lock ---------------------------------------------------------------------------
-    def _lock(self, station: str, msg: LockRequest) -> Reply:
-        if msg.take and station not in self.lock.state().stations and self._token_alive(station):
-            self.lock.station_alive(station)  # a token declared just now: the subscriber has not seen it yet
+    def _lock(self, user: str, station: str, session: str, msg: LockRequest) -> Reply:
+        if msg.take and not self.lock.announced(user, station):
+            self._tokens_now(user, station)  # a token declared just now: the subscriber has not seen it yet
         if msg.take:
-            self.lock.take(station)
+            self.lock.take(user, station, session)
         else:
-            self.lock.release(station)
+            self.lock.release(user, station)
         self._publish_lock()
         return Reply(True)
 
-    def _token_alive(self, station: str) -> bool:
+    def _tokens_now(self, user: str, station: str) -> None:
         try:
             OperatorLock.check_station(station)
         except LockRefused:
-            return False
-        replies = self.session.liveliness().get(self.keys.station(station), timeout=1.0)
-        return any(r.ok is not None for r in replies)
+            return
+        for reply in self.session.liveliness().get(self.keys.station(station, user) + "/**", timeout=1.0):
+            token = Token.parse(str(reply.ok.key_expr), self.keys.root) if reply.ok is not None else None
+            if token is not None:
+                self.lock.token_alive(token)
 
     def _on_station(self, sample: Any) -> None:
-        station = str(sample.key_expr).rsplit("/", 1)[-1]
+        token = Token.parse(str(sample.key_expr), self.keys.root)
+        if token is None:
+            return
         if sample.kind == zenoh.SampleKind.PUT:
-            self.lock.station_alive(station)
-        elif self.lock.station_lost(station):
-            self.realtime.put(("lost-operator", station))
+            self.lock.token_alive(token)
+        elif self.lock.token_lost(token):
+            self.realtime.put(("lost-operator", token.who))
         self._publish_lock()
 
     def _operator_lost(self, station: str) -> None:
@@ -288,6 +312,17 @@ class Door:
                 limit=limit, newest_first=order == "newest",
             )
 
+    def _audit(self, params: dict) -> Any:
+        path = audit_path(self.history_path)
+        if not path.exists():
+            return AuditPage([], False)
+        trail = AuditTrail(path, readonly=True)
+        try:
+            return trail.page(_int(params, "offset", 0), _int(params, "limit", 100), params.get("order", "newest") != "oldest",
+                              params.get("user", ""))
+        finally:
+            trail.close()
+
     def _jobs(self, params: dict) -> Any:
         path = jobs_path(self.history_path)
         if not path.exists():
@@ -310,6 +345,18 @@ def program_path(program: Any) -> ProgramPath:
         end_x=seg["end"][:, 0].tolist(), end_y=seg["end"][:, 1].tolist(), center_x=seg["center"][:, 0].tolist(),
         center_y=seg["center"][:, 1].tolist(), cw=seg["cw"].astype(bool).tolist(), line=seg["line"].tolist(),
     )
+
+
+def _as_sent(verb: str, payload: bytes) -> str:
+    """A command as the audit trail keeps it: its JSON (at most 2000 characters), an upload by its
+    name and size (a program is large, and it is stored anyway)."""
+    if verb == "program":
+        try:
+            name = json.loads(payload).get("name", "?")
+        except (ValueError, AttributeError):
+            name = "?"
+        return json.dumps({"name": name, "bytes": len(payload)})
+    return payload.decode("utf-8", errors="replace")[:2000]
 
 
 def _int(params: dict, key: str, default: int) -> int:

@@ -53,7 +53,6 @@ class Gateway:
         hb = area.blocks["heartbeat"].array[0]
         self.beat = hb["beat"]
         hb["pid"][Proc.GATEWAY] = os.getpid()
-        self.token = session.liveliness().declare_token(self.keys.alive("gateway"))
         self.publisher = session.declare_publisher(
             self.keys.status, encoding=zenoh.Encoding.APPLICATION_JSON, congestion_control=zenoh.CongestionControl.DROP
         )
@@ -69,7 +68,10 @@ class Gateway:
                 config, session, self.keys, history_path, program_dir or str(Path(history_path).parent / "programs"),
                 machine_state=lambda: MachineState(self.logic.read_dict()["state"]).name, motion=self.motion.read_dict,
             )
-        self.param_door = ParamDoor(config, session, self.keys, area, self.door.lock if self.door is not None else None)
+        self.param_door = ParamDoor(config, session, self.keys, area, self.door.lock if self.door is not None else None,
+                                    self.door.audit if self.door is not None else None)
+        # last: declarations travel in order, so whoever sees this token can reach every door above
+        self.token = session.liveliness().declare_token(self.keys.alive("gateway"))
         self.seq = 0
 
     def status(self) -> Status:

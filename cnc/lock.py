@@ -1,8 +1,11 @@
 """The command lock: one operator station at a time may command the machine; the others observe.
 
-A station takes the lock by command and releases it by command, or loses it when its
-liveliness token disappears (its host, network or program died). Pure state, no Zenoh: the
-gateway feeds it what it sees.
+A station is a user (who logged in: the gateway reads it from the command key, which only that
+user may query) and a station name, announced by a liveliness token per Zenoh session,
+`hmi/<user>/<station>/<session id>`. The lock belongs to one such token: taken by command,
+released by command, or lost when that token disappears (its host, network or program died). A
+second session announcing the same user and station has a token of its own, so it cannot hide
+the holder's loss. Pure state, no Zenoh: the gateway feeds it what it sees.
 """
 
 from __future__ import annotations
@@ -21,11 +24,32 @@ class LockRefused(Exception):
     """The station may not do this; the message says why."""
 
 
+@dataclass(frozen=True)
+class Token:
+    """One session's announcement of a station."""
+
+    user: str
+    station: str
+    session: str  # the Zenoh session's id ("" for a token without one)
+
+    @staticmethod
+    def parse(key: str, root: str) -> "Token | None":
+        """The token of liveliness key `key` (`<root>/hmi/<user>/<station>[/<session>]`), or None."""
+        parts = key[len(root) + 1:].split("/") if key.startswith(root + "/") else []
+        if len(parts) not in (3, 4) or parts[0] != "hmi":
+            return None
+        return Token(parts[1], parts[2], parts[3] if len(parts) == 4 else "")
+
+    @property
+    def who(self) -> str:
+        return f"{self.user}/{self.station}"
+
+
 @dataclass
 class OperatorLock:
-    holder: str = ""
+    holder: Token | None = None
     since_ns: int = 0
-    stations: set[str] = field(default_factory=set)
+    tokens: set[Token] = field(default_factory=set)
     seq: int = 0
     _mutex: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -35,50 +59,76 @@ class OperatorLock:
             raise LockRefused(f"station id {station!r} must be 1-64 letters, digits, '-' or '_' (query attachment 'station')")
         return station
 
-    def take(self, station: str) -> None:
+    def take(self, user: str, station: str, session: str = "") -> None:
+        """Give the lock to `user`'s `station`, announced by the token of `session` (which one, when
+        several sessions announce that station; "" when only one does)."""
         with self._mutex:
             self.check_station(station)
-            if station not in self.stations:
-                raise LockRefused(f"station {station!r} has no liveliness token: declare it before taking the lock")
-            if self.holder and self.holder != station:
-                raise LockRefused(f"station {self.holder!r} holds the command lock: it must release it first")
-            if self.holder != station:
-                self.holder, self.since_ns = station, time.time_ns()
+            token = self._token_of(user, station, session)
+            if self.holder is not None and (self.holder.user, self.holder.station) != (user, station):
+                raise LockRefused(f"station {self.holder.station!r} holds the command lock (user {self.holder.user!r}): "
+                                  "it must release it first")
+            if self.holder != token:
+                self.holder, self.since_ns = token, time.time_ns()
                 self.seq += 1
 
-    def release(self, station: str) -> None:
+    def release(self, user: str, station: str) -> None:
         with self._mutex:
-            if self.holder != station:
-                raise LockRefused(f"station {station!r} does not hold the command lock" +
-                                  (f" ({self.holder!r} does)" if self.holder else ""))
-            self.holder, self.since_ns = "", time.time_ns()
+            if self.holder is None or (self.holder.user, self.holder.station) != (user, station):
+                raise LockRefused(f"station {station!r} (user {user!r}) does not hold the command lock" +
+                                  (f" ({self.holder.who!r} does)" if self.holder else ""))
+            self.holder, self.since_ns = None, time.time_ns()
             self.seq += 1
 
-    def require(self, station: str) -> None:
+    def require(self, user: str, station: str) -> None:
         """Refuse a command from anyone but the holder."""
         with self._mutex:
             if not station:
                 raise LockRefused("read-only: the query carries no station id (attachment 'station')")
-            if self.holder != station:
-                who = f"station {self.holder!r} holds the command lock" if self.holder else "nobody holds the command lock"
+            if self.holder is None or (self.holder.user, self.holder.station) != (user, station):
+                who = (f"station {self.holder.station!r} holds the command lock (user {self.holder.user!r})" if self.holder
+                       else "nobody holds the command lock")
                 raise LockRefused(f"read-only: {who}; take it first (cmd/lock)")
 
-    def station_alive(self, station: str) -> None:
+    def holds(self, user: str, station: str) -> bool:
         with self._mutex:
-            if station not in self.stations:
-                self.stations.add(station)
+            return self.holder is not None and (self.holder.user, self.holder.station) == (user, station)
+
+    def token_alive(self, token: Token) -> None:
+        with self._mutex:
+            if token not in self.tokens:
+                self.tokens.add(token)
                 self.seq += 1
 
-    def station_lost(self, station: str) -> bool:
-        """The station's token went away; True when it held the lock (now released)."""
+    def token_lost(self, token: Token) -> bool:
+        """`token` went away; True when it held the lock (now released)."""
         with self._mutex:
-            self.stations.discard(station)
+            self.tokens.discard(token)
             self.seq += 1
-            if self.holder == station:
-                self.holder, self.since_ns = "", time.time_ns()
+            if self.holder == token:
+                self.holder, self.since_ns = None, time.time_ns()
                 return True
             return False
 
+    def announced(self, user: str, station: str) -> bool:
+        with self._mutex:
+            return any((t.user, t.station) == (user, station) for t in self.tokens)
+
     def state(self) -> LockState:
         with self._mutex:
-            return LockState(self.holder, self.since_ns, sorted(self.stations), self.seq)
+            h = self.holder
+            return LockState(h.station if h else "", self.since_ns, sorted({t.station for t in self.tokens}), self.seq,
+                             holder_user=h.user if h else "")
+
+    def _token_of(self, user: str, station: str, session: str) -> Token:
+        mine = [t for t in self.tokens if (t.user, t.station) == (user, station)]
+        if session:
+            mine = [t for t in mine if t.session == session]
+        if not mine:
+            raise LockRefused(f"station {station!r} (user {user!r}) has no liveliness token"
+                              + (f" from session {session}" if session else "")
+                              + ": declare it before taking the lock")
+        if len(mine) > 1:
+            raise LockRefused(f"station {station!r} (user {user!r}) is announced by {len(mine)} sessions: "
+                              "say which (query attachment 'session')")
+        return mine[0]

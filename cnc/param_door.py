@@ -1,14 +1,16 @@
 """The gateway's door for control parameters: read and change them online over Zenoh, save them.
 
-`<root>/param/<name>` answers the parameter (ParamInfo); with a SetParam payload it changes it:
-the sending station must hold the command lock, the value must be in range and the parameter
-changeable in the current state (else the reply refuses, saying why). The new value goes into the
-`params` block, of which this door is the only writer; the reply waits until the owning process
-has applied it and says at which tick. `<root>/params` answers every parameter (ParamList); with
-a SaveParams payload it writes the values in force into the machine file. Queries are served by
-a worker thread: a change waits for the servo's next tick, and no Zenoh callback thread may wait.
+`<root>/param/<name>` answers the parameter (ParamInfo) and `<root>/params` every parameter
+(ParamList), to any station. Changes go to the sender's own key `<root>/u/<user>/param/<name>`
+(a SetParam payload), saves to `<root>/u/<user>/params` (SaveParams), which the router lets only
+that user send: the user must be an engineer whose station holds the command lock, the value in
+range, changeable in the current state, and the machine file's cross-checks must hold with the
+values in force (fifo_high_ms above fifo_low_ms, ...); else the reply refuses, saying why. The
+new value goes into the `params` block, of which this door is the only writer; the reply waits
+until the owning process has applied it and says at which tick. A save writes the values in
+force into the machine file. Queries are served by a worker thread: a change waits for the
+servo's next tick, and no Zenoh callback thread may wait.
 """
-
 from __future__ import annotations
 
 import logging
@@ -21,9 +23,11 @@ import msgspec
 import zenoh
 
 from . import params
+from .audit import AuditWriter
+from .bus.access import AccessRefused, require_role
 from .bus.keys import Keys
 from .bus.messages import ParamInfo, ParamList, Reply, SaveParams, SchemaVersionError, SetParam, decode, encode
-from .config import ConfigError, MachineConfig, load_machine
+from .config import ConfigError, MachineConfig, cross_check, load_machine
 from .dataserver import SharedArea
 from .door import station_of
 from .layout import PlannerState
@@ -38,8 +42,9 @@ class ParamDoor:
     """`param/**` and `params` queryables; `lock` is the gateway's command lock (None: no lock, any station)."""
 
     def __init__(self, config: MachineConfig, session: zenoh.Session, keys: Keys, area: SharedArea,
-                 lock: OperatorLock | None) -> None:
-        self.config, self.session, self.keys, self.lock = config, session, keys, lock
+                 lock: OperatorLock | None, audit: AuditWriter | None = None) -> None:
+        """`audit`: where changes and saves are recorded (the gateway's trail; None: not recorded)."""
+        self.config, self.session, self.keys, self.lock, self.audit = config, session, keys, lock, audit
         self.specs = params.registry(config)
         self.out = area.writer("params")
         self.out.load_current()
@@ -48,9 +53,11 @@ class ParamDoor:
         self.servo, self.motion = area.reader("servo"), area.reader("motion")
         self.queries: queue.Queue = queue.Queue()
         root = len(keys.param(""))
-        self.declared = [
-            session.declare_queryable(keys.param("**"), lambda q: self.queries.put((str(q.key_expr)[root:], q))),
-            session.declare_queryable(keys.params, lambda q: self.queries.put(("", q))),
+        self.declared = [  # reads on the public keys; changes and saves on the sender's own keys
+            session.declare_queryable(keys.param("**"), lambda q: self.queries.put((str(q.key_expr)[root:], q, ""))),
+            session.declare_queryable(keys.params, lambda q: self.queries.put(("", q, ""))),
+            session.declare_queryable(keys.user_param("*", "**"), lambda q: self.queries.put(self._users(q))),
+            session.declare_queryable(keys.user_params("*"), lambda q: self.queries.put(("", q, keys.user_of(str(q.key_expr))))),
         ]
         self.worker = threading.Thread(target=self._serve, name="param-door", daemon=True)
         self.worker.start()
@@ -77,9 +84,11 @@ class ParamDoor:
 
     def _serve(self) -> None:
         while (item := self.queries.get()) is not None:
-            name, query = item
+            name, query, user = item
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            station = station_of(query)  # read before the query is answered and dropped
             try:
-                answer = self._answer(name, query)
+                answer = self._answer(name, query, user)
             except Exception as exc:  # a bug: the door stays open, the station learns what happened
                 log.exception("params: %r failed", name)
                 answer = Reply(False, f"param {name}: internal error in the gateway: {exc!r}")
@@ -90,14 +99,27 @@ class ParamDoor:
             else:
                 query.reply(query.key_expr, encode(answer), encoding=zenoh.Encoding.APPLICATION_JSON)
             query.drop()
+            if self.audit is not None and payload and isinstance(answer, Reply):  # a change or a save, not a read
+                self.audit.record(user, station, f"param {name}" if name else "save params",
+                                  payload.decode("utf-8", errors="replace")[:2000], answer.ok, answer.reason)
 
-    def _answer(self, name: str, query: Any) -> msgspec.Struct | str:
-        """The answer to a query; a text when a read must be answered with an error instead."""
+    def _users(self, query: Any) -> tuple[str, Any, str]:
+        key = str(query.key_expr)
+        user = self.keys.user_of(key)
+        return key[len(self.keys.user_param(user, "")):], query, user
+
+    def _answer(self, name: str, query: Any, user: str) -> msgspec.Struct | str:
+        """The answer to a query; a text when a read must be answered with an error instead.
+        `user`: who sent a change or a save (its own key); "" on the public, read-only keys."""
         payload = query.payload.to_bytes() if query.payload is not None else b""
         try:
+            if payload and not user:
+                what = "save the control parameters" if name == "" else f"change {name}"
+                return Reply(False, f"cannot {what} here: {self.keys.param('')}** and {self.keys.params} are read-only; "
+                                    f"an engineer sends it on u/<user>/ (OperatorStation.set_param, save_params)")
             if name == "":
                 if payload:
-                    self._require_lock(query, "save the control parameters")
+                    self._require(user, query, "save the control parameters")
                     decode(payload, SaveParams)
                     return self.save()
                 return self.list()
@@ -107,17 +129,19 @@ class ParamDoor:
                 except params.ParamError as exc:
                     return str(exc)
             spec = params.find(self.specs, name)
-            self._require_lock(query, f"change {name}")
+            self._require(user, query, f"change {name}")
             return self.set(spec, decode(payload, SetParam).value)
         except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
             return Reply(False, f"param {name}: malformed request: {exc}")
-        except (params.ParamError, LockRefused) as exc:
+        except (params.ParamError, LockRefused, AccessRefused) as exc:
             return Reply(False, str(exc))
 
-    def _require_lock(self, query: Any, what: str) -> None:
+    def _require(self, user: str, query: Any, what: str) -> None:
+        """An engineer's station holding the command lock (the lock only where the gateway has one)."""
+        require_role(self.config, user, "engineer", f"cannot {what}")
         if self.lock is not None:
             try:
-                self.lock.require(station_of(query))
+                self.lock.require(user, station_of(query))
             except LockRefused as exc:
                 raise LockRefused(f"cannot {what}: {exc}") from None
 
@@ -144,6 +168,10 @@ class ParamDoor:
         spec.check(value, state)
         values = self.values()
         old, values[spec.index] = values[spec.index], float(value)
+        try:  # the machine file's own cross-checks (fifo_high_ms above fifo_low_ms, ...) on the values in force
+            cross_check(params.with_values(self.config, self.specs, values))
+        except ConfigError as exc:
+            raise params.ParamError(f"{spec.name} = {value:g} refused: with the values in force, {exc}") from None
         seq = self.out.get("change") + 1
         self._write(values, seq)
         log.info("params: %s %g -> %g (change %d)", spec.name, old, value, seq)

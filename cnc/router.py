@@ -10,6 +10,7 @@ import threading
 
 import zenoh
 
+from .bus.access import open_machine_router, plan_access
 from .bus.session import open_router
 from .config import ConfigError, MachineConfig, load_machine
 
@@ -25,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connect", action="append", metavar="ENDPOINT", help="router to connect to (repeatable)")
     parser.add_argument(
         "--machine", "-m", metavar="FILE",
-        help="apply this machine's [zenoh.access] authentication and rules (the machine's shop router)",
+        help="log stations in with this machine's accounts and apply its rules (the machine's shop router)",
     )
 
 
@@ -33,15 +34,17 @@ def run(args: argparse.Namespace) -> int:
     """Run the router until SIGINT/SIGTERM; 0 on a clean stop, 1 if Zenoh cannot open it."""
     listen = args.listen or [DEFAULT_LISTEN]
     cfg = _shop_config(load_machine(args.machine), listen, args.connect or []) if args.machine else None
+    plan = plan_access(cfg, shop=True) if cfg is not None else None  # ConfigError when it has no accounts
     try:
-        session = open_router(cfg, shop=True) if cfg is not None else open_router(listen, args.connect or [])
+        session = open_machine_router(cfg, plan, shop=True) if cfg is not None else open_router(listen, args.connect or [])
     except zenoh.ZError as exc:
         print(f"waterjet router: {exc}", file=sys.stderr)
         return 1
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda _signum, _frame: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        access = f"access control of machine {cfg.machine.name!r}" if cfg and cfg.zenoh.access.enabled else "no access control"
+        access = (f"access control of machine {cfg.machine.name!r} ({len(plan.accounts)} accounts)" if plan
+                  else "no access control")
         print(f"waterjet router: {session.zid()} listening on {', '.join(listen)}; {access}", flush=True)
         if args.connect:
             print(f"waterjet router: connecting to {', '.join(args.connect)}", flush=True)

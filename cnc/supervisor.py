@@ -22,6 +22,7 @@ writes the `motion` block.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import multiprocessing
 import os
@@ -33,8 +34,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .bus.keys import Keys
-from .bus.access import controller_credentials
-from .bus.session import connect_endpoints, open_router
+from .bus.access import Plan, open_machine_router, plan_access, run_dir, write_local_login
 from .config import MachineConfig, beside
 from .dataserver import BlockWriter, SharedArea, unique_name
 from .fifo import SetpointFifo
@@ -47,6 +47,18 @@ from .procs import PROCESS_MAINS
 from .runtime import HANG_DUMP_SIGNAL, Runtime
 from .trace import TraceRing
 
+_ROUTERS = itertools.count(1)  # routers this process opened: each its own socket
+
+
+def _private_socket() -> Path:
+    """A new socket path for the private plane, in the controller account's run directory; the
+    sockets of controllers that died without closing theirs (their process gone) are removed."""
+    here = run_dir()
+    for old in here.glob("bus-*-*.sock*"):
+        pid = old.name.split("-")[1]
+        if pid.isdigit() and not Path(f"/proc/{pid}").exists():
+            old.unlink(missing_ok=True)
+    return here / f"bus-{os.getpid()}-{next(_ROUTERS)}.sock"
 log = logging.getLogger(__name__)
 
 FIFO_CAPACITY = 8192  # 8 s of setpoints at 1 kHz
@@ -148,6 +160,9 @@ class Supervisor:
         self.fifo: SetpointFifo | None = None
         self.trace: TraceRing | None = None
         self.router = None
+        self.access: Plan | None = None
+        self._socket: Path | None = None
+        self._local_login: Path | None = None
         self._token = None
         self._watchdog_seen = False
 
@@ -182,7 +197,11 @@ class Supervisor:
         self._beats = hb["beat"]
         hb["pid"][Proc.SUPERVISOR] = os.getpid()
         try:
-            self.router = open_router(cfg)  # listen, connect, and the access rules of the machine file
+            # the private plane's socket, the network endpoints and the access rules (cnc.bus.access)
+            self._socket = _private_socket()
+            self.access = plan_access(cfg, self._socket)
+            self.router = open_machine_router(cfg, self.access)
+            self._local_login = write_local_login(self.access)
             self._token = self.router.liveliness().declare_token(self.keys.alive("supervisor"))
             plc_port, self._sim_pending = self._plc_port()
             clients = {}
@@ -200,13 +219,13 @@ class Supervisor:
                 clock=self.clock,
                 data_name=self.area.shm.name,
                 fifo_name=self.fifo.shm.name,
-                zenoh_connect=connect_endpoints(cfg.zenoh.listen),
+                zenoh_connect=[self.access.private],  # the private plane
                 trace_name=self.trace.shm.name,
                 timer_clients=clients,
                 log_level=self.log_level,
                 plc_port=plc_port,
                 history_path=self.history_path,
-                zenoh_credentials=controller_credentials(cfg),
+                zenoh_credentials=self.access.controller,
             )
             self.planner = PlannerClient(self.router, self.keys, stamp=self.stamp if self.command is not None else None)
             self.logic = LogicClient(self.router, self.keys)
@@ -215,11 +234,23 @@ class Supervisor:
                     finish, self._sim_pending = self._sim_pending, None
                     finish()  # the link opens the simulator's pty: it must serve by now (raises why not)
                 self._spawn(*[name for name in stage if name in self.process_names])
+            if "gateway" in self.process_names:
+                self._until_announced("gateway")
         except BaseException:
             self.stop()
             raise
         log.info("controller %s up (%s clock): %s", cfg.machine.name, self.clock, ", ".join(self.process_names))
         return self
+
+    def _until_announced(self, name: str, timeout_s: float = 10.0) -> None:
+        """Wait until the router holds process `name`'s liveliness token. The gateway declares it
+        after its doors, on the same link: once the router has it, a station's first query finds
+        them (a query that comes before the declarations gets no answer at all)."""
+        deadline = time.monotonic() + timeout_s
+        while not any(r.ok is not None for r in self.router.liveliness().get(self.keys.alive(name), timeout=1.0)):
+            if time.monotonic() > deadline:
+                raise SupervisorError(f"{name} process started but its doors were not announced within {timeout_s:g} s")
+            time.sleep(0.005)
 
     def _launch(self, name: str) -> tuple[Any, Any]:
         ready = self.ctx.Event()
@@ -316,6 +347,11 @@ class Supervisor:
         if self.router is not None:
             self.router.close()
             self.router = None
+        for path in (self._socket, self._local_login):
+            if path is not None:
+                path.unlink(missing_ok=True)
+                path.with_name(path.name + ".lock").unlink(missing_ok=True)  # Zenoh's, beside its socket
+        self._socket = self._local_login = None
         if self.fifo is not None:
             self.fifo.close()
             self.fifo = None

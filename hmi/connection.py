@@ -17,7 +17,7 @@ from cnc.bus.messages import (
     ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, Status, decode,
 )
 from cnc.bus.operator import OperatorStation
-from cnc.bus.session import open_client
+from cnc.bus.session import LOCAL_USER, open_client
 
 from .model import HISTORY_KEPT, MachineModel
 from .tuning_model import TuningModel
@@ -109,7 +109,8 @@ class Connection:
         self._subscribers = [
             session.declare_subscriber(key, self._handler(key, kind, apply)) for key, (kind, apply) in handlers.items()
         ]
-        self.operator = OperatorStation(session, self.keys, self.station)
+        user = self.credentials[0] if self.credentials else LOCAL_USER  # local: a station on the controller's host
+        self.operator = OperatorStation(session, self.keys, self.station, user=user)
         self.session = session
         return True
 

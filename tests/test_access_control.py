@@ -1,8 +1,13 @@
-"""Zenoh authentication and access control from `[zenoh.access]`, on real sessions on loopback."""
+"""Who reaches the controller (issue 18): the private plane, secure by default, accounts and
+roles, command keys bound to who logged in; real routers and sessions on loopback and a Unix socket."""
 
 from __future__ import annotations
 
 import json
+import os
+import stat
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -11,52 +16,57 @@ import pytest
 import zenoh
 
 from cnc.bus.access import (
-    access_control, client_config, controller_credentials, dictionary_file, router_config, shop_router_zid,
+    access_control, dictionary_file, open_machine_router, plan_access, role_of, router_config, run_dir,
+    write_local_login,
 )
 from cnc.bus.keys import Keys
-from cnc.bus.session import connect_endpoints, open_client, open_router
+from cnc.bus.session import local_login, open_client, zenoh_config
+from cnc.bus.users import Account, read_users, write_users
 from cnc.config import ConfigError, MachineConfig
+from cnc.demo import free_port
 
-from .conftest import machine_config
+from .conftest import REPO, machine_config
 
-CREDENTIALS = """\
-# users of the test machine
-controller:ctl-secret
-
-operator1:op-secret
-observer1:obs-secret
-"""
-PASSWORDS = {"controller": "ctl-secret", "operator1": "op-secret", "observer1": "obs-secret"}
+PASSWORDS = {"operator1": "op-secret", "observer1": "obs-secret", "engineer1": "eng-secret"}
+ROLES_OF = {"operator1": "operator", "observer1": "observer", "engineer1": "engineer"}
 QUERY_TIMEOUT_S = 1.0
 
 
-def access_machine(tmp_path: Path, **overrides) -> MachineConfig:
-    """The shipped machine on a free port with access control on and the users above."""
-    creds = tmp_path / "credentials.txt"
-    creds.write_text(CREDENTIALS, encoding="utf-8")
-    return machine_config(**{
-        "zenoh.access.enabled": True,
-        "zenoh.access.credentials_file": str(creds),
-        "zenoh.access.operators": ["operator1"],
-        "zenoh.access.observers": ["observer1"],
-        **overrides,
-    })
+def accounts_file(tmp_path: Path) -> Path:
+    path = tmp_path / "machine.users"
+    write_users(path, {u: Account(u, ROLES_OF[u], p) for u, p in PASSWORDS.items()})
+    return path
+
+
+def machine(tmp_path: Path, accounts: bool = True, **overrides) -> MachineConfig:
+    """The shipped machine listening on every interface at a free port; its users file in tmp_path."""
+    users = accounts_file(tmp_path) if accounts else tmp_path / "none.users"
+    return machine_config(**{"zenoh.listen": [f"tcp/0.0.0.0:{free_port()}"], "zenoh.access.users_file": str(users),
+                             **overrides})
 
 
 class Bus:
-    """A router for one machine and the client sessions of a test, all closed at the end."""
+    """A controller's router (its private plane on a Unix socket) and a test's sessions, closed at the end."""
 
-    def __init__(self, cfg: MachineConfig) -> None:
+    def __init__(self, cfg: MachineConfig, tmp_path: Path) -> None:
         self.cfg = cfg
         self.keys = Keys(cfg.zenoh.key_prefix, cfg.machine.name)
-        self.endpoints = connect_endpoints(cfg.zenoh.listen)
-        self.router = open_router(cfg)
+        self.plan = plan_access(cfg, run_dir() / f"test-{os.getpid()}-{free_port()}.sock")
+        self.router = open_machine_router(cfg, self.plan)
+        self.login_file = write_local_login(self.plan)
+        self.network = [ep.replace("0.0.0.0", "127.0.0.1") for ep in self.plan.network]
         self.sessions: list[zenoh.Session] = []
 
     def login(self, user: str | None, password: str | None = None) -> zenoh.Session:
-        """A client session as `user` (its own password unless one is given)."""
+        """A station's session on the network endpoint as `user` (its own password unless one is given)."""
         credentials = None if user is None else (user, password if password is not None else PASSWORDS[user])
-        session = open_client(self.endpoints, credentials)
+        return self._keep(zenoh.open(zenoh_config("client", connect=self.network, credentials=credentials)))
+
+    def inside(self) -> zenoh.Session:
+        """A controller process's session: on the private plane, with the controller's login of this run."""
+        return self._keep(open_client([self.plan.private], self.plan.controller))
+
+    def _keep(self, session: zenoh.Session) -> zenoh.Session:
         self.sessions.append(session)
         return session
 
@@ -64,18 +74,21 @@ class Bus:
         for session in reversed(self.sessions):
             session.close()
         self.router.close()
+        Path(self.plan.private.split("/", 1)[1]).unlink(missing_ok=True)
+        if self.login_file is not None:
+            self.login_file.unlink(missing_ok=True)
 
 
 @pytest.fixture
 def bus(tmp_path):
-    b = Bus(access_machine(tmp_path))
+    b = Bus(machine(tmp_path), tmp_path)
     yield b
     b.close()
 
 
 @pytest.fixture
-def open_bus():
-    b = Bus(machine_config())
+def local_bus(tmp_path):
+    b = Bus(machine(tmp_path, accounts=False), tmp_path)
     yield b
     b.close()
 
@@ -95,13 +108,15 @@ def replies(session: zenoh.Session, key: str, payload: bytes | None = None) -> l
     return [r.ok.payload.to_string() for r in session.get(key, payload=payload, timeout=QUERY_TIMEOUT_S) if r.ok is not None]
 
 
-def reached(declarer: zenoh.Session, watcher: zenoh.Session, keys: Keys) -> None:
+def reached(declarer: zenoh.Session, watcher: zenoh.Session, keys: Keys, as_user: str = "") -> None:
     """Wait until what `declarer` has declared so far is known where `watcher` is connected.
     Declarations travel a link in order, so a liveliness token declared after them arrives after
-    them; `alive/**` is a key every role may watch."""
+    them; `alive/**` is a key every role may watch, and a station (`as_user`) announces under its own
+    `hmi/<user>/`."""
     arrived = threading.Event()
-    subscriber = watcher.liveliness().declare_subscriber(keys.alive("sync"), lambda s: arrived.set(), history=True)
-    token = declarer.liveliness().declare_token(keys.alive("sync"))
+    key = keys.station("sync", as_user, "x") if as_user else keys.alive("sync")
+    subscriber = watcher.liveliness().declare_subscriber(key, lambda s: arrived.set(), history=True)
+    token = declarer.liveliness().declare_token(key)
     try:
         assert arrived.wait(5.0), "declarations did not reach the other session's router"
     finally:
@@ -119,223 +134,190 @@ def command_queryable(session: zenoh.Session, key: str, seen: list[str]) -> zeno
     return session.declare_queryable(key, on_query)
 
 
-# -- authentication -----------------------------------------------------------------------------
+
+# -- secure by default ----------------------------------------------------------------------------
 
 
-def test_session_without_credentials_is_refused_at_connection(bus):
-    with pytest.raises(zenoh.ZError):
-        bus.login(None)
+def test_without_accounts_the_controller_serves_its_own_host_only_and_says_how_to_let_others_in(tmp_path):
+    cfg = machine(tmp_path, accounts=False, **{"zenoh.connect": ["tcp/10.1.2.3:7448"]})
+    plan = plan_access(cfg, tmp_path / "bus.sock")
+    port = cfg.zenoh.listen[0].rsplit(":", 1)[1]
+    assert plan.network == [f"tcp/127.0.0.1:{port}"] and plan.connect == [] and not plan.auth
+    assert "serving this host only" in plan.notice and "waterjet users add NAME --role operator" in plan.notice
+    assert "not connecting to tcp/10.1.2.3:7448" in plan.notice
+    opened = plan_access(machine(tmp_path, accounts=False, **{"zenoh.access.open_network": True}), tmp_path / "b.sock")
+    assert opened.network[0].startswith("tcp/0.0.0.0:") and "UNSAFE" in opened.notice
+    assert plan_access(cfg).roles == {"local": "engineer"}
 
 
-def test_session_with_a_wrong_password_is_refused(bus):
-    with pytest.raises(zenoh.ZError):
-        bus.login("operator1", "not-the-password")
+def test_a_local_process_on_the_network_endpoint_gets_the_public_keys_and_nothing_internal(local_bus):
+    inside, station = local_bus.inside(), local_bus.login(None)
+    seen: list[str] = []
+    _cmd = command_queryable(inside, f"{local_bus.keys.root}/u/*/cmd/**", seen)
+    _internal = command_queryable(inside, local_bus.keys.logic("drives"), seen)
+    reached(inside, station, local_bus.keys)
+    assert replies(station, local_bus.keys.logic("drives")) == []
+    assert replies(station, local_bus.keys.cmd("stop")) == ["ok"]  # u/local/cmd: a station on this host commands
+    assert replies(station, local_bus.keys.cmd("stop", "someone")) == []
+    assert replies(inside, local_bus.keys.logic("drives")) == ["ok"]  # the private plane reaches everything
+    assert seen == [local_bus.keys.cmd("stop"), local_bus.keys.logic("drives")]
 
 
-def test_user_missing_from_the_credentials_file_is_refused(bus):
-    with pytest.raises(zenoh.ZError):
-        bus.login("intruder", "op-secret")
+def test_a_station_cannot_serve_or_forge_what_the_controller_serves(local_bus):
+    inside, station = local_bus.inside(), local_bus.login(None)
+    got: list[str] = []
+    _sub = inside.declare_subscriber(local_bus.keys.status, lambda s: got.append(s.payload.to_string()))
+    _fake = station.declare_queryable(local_bus.keys.logic("reset"), lambda q: q.reply(q.key_expr, "forged"))
+    reached(station, inside, local_bus.keys, as_user="local")
+    station.put(local_bus.keys.status, "forged")
+    inside.put(local_bus.keys.status, "real")
+    deadline = time.monotonic() + 5.0
+    while "real" not in got and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert got == ["real"]
+    assert replies(inside, local_bus.keys.logic("reset")) == []
 
 
-def test_every_named_user_logs_in_with_its_password(bus):
+# -- accounts ---------------------------------------------------------------------------------------
+
+
+def test_with_accounts_a_session_without_credentials_or_with_a_wrong_one_is_refused(bus):
+    for user, password in ((None, None), ("operator1", "not-the-password"), ("intruder", "op-secret")):
+        with pytest.raises(zenoh.ZError):
+            bus.login(user, password)
     for user in PASSWORDS:
         assert bus.login(user).info.routers_zid() == [bus.router.zid()]
 
 
-# -- rules --------------------------------------------------------------------------------------
-
-
-def test_observer_receives_status_but_its_command_query_never_reaches_the_queryable(bus):
-    controller, observer = bus.login("controller"), bus.login("observer1")
+def test_each_user_reaches_only_its_own_command_keys_and_observers_none(bus):
+    inside = bus.inside()
     seen: list[str] = []
-    _q = command_queryable(controller, f"{bus.keys.root}/cmd/**", seen)
-    status = controller.declare_publisher(bus.keys.status)
-    got = threading.Event()
-    _sub = observer.declare_subscriber(bus.keys.status, lambda sample: got.set())
-    assert put_until_received(lambda: status.put("{}"), got)
-    reached(controller, observer, bus.keys)
+    _cmd = command_queryable(inside, f"{bus.keys.root}/u/*/**", seen)
+    operator, observer, engineer = bus.login("operator1"), bus.login("observer1"), bus.login("engineer1")
+    for s in (operator, observer, engineer):
+        reached(inside, s, bus.keys)
+    assert replies(observer, bus.keys.cmd("start", "observer1")) == []
+    assert replies(observer, bus.keys.cmd("start", "operator1")) == []
+    assert replies(operator, bus.keys.cmd("start", "engineer1")) == []
+    assert replies(operator, bus.keys.cmd("hold", "operator1")) == ["ok"]
+    assert replies(engineer, bus.keys.user_param("engineer1", "axis.x.kp_1_s")) == ["ok"]
+    assert seen == [bus.keys.cmd("hold", "operator1"), bus.keys.user_param("engineer1", "axis.x.kp_1_s")]
 
-    assert replies(observer, f"{bus.keys.root}/cmd/start") == []
-    operator = bus.login("operator1")
-    assert replies(operator, f"{bus.keys.root}/cmd/hold") == ["ok"]
-    assert seen == [f"{bus.keys.root}/cmd/hold"]  # the observer's cmd/start, sent first, never arrived
 
-
-def test_operator_command_query_reaches_the_queryable_and_gets_its_reply(bus):
-    controller, operator = bus.login("controller"), bus.login("operator1")
+def test_the_controllers_own_login_opens_nothing_internal_from_the_network(bus):
+    inside = bus.inside()
     seen: list[str] = []
-    _q = command_queryable(controller, f"{bus.keys.root}/cmd/**", seen)
-    reached(controller, operator, bus.keys)
-    assert replies(operator, f"{bus.keys.root}/cmd/start") == ["ok"]
-    assert seen == [f"{bus.keys.root}/cmd/start"]
+    _internal = command_queryable(inside, f"{bus.keys.root}/internal/**", seen)
+    stolen = bus.login(*bus.plan.controller)  # the right password, from a network endpoint: no rule matches it
+    reached(inside, bus.login("operator1"), bus.keys)  # the queryable is known at the router by now
+    assert replies(stolen, bus.keys.logic("drives")) == []
+    assert replies(inside, bus.keys.logic("drives")) == ["ok"]
 
 
-def test_operator_uploads_a_program_and_an_observer_cannot(bus):
-    controller, operator, observer = bus.login("controller"), bus.login("operator1"), bus.login("observer1")
-    uploads: list[str] = []
-    got = threading.Event()
-    _sub = controller.declare_subscriber(
-        f"{bus.keys.root}/program/**", lambda s: (uploads.append(s.payload.to_string()), got.set())
-    )
-    observer.put(f"{bus.keys.root}/program/upload", "from observer")
-    assert put_until_received(lambda: operator.put(f"{bus.keys.root}/program/upload", "from operator"), got)
-    assert set(uploads) == {"from operator"}
-
-
-def test_observer_queries_alarms_jobs_and_the_loaded_program_but_not_uploads(bus):
-    controller, observer = bus.login("controller"), bus.login("observer1")
-    _qs = [
-        controller.declare_queryable(key, lambda q: q.reply(q.key_expr, str(q.key_expr)))
-        for key in (f"{bus.keys.root}/alarms/**", f"{bus.keys.root}/jobs/**", f"{bus.keys.root}/program/**")
-    ]
-    reached(controller, observer, bus.keys)
-    for key in (bus.keys.alarms_active, f"{bus.keys.root}/jobs/history", f"{bus.keys.root}/program"):
-        assert replies(observer, key) == [key]
-    assert replies(observer, f"{bus.keys.root}/program/upload") == []
-
-
-def test_observer_neither_sees_internal_keys_nor_forges_status(bus):
-    controller, observer = bus.login("controller"), bus.login("observer1")
-    internal = threading.Event()
-    seen_by_observer: list[str] = []
-    seen_by_controller: list[str] = []
-    observer_got = threading.Event()
-    _internal = observer.declare_subscriber(f"{bus.keys.root}/internal/**", lambda s: internal.set())
-    _obs = observer.declare_subscriber(
-        bus.keys.status, lambda s: (seen_by_observer.append(s.payload.to_string()), observer_got.set())
-    )
-    _ctl = controller.declare_subscriber(bus.keys.status, lambda s: seen_by_controller.append(s.payload.to_string()))
-    _alarms = controller.declare_queryable(bus.keys.alarms_active, lambda q: q.reply(q.key_expr, "[]"))
-    reached(controller, observer, bus.keys)
-    assert put_until_received(lambda: controller.put(bus.keys.status, "sync"), observer_got)
-
-    # Each link keeps its order: the marker behind a message proves the message had its chance.
-    observer_got.clear()
-    controller.put(f"{bus.keys.root}/internal/logic/x", "{}")
-    controller.put(bus.keys.status, "marker")
-    assert observer_got.wait(5.0) and seen_by_observer[-1] == "marker"
-    assert not internal.is_set()
-
-    observer.put(bus.keys.status, "forged")
-    assert replies(observer, bus.keys.alarms_active) == ["[]"]
-    assert "forged" not in seen_by_controller and "marker" in seen_by_controller
-
-
-def test_observer_sees_controller_liveliness_and_announces_its_station(bus):
-    controller, observer = bus.login("controller"), bus.login("observer1")
-    _token = controller.liveliness().declare_token(bus.keys.alive("logic"))
-    alive = threading.Event()
-    _live = observer.liveliness().declare_subscriber(bus.keys.alive_all, lambda s: alive.set(), history=True)
-    assert alive.wait(5.0)
-
-    stations: list[str] = []
-    station_seen = threading.Event()
-    station = f"{bus.keys.root}/hmi/station1"
-
-    def on_token(sample: zenoh.Sample) -> None:
-        stations.append(str(sample.key_expr))
-        if str(sample.key_expr) == station:
-            station_seen.set()
-
-    _watch = controller.liveliness().declare_subscriber(f"{bus.keys.root}/**", on_token, history=True)
-    _forged = observer.liveliness().declare_token(f"{bus.keys.root}/cmd/forged")
-    _station = observer.liveliness().declare_token(station)
-    assert station_seen.wait(5.0)
-    assert f"{bus.keys.root}/cmd/forged" not in stations  # declared first on the same link: it had its chance
-
-
-def test_controller_user_declares_queryables_and_publishes_anywhere(bus):
-    logic, planner = bus.login("controller"), bus.login("controller")
-    _q = logic.declare_queryable(bus.keys.logic("state"), lambda q: q.reply(q.key_expr, "idle"))
-    reached(logic, planner, bus.keys)
-    assert replies(planner, bus.keys.logic("state")) == ["idle"]
-    assert replies(bus.router, bus.keys.logic("state")) == ["idle"]  # the supervisor asks from the router
-    got = threading.Event()
-    _sub = logic.declare_subscriber(f"{bus.keys.root}/internal/**", lambda s: got.set())
-    assert put_until_received(lambda: planner.put(f"{bus.keys.root}/internal/planner/x", "{}"), got)
-
-
-def test_router_session_queryable_answers_operators(bus):
-    operator = bus.login("operator1")
-    _q = bus.router.declare_queryable(f"{bus.keys.root}/cmd/**", lambda q: q.reply(q.key_expr, "ok"))
-    reached(bus.router, operator, bus.keys)
-    assert replies(operator, f"{bus.keys.root}/cmd/reset") == ["ok"]
-
-
-def test_access_disabled_lets_any_session_do_anything(open_bus):
-    assert controller_credentials(open_bus.cfg) is None
-    anyone, other = open_bus.login(None), open_bus.login(None)
+def test_a_station_on_the_controllers_host_logs_in_by_itself_as_local(bus):
+    assert local_login(bus.network) == bus.plan.local
+    assert stat.S_IMODE(bus.login_file.stat().st_mode) == 0o600
+    inside, here = bus.inside(), bus._keep(open_client(bus.network))  # no credentials given: the local login
     seen: list[str] = []
-    _q = command_queryable(anyone, f"{open_bus.keys.root}/cmd/**", seen)
-    reached(anyone, other, open_bus.keys)
-    assert replies(other, f"{open_bus.keys.root}/cmd/start") == ["ok"]
+    _cmd = command_queryable(inside, f"{bus.keys.root}/u/*/cmd/**", seen)
+    reached(inside, here, bus.keys)
+    assert replies(here, bus.keys.cmd("stop")) == ["ok"]
+    assert role_of(bus.cfg, "local") == "engineer" and role_of(bus.cfg, "operator1") == "operator"
+    assert role_of(bus.cfg, "nobody") is None
+
+
+def test_observers_watch_status_events_and_histories_and_announce_only_their_own_station(bus):
+    inside, observer = bus.inside(), bus.login("observer1")
+    _q = inside.declare_queryable(bus.keys.alarms_history, lambda q: q.reply(q.key_expr, "page"))
     got = threading.Event()
-    _sub = anyone.declare_subscriber(f"{open_bus.keys.root}/program/**", lambda s: got.set())
-    assert put_until_received(lambda: other.put(f"{open_bus.keys.root}/program/upload", "G0 X0"), got)
+    _sub = observer.declare_subscriber(bus.keys.status, lambda s: got.set())
+    assert put_until_received(lambda: inside.put(bus.keys.status, "{}"), got)
+    reached(inside, observer, bus.keys)
+    assert replies(observer, bus.keys.alarms_history) == ["page"]
+    tokens: list[str] = []
+    _watch = inside.liveliness().declare_subscriber(f"{bus.keys.root}/hmi/**", lambda s: tokens.append(str(s.key_expr)),
+                                                    history=True)
+    _own = observer.liveliness().declare_token(bus.keys.station("screen", "observer1", "s1"))
+    _other = observer.liveliness().declare_token(bus.keys.station("panel", "operator1", "s2"))
+    reached(observer, inside, bus.keys, as_user="observer1")
+    deadline = time.monotonic() + 5.0
+    while not tokens and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert bus.keys.station("screen", "observer1", "s1") in tokens
+    assert bus.keys.station("panel", "operator1", "s2") not in tokens, "an observer announced another user's station"
 
 
-# -- configuration ------------------------------------------------------------------------------
-
-
-def test_controller_credentials_come_from_the_credentials_file(tmp_path):
-    assert controller_credentials(access_machine(tmp_path)) == ("controller", "ctl-secret")
-
-
-def test_client_config_carries_the_credentials():
-    conf = client_config(["tcp/127.0.0.1:7447"], ("operator1", "op-secret"))
-    assert json.loads(conf.get_json("transport/auth/usrpwd/user")) == "operator1"
-    assert json.loads(conf.get_json("mode")) == "client"
-    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
-
-
-def test_router_config_without_access_has_no_authentication():
-    cfg = machine_config()
-    conf = router_config(cfg)
-    assert json.loads(conf.get_json("listen/endpoints")) == cfg.zenoh.listen
-    assert json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file")) is None
-    assert json.loads(conf.get_json("access_control/enabled")) is False
-
-
-def test_opening_the_router_leaves_no_dictionary_copy_behind(tmp_path, monkeypatch):
-    scratch = tmp_path / "scratch"
-    scratch.mkdir()
-    monkeypatch.setattr("tempfile.tempdir", str(scratch))
-    Bus(access_machine(tmp_path)).close()
-    assert list(scratch.iterdir()) == []
-
-
-def test_missing_credentials_file_names_the_key(tmp_path):
-    cfg = access_machine(tmp_path)
-    (tmp_path / "credentials.txt").unlink()
-    with pytest.raises(ConfigError, match=r"\[zenoh\.access\] credentials_file: .*credentials\.txt"):
-        router_config(cfg)
-
-
-def test_controller_user_missing_from_the_file_names_the_key(tmp_path):
-    cfg = access_machine(tmp_path)
-    (tmp_path / "credentials.txt").write_text("operator1:op-secret\nobserver1:obs-secret\n", encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"\[zenoh\.access\] controller_user: controller: not in"):
-        controller_credentials(cfg)
-
-
-def test_rules_deny_by_default_and_give_each_role_its_keys(tmp_path):
-    cfg = access_machine(tmp_path)
-    acl = access_control(cfg)
-    root = Keys(cfg.zenoh.key_prefix, cfg.machine.name).root
-    rules = {r["id"]: r for r in acl["rules"]}
-    policies = {p["id"]: p for p in acl["policies"]}
+def test_rules_deny_by_default_and_bind_the_private_plane_to_the_unix_socket(bus):
+    acl = access_control(bus.cfg, bus.plan)
     assert acl["default_permission"] == "deny"
-    assert rules["command in"]["key_exprs"] == [f"{root}/cmd/**"]
-    assert "command in" in policies["operators"]["rules"]
-    assert not any(r.startswith(("command", "upload")) for r in policies["observers"]["rules"])
-    assert "shop router" not in policies  # no `connect`: no upstream router to trust
-
-
-def test_a_router_that_connects_trusts_only_the_machines_shop_router_id(tmp_path):
-    cfg = access_machine(tmp_path, **{"zenoh.connect": ["tcp/127.0.0.1:7448"]})
-    conf = router_config(cfg)
-    dictionary_file(conf).unlink()
-    acl = json.loads(conf.get_json("access_control"))
     subjects = {s["id"]: s for s in acl["subjects"]}
-    assert subjects["shop router"]["zids"] == [shop_router_zid(cfg)]
-    assert "everything" not in {p["id"]: p for p in acl["policies"]}["shop router"]["rules"]
+    assert subjects["controller"] == {"id": "controller", "usernames": ["controller"], "link_protocols": ["unixsock-stream"]}
+    assert subjects["station local"] == {"id": "station local", "usernames": ["local"], "interfaces": ["lo"]}
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert "commands observer1" not in rules and rules["commands operator1"]["key_exprs"] == [f"{bus.keys.root}/u/operator1/**"]
+
+
+def test_opening_the_router_leaves_no_dictionary_copy_behind(tmp_path):
+    cfg = machine(tmp_path)
+    plan = plan_access(cfg, tmp_path / "bus.sock")
+    conf = router_config(cfg, plan)
+    copy = dictionary_file(conf)
+    assert copy is not None and copy.exists() and stat.S_IMODE(copy.stat().st_mode) == 0o600
+    copy.unlink()
+    router = open_machine_router(cfg, plan)
+    try:
+        assert not list(Path(copy.parent).glob("waterjet-usrpwd-*"))
+    finally:
+        router.close()
+        (tmp_path / "bus.sock").unlink(missing_ok=True)
+
+
+# -- the users file and `waterjet users` ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("text, mode, where", [
+    ("alice:operator:long-enough\n", 0o644, "readable by others (mode 0644)"),
+    ("alice:operator\n", 0o600, ":2: expected name:role:password"),
+    ("alice:admin:long-enough\n", 0o600, ":2: role 'admin' is not one of observer, operator, engineer"),
+    ("controller:operator:long-enough\n", 0o600, "is the controller's own"),
+    ("alice:operator:short\n", 0o600, "at least 8 characters"),
+])
+def test_a_broken_users_file_is_refused_naming_the_key_the_line_and_why(tmp_path, text, mode, where):
+    users = tmp_path / "m.users"
+    users.write_text("# accounts\n" + text)
+    users.chmod(mode)
+    with pytest.raises(ConfigError) as err:
+        machine_config(**{"zenoh.access.users_file": str(users)})
+    assert "[zenoh.access] users_file" in str(err.value) or "zenoh.access" in str(err.value)
+    assert where in str(err.value)
+
+
+def test_waterjet_users_adds_lists_changes_and_removes_accounts_never_printing_a_password(tmp_path):
+    machine_file = tmp_path / "m.toml"
+    machine_file.write_text((REPO / "machines" / "waterjet.toml").read_text())
+
+    def users(*args: str, stdin: str = "") -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "cnc.cli", "users", *args, "--machine", str(machine_file)],
+                              input=stdin, capture_output=True, text=True, cwd=REPO, timeout=60)
+
+    listed = users("list")
+    assert listed.returncode == 0 and "serves its own host only" in listed.stdout
+    added = users("add", "alice", "--role", "operator", "--password-stdin", stdin="alice-secret\n")
+    assert added.returncode == 0 and "added alice (operator)" in added.stdout and "next starts" in added.stdout
+    assert users("add", "bob", "--role", "observer", "--password-stdin", stdin="bob-secret-1\n").returncode == 0
+    changed = users("add", "alice", "--role", "engineer", "--password-stdin", stdin="alice-secret-2\n")
+    assert changed.returncode == 0 and "changed alice (engineer)" in changed.stdout
+    path = tmp_path / "m.users"
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    assert {n: a.role for n, a in read_users(path).items()} == {"alice": "engineer", "bob": "observer"}
+    listed = users("list")
+    assert listed.stdout.split() == ["alice", "engineer", "bob", "observer"]
+    short = users("add", "carol", "--role", "operator", "--password-stdin", stdin="short\n")
+    assert short.returncode == 2 and "at least 8 characters" in short.stderr
+    no_tty = users("add", "carol", "--role", "operator")
+    assert no_tty.returncode == 2 and "--password-stdin" in no_tty.stderr
+    assert users("remove", "bob").returncode == 0 and list(read_users(path)) == ["alice"]
+    missing = users("remove", "bob")
+    assert missing.returncode == 2 and "no account 'bob'" in missing.stderr
+    everything = "".join(r.stdout + r.stderr for r in (listed, added, changed, short, no_tty, missing))
+    assert "secret" not in everything

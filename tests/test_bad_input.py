@@ -430,12 +430,12 @@ def test_malformed_parameter_changes_are_refused_naming_what_and_nothing_changes
         ("1e400", b'{"value": 1e400, "version": 1}', "Number out of range"),
         ("out of range", _json({"value": 1e308}), "out of range"),
     ]:
-        reply = bench.ask(bench.keys.param(name), payload, attachment)
+        reply = bench.ask(bench.keys.user_param("local", name), payload, attachment)
         assert not reply.ok and expected in reply.reason, (what, reply.reason)
-    unknown = bench.ask(bench.keys.param("axis.x.warp_factor"), _json({"value": 1.0}), attachment)
+    unknown = bench.ask(bench.keys.user_param("local", "axis.x.warp_factor"), _json({"value": 1.0}), attachment)
     assert not unknown.ok and "no control parameter 'axis.x.warp_factor'" in unknown.reason
-    assert "the query carries no station id" in bench.ask(bench.keys.param(name), _json({"value": value}), None).reason
-    save = bench.ask(bench.keys.params, b'{"version": 1, "to": "/etc/passwd"}', attachment)
+    assert "the query carries no station id" in bench.ask(bench.keys.user_param("local", name), _json({"value": value}), None).reason
+    save = bench.ask(bench.keys.user_params("local"), b'{"version": 1, "to": "/etc/passwd"}', attachment)
     assert not save.ok and "unknown field `to`" in save.reason
     assert _param(bench, name) == value
     _unchanged(bench, before, position)

@@ -266,7 +266,7 @@ def test_a_schema_version_mismatch_sets_a_clear_error_and_the_subscription_survi
     model = MachineModel("panel")
     with Connection(model, endpoints, keys, "panel"):
         wait_for(lambda: model.reachable, 5.0, "the first status")
-        publisher = open_client(endpoints)
+        publisher = open_client(sup.runtime.zenoh_connect, sup.runtime.zenoh_credentials)  # the controller's side
         future = encode(ProcedureState("p", "P", "running", 0, [], "", 1)).replace(b'"version":1', b'"version":2')
         publisher.put(keys.procedure, future)
         wait_for(lambda: "schema version 2" in model.error, 5.0, "the error text")

@@ -12,11 +12,12 @@ import pytest
 import zenoh
 
 from cnc.bus.keys import Keys
-from cnc.bus.session import open_client, open_router
+from cnc.bus.access import open_machine_router, plan_access, run_dir
+from cnc.bus.session import open_client, open_router, zenoh_config
 from cnc.config import load_machine
 
 from .conftest import MACHINE_FILE, REPO, free_port
-from .test_access_control import CREDENTIALS, PASSWORDS, put_until_received, reached, replies
+from .test_access_control import PASSWORDS, accounts_file, put_until_received, reached, replies
 
 
 class ShopRouter:
@@ -81,34 +82,41 @@ def test_controller_router_connected_to_the_shop_router_reaches_its_stations(ses
 
 
 def shop_machine(tmp_path: Path) -> Path:
-    """The shipped machine with access control on, written where the shop router can read it."""
-    (tmp_path / "credentials.txt").write_text(CREDENTIALS, encoding="utf-8")
-    text = MACHINE_FILE.read_text(encoding="utf-8") + (
-        '\n[zenoh.access]\nenabled = true\ncredentials_file = "credentials.txt"\n'
-        'operators = ["operator1"]\nobservers = ["observer1"]\n'
-    )
+    """The shipped machine with accounts, written where the shop router can read it."""
+    accounts_file(tmp_path).rename(tmp_path / "machine.users")  # beside the machine file: its default place
     path = tmp_path / "machine.toml"
-    path.write_text(text, encoding="utf-8")
+    path.write_text(MACHINE_FILE.read_text(encoding="utf-8"), encoding="utf-8")
     return path
 
 
-def test_shop_router_with_a_machine_applies_its_access_rules_to_stations(tmp_path, sessions):
+def test_a_shop_router_refuses_a_machine_without_accounts(tmp_path):
+    path = tmp_path / "machine.toml"
+    path.write_text(MACHINE_FILE.read_text(encoding="utf-8"), encoding="utf-8")
+    proc = subprocess.run([sys.executable, "-m", "cnc.router", "--listen", f"tcp/127.0.0.1:{free_port()}",
+                           "--machine", str(path)], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "has no accounts" in proc.stderr and "waterjet users add" in proc.stderr
+
+
+def test_shop_router_with_a_machine_logs_stations_in_and_applies_its_rules(tmp_path, sessions):
     machine = shop_machine(tmp_path)
     shop_ep, controller_ep = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
     router = ShopRouter("--listen", shop_ep, "--machine", str(machine))
+    socket = run_dir() / f"test-shop-{free_port()}.sock"
     try:
         assert "access control of machine" in router.banner
         cfg = load_machine(machine, {"zenoh.listen": [controller_ep], "zenoh.connect": [shop_ep]})
         keys = Keys(cfg.zenoh.key_prefix, cfg.machine.name)
-        controller = open_router(cfg)  # authenticates to the shop router as the controller user
+        plan = plan_access(cfg, socket)
+        controller = open_machine_router(cfg, plan)  # logs in to the shop router as the controller
         sessions.append(controller)
         seen: list[str] = []
         _cmd = controller.declare_queryable(
-            f"{keys.root}/cmd/**", lambda q: (seen.append(str(q.key_expr)), q.reply(q.key_expr, "ok"))
+            f"{keys.root}/u/*/cmd/**", lambda q: (seen.append(str(q.key_expr)), q.reply(q.key_expr, "ok"))
         )
+        _internal = controller.declare_queryable(keys.logic("drives"), lambda q: q.reply(q.key_expr, "internal"))
 
         with pytest.raises(zenoh.ZError):
-            sessions.append(open_client([shop_ep]))
+            sessions.append(zenoh.open(zenoh_config("client", connect=[shop_ep])))
         observer = open_client([shop_ep], ("observer1", PASSWORDS["observer1"]))
         operator = open_client([shop_ep], ("operator1", PASSWORDS["operator1"]))
         sessions += [observer, operator]
@@ -116,8 +124,11 @@ def test_shop_router_with_a_machine_applies_its_access_rules_to_stations(tmp_pat
         _sub = observer.declare_subscriber(keys.status, lambda s: received.set())
         assert put_until_received(lambda: controller.put(keys.status, "{}"), received)
         reached(controller, observer, keys)
-        assert replies(observer, f"{keys.root}/cmd/start") == []
-        assert replies(operator, f"{keys.root}/cmd/hold") == ["ok"]
-        assert seen == [f"{keys.root}/cmd/hold"]
+        assert replies(observer, keys.cmd("start", "observer1")) == []
+        assert replies(operator, keys.cmd("start", "observer1")) == []
+        assert replies(operator, keys.cmd("hold", "operator1")) == ["ok"]
+        assert replies(operator, keys.logic("drives")) == []
+        assert seen == [keys.cmd("hold", "operator1")]
     finally:
+        socket.unlink(missing_ok=True)
         assert router.stop()[0] == 0

@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from cnc.bus.session import LEASE_S
+from cnc.bus.users import Account, write_users
 
 from .conftest import MACHINE_FILE, REPO
 
@@ -32,6 +33,7 @@ SUBNET = f"10.{200 + PID % 50}.{PID % 250}"
 CONTROLLER_IP, STATION_IP = f"{SUBNET}.1", f"{SUBNET}.2"
 SHOP = f"tcp/{CONTROLLER_IP}:7447"
 LOCAL = "tcp/127.0.0.1:7448"  # the controller's own router, on its host's loopback
+ACCOUNTS = {"alice": ("operator", "alice-secret"), "olga": ("observer", "olga-secret")}
 
 FRAME = """(a 150 x 75 mm frame at 100 mm/s: four and a half seconds of cutting)
 G21 G90 G64 P0.05 F6000
@@ -126,8 +128,9 @@ class Host:
 
 
 class Station(Host):
-    def __init__(self, ns: str, endpoint: str, machine: str, name: str) -> None:
-        super().__init__(ns, "station.py", "--connect", endpoint, "--machine", machine, "--station", name)
+    def __init__(self, ns: str, endpoint: str, machine: str, name: str, login: str = "") -> None:
+        super().__init__(ns, "station.py", "--connect", endpoint, "--machine", machine, "--station", name,
+                         *(["--login", login] if login else []))
         self.name = name
 
     def observe(self) -> dict:
@@ -156,12 +159,16 @@ class Station(Host):
 def hosts(network, tmp_path_factory):
     """The shop router and the controller on the controller's host; a station on each host."""
     tmp = tmp_path_factory.mktemp("two-hosts")
+    machine_file = tmp / "machine.toml"  # the shipped machine with two accounts beside it (machine.users)
+    machine_file.write_text(MACHINE_FILE.read_text())
+    write_users(tmp / "machine.users", {n: Account(n, role, password) for n, (role, password) in ACCOUNTS.items()})
     started: list[Host] = []
     try:
         router = subprocess.Popen(["ip", "netns", "exec", CONTROLLER_NS, sys.executable, "-m", "cnc.router",
-                                   "--listen", SHOP], cwd=REPO, stdout=subprocess.PIPE, text=True)
+                                   "--listen", SHOP, "--machine", str(machine_file)], cwd=REPO, stdout=subprocess.PIPE,
+                                  text=True)
         assert " listening on " in router.stdout.readline(), "the shop router did not start"
-        controller = Host(CONTROLLER_NS, "controller.py", "--machine", str(MACHINE_FILE), "--listen", LOCAL,
+        controller = Host(CONTROLLER_NS, "controller.py", "--machine", str(machine_file), "--listen", LOCAL,
                           "--connect", SHOP, "--history", str(tmp / "history.sqlite"),
                           "--set", 'cycle.transport_procedure=""', "--set", "sim.axes.x.start_position_mm=30",
                           "--set", "sim.axes.y.start_position_mm=30", "--set", "plc.cycle_ms=100", "--set", "plc.timeout_ms=250",
@@ -171,7 +178,7 @@ def hosts(network, tmp_path_factory):
         machine = controller.banner["machine"]
         local = Station(CONTROLLER_NS, LOCAL, machine, "watch")
         started.append(local)
-        remote = Station(STATION_NS, SHOP, machine, "remote")
+        remote = Station(STATION_NS, SHOP, machine, "remote", login="alice:" + ACCOUNTS["alice"][1])
         started.append(remote)
         (tmp / "frame.ngc").write_text(FRAME)
         yield remote, local, tmp / "frame.ngc"
@@ -223,3 +230,28 @@ def test_a_cycle_run_from_another_host_holds_when_the_link_is_cut_and_catches_up
     remote.command("Resume")
     done = remote.wait(lambda s: s["cycles_done"] == 1 and s["phase"] == "NONE", 60.0, "the cycle to finish")
     assert 3001 in done["codes"], "cycle finished message"
+
+
+def probe(login: str = "", other: str = "alice") -> dict:
+    """A session from the station's host, through the shop router (tests/hosts/probe.py)."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    res = subprocess.run(["ip", "netns", "exec", STATION_NS, sys.executable, str(HOSTS / "probe.py"), "--connect", SHOP,
+                          "--machine", "waterjet", "--other", other, *(["--login", login] if login else [])],
+                         cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    return json.loads(res.stdout.splitlines()[-1])
+
+
+def test_from_another_host_nothing_is_reached_without_an_account_and_an_observer_only_watches(hosts):
+    """Secure by default across a real network: no account, no session; an observer sees the status
+    but neither its own command key nor another user's answers; nobody reaches internal keys."""
+    remote, _local, _program = hosts
+    remote.wait(lambda s: s["reachable"], 30.0, "the controller across the link")
+    assert probe()["opened"] is False, "a session without an account was let in"
+    assert probe("olga:wrong-password")["opened"] is False
+    observer = probe("olga:" + ACCOUNTS["olga"][1])
+    assert observer["opened"] and observer["status"], observer
+    assert observer["own"] == [] and observer["other"] == [] and observer["internal"] == [], observer
+    operator = probe("alice:" + ACCOUNTS["alice"][1], other="olga")
+    assert operator["internal"] == [] and operator["other"] == [], operator
+    assert operator["own"] and "lock" in operator["own"][0], "the operator's own command key is answered"

@@ -8,6 +8,7 @@ import threading
 import time
 
 import pytest
+import zenoh
 
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
@@ -244,18 +245,18 @@ def test_a_subscriber_that_reconnects_catches_up_on_every_alarm_it_missed(contro
 
 
 def test_with_access_control_only_authenticated_operators_command_the_running_controller(tmp_path):
-    creds = tmp_path / "users.txt"
-    creds.write_text("controller:c-secret\nop1:op-secret\nobs1:obs-secret\n")
-    config = machine_config(**NEAR_HOME, **{
-        "zenoh.access.enabled": True, "zenoh.access.credentials_file": str(creds),
-        "zenoh.access.operators": ["op1"], "zenoh.access.observers": ["obs1"],
-    })
+    from cnc.bus.session import zenoh_config
+    from cnc.bus.users import Account, write_users
+
+    users = tmp_path / "machine.users"
+    write_users(users, {"op1": Account("op1", "operator", "op-secret"), "obs1": Account("obs1", "observer", "obs-secret")})
+    config = machine_config(**NEAR_HOME, **{"zenoh.access.users_file": str(users)})
     keys = Keys(config.zenoh.key_prefix, config.machine.name)
     endpoint = [config.zenoh.listen[0]]
     with Supervisor(config, clock="virtual", history_path=tmp_path / "h.sqlite", plc_sim_times=fast_plant()) as sup:
         sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
         with pytest.raises(Exception):
-            open_client(endpoint)  # no credentials: refused at the door
+            zenoh.open(zenoh_config("client", connect=endpoint))  # no credentials: refused at the door
         with pytest.raises(Exception):
             open_client(endpoint, ("op1", "wrong"))
         observer = open_client(endpoint, ("obs1", "obs-secret"))
@@ -263,15 +264,22 @@ def test_with_access_control_only_authenticated_operators_command_the_running_co
         statuses = []
         sub = observer.declare_subscriber(keys.status, lambda s: statuses.append(s))
         sup.wait_until(lambda: statuses, 10.0, "status at the observer")
-        watcher = OperatorStation(observer, keys, "watcher", timeout_s=2.0)
+        watcher = OperatorStation(observer, keys, "watcher", timeout_s=2.0, user="obs1")
         refused = watcher.take_lock()
         assert not refused.ok and "no answer" in refused.reason, "an observer's command never reaches the gateway"
-        op = OperatorStation(operator, keys, "panel")
+        op = OperatorStation(operator, keys, "panel", user="op1")
         assert op.take_lock().ok and op.request(Reset()).ok
         sup.wait_until(lambda: logic(sup)["drives_on"] == 1, 5.0, "the operator's reset")
         assert get(observer, f"{keys.alarms_history}?after=0", HistoryPage).last_seq >= 0, "observers read the history"
         assert not watcher.upload("x.ngc", PART).ok
         assert op.upload("part.ngc", PART).ok
+        # nobody acts as someone else, or reaches the controller's internal keys
+        forged = list(observer.get(keys.cmd("reset", "op1"), payload=b"{}", attachment=op.attachment, timeout=2.0))
+        assert not [r for r in forged if r.ok is not None], "an observer used the operator's command key"
+        for session_ in (observer, operator):
+            assert not [r for r in session_.get(keys.logic("drives"), payload=b'{"on": true}', timeout=2.0)
+                        if r.ok is not None], "a station reached internal/logic"
+        assert "is an operator; this needs an engineer" in op.set_param("axis.x.kp_1_s", 30.0).reason
         from hmi.connection import Connection
         from hmi.model import MachineModel
 
@@ -358,5 +366,30 @@ def test_a_station_loads_programs_by_name_from_the_program_directory_only(contro
         reply = op.request(LoadProgram("part.ngc"))
         assert reply.ok, reply.reason
         assert controller.motion()["program_name"] == "part.ngc"
+    finally:
+        op.close()
+
+
+def test_every_command_and_refusal_is_in_the_audit_trail_with_its_user_and_station(controller, session, keys):
+    """The audit trail keeps who sent what and the answer, refusals included; a parameter change
+    runs the machine file's cross-checks (fifo_high_ms must stay above fifo_low_ms + a period)."""
+    from cnc.bus.messages import AuditPage, JogRefresh
+
+    op = OperatorStation(session, keys, "panel")
+    try:
+        assert "nobody holds the command lock" in op.request(Reset()).reason
+        assert op.take_lock().ok and op.request(Reset()).ok
+        op.request(JogRefresh())  # the dead-man's refreshes are not recorded
+        refused = op.set_param("planner.fifo_high_ms", 4.0)
+        assert not refused.ok and "fifo_high_ms" in refused.reason and "must exceed fifo_low_ms" in refused.reason, refused
+        sup = controller
+        sup.wait_until(lambda: len(get(session, f"{keys.audit_history}?order=oldest", AuditPage).entries) >= 4, 10.0,
+                       "the audit trail")
+        rows = get(session, f"{keys.audit_history}?order=oldest", AuditPage).entries
+        assert [(r.user, r.station, r.verb, r.ok) for r in rows] == [
+            ("local", "panel", "reset", False), ("local", "panel", "lock", True), ("local", "panel", "reset", True),
+            ("local", "panel", "param planner.fifo_high_ms", False)]
+        assert "nobody holds the command lock" in rows[0].reason and '"value":4.0' in rows[3].command.replace(" ", "")
+        assert rows[0].at_ns <= rows[-1].at_ns and [r.seq for r in rows] == sorted(r.seq for r in rows)
     finally:
         op.close()

@@ -1,31 +1,40 @@
-"""Zenoh authentication and access control from `[zenoh.access]`: who may do what on the router.
+"""Who reaches the controller, and what they may do: the two planes and the access rules.
 
-When `[zenoh.access] enabled`, every session authenticates with user/password (Zenoh's `usrpwd`
-extension: a session that offers no credentials, or wrong ones, is refused while the link is
-being established) and the router applies access-control rules per message kind, direction and
-key expression. Everything is denied unless a rule allows it:
+**Two planes, one router.** The controller's router listens on a Unix socket in a directory only
+the controller's account can enter (`run_dir`): the private plane, where its own processes talk
+(every key, `internal/**` included). It also listens on the network endpoints of `[zenoh] listen`
+for stations. Access control is always on, and everything is denied unless a rule allows it:
+sessions on the Unix socket may do everything; a station, whatever it declares, reaches only
+the public keys - status, position, events, procedure, lock, the queries (histories, program,
+procedures, parameters, the logger), liveliness under `alive/**` and `hmi/**` - and, by role,
+its own command keys `u/<user>/**`. So no outside host and no local process on the network
+endpoints reaches `internal/**`, with or without accounts.
 
-- the controller user may do everything;
-- observers may subscribe to status, position, events, the procedure and the lock, query the
-  alarms, the job history, the loaded program, the lock, the procedure catalogue and the control
-  parameters (changing one needs the command lock, which only an operator can take), and declare liveliness tokens and liveliness subscribers
-  under `alive/**` and `hmi/**`;
-- operators may do what observers may, plus query `cmd/**` and put/query `program/**`.
+**Accounts.** With accounts in the users file (`cnc.bus.users`), every session logs in (Zenoh's
+user/password extension, on every listener of the router: the Unix socket too, where the
+controller's processes use a password made for this run only) and acts in its account's role;
+a station on the controller's own host logs in as `local` with a password the controller
+writes for this run into `run_dir` (0600), accepted on the loopback interface only: an HMI,
+`waterjet watch` or a script on the controller's host works without set-up. Without accounts the
+controller serves its own host only: its network endpoints are moved to the loopback interface
+and `[zenoh] connect` (a shop router) is not used, so nothing on the network reaches it; every
+station there is `local`. `[zenoh.access] open_network = true` (unsafe) keeps the endpoints as
+written and lets anyone in, in `open_role`.
 
-Zenoh's rules name both directions of a message as seen from the router: `ingress` is what a
-session sends in (its declarations, puts, queries), `egress` is what the router sends out to it
-(samples, replies, liveliness tokens). Observers therefore get `declare_subscriber` in and `put`
-out on the keys they may watch, and `query` in and `reply` out on the keys they may ask.
+**The command keys name who sends.** A station's commands go to `u/<user>/cmd/<verb>` and its
+parameter changes to `u/<user>/param/...`, and the router lets only `<user>` query under
+`u/<user>/**`: the gateway learns who sent a command from the key, never from what the query
+says about itself. Observers get no command keys at all.
 
-Router-to-router links. Zenoh's user/password handshake authenticates the side that *opens* a
-link to the side that accepts it, not the other way round: a router that `connect`s to a shop
-router (`waterjet router --machine M`) knows the shop router only by its Zenoh ID. So the shop
-router of a machine runs under an ID derived from the controller user's password
-(`shop_router_zid`), and the controller's router grants that ID what any operator station may
-do, plus announcing the controller's own declarations (the shop router filters its stations
-with the same rules). A Zenoh ID is an identifier, not a proof; without TLS the whole scheme
-protects against unauthorised stations on an honest network, not against someone who can read
-the traffic.
+**A shop router** (`waterjet router --machine M`) applies the same rules to the stations that
+connect there; the controller's router logs in to it as `controller` with a password both derive
+from the users file, and trusts it by an ID derived the same way (`shop_router_zid`: a Zenoh ID
+is an identifier, not a proof). Without TLS the scheme keeps unauthorised stations out of an
+honest network, not an eavesdropper.
+
+Zenoh's rules name both directions as seen from the router: `ingress` is what a session sends in
+(declarations, puts, queries), `egress` what the router sends out to it (samples, replies,
+liveliness tokens).
 """
 
 from __future__ import annotations
@@ -34,17 +43,24 @@ import hashlib
 import hmac
 import json
 import os
+import re
+import secrets
+import stat
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
-from ..config import ConfigError, MachineConfig, credentials_path, read_credentials
+from ..config import ConfigError, MachineConfig, read_credentials, users_path
 from .keys import Keys
-from .session import zenoh_config
+from .session import LOCAL_USER, local_login_path, zenoh_config
+from .users import ROLES, Account, UsersError, read_users, role_at_least
 
 TABLE = "zenoh.access"
+CONTROLLER_USER = "controller"
+PRIVATE_PROTOCOL = "unixsock-stream"
 
 # Every message kind Zenoh 1.x access control knows about.
 ALL_MESSAGES = (
@@ -52,112 +68,226 @@ ALL_MESSAGES = (
     "liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
 )
 
-# Key groups, relative to the machine root `<prefix>/<machine>`.
+# Public key groups, relative to the machine root `<prefix>/<machine>`.
 WATCH_KEYS = ("status", "position", "event/**", "procedure", "lock", "log/live")  # subscribed to
-READ_KEYS = ("alarms/**", "jobs/**", "program", "lock", "procedures", "param/**", "params", "log/**")  # queried
-# (changing a parameter is a query too: the gateway requires the command lock for it, which observers cannot
-# take; starting and stopping a log run are queries that never move the machine)
+READ_KEYS = ("alarms/**", "jobs/**", "audit/**", "program", "lock", "procedures", "param/**", "params", "log/**")  # queried
+# (reading a parameter is a query on param/**; changing one goes to the sender's own u/<user>/param/**, and
+# starting or stopping a log run is a query that never moves the machine)
 ALIVE_KEYS = ("alive/**", "hmi/**")  # liveliness of controller processes and stations
-COMMAND_KEYS = ("cmd/**",)  # operators only
-UPLOAD_KEYS = ("program/**",)  # operators only
 
 # The file Zenoh reads the user/password dictionary from is a private copy (Zenoh's format
 # allows no comments or blank lines); `cnc.bus.session.open_router` removes it once read.
 DICTIONARY_PREFIX = "waterjet-usrpwd-"
 
 
-def router_config(cfg: MachineConfig, *, shop: bool = False) -> zenoh.Config:
-    """The config of a router for machine `cfg`: router mode on `[zenoh] listen` and `connect`,
-    no multicast scouting, and when `[zenoh.access] enabled` authentication and the rules above.
+class AccessRefused(Exception):
+    """The sender's role does not allow this; the message says who, what and the role needed."""
 
-    `shop=True` builds the shop router of the machine (`waterjet router --machine`): it runs
-    under `shop_router_zid(cfg)`, the ID the controller's router trusts on its `connect` links.
-    With access enabled the config names a private copy of the dictionary that the caller must
-    delete once Zenoh has read it (`open_router` does); see `dictionary_file`."""
-    z = cfg.zenoh
-    conf = zenoh_config("router", listen=list(z.listen), connect=list(z.connect))
-    if not z.access.enabled:
-        return conf
-    users = _users(cfg)
-    controller = z.access.controller_user
-    conf.insert_json5(
-        "transport/auth/usrpwd",
-        json.dumps({"user": controller, "password": users[controller], "dictionary_file": str(_write_dictionary(cfg, users))}),
-    )
+
+def run_dir() -> Path:
+    """The controller account's private directory (mode 0700): the private plane's socket and the
+    local station's login live here. `WATERJET_RUN_DIR` overrides the place."""
+    path = Path(os.environ.get("WATERJET_RUN_DIR") or Path(tempfile.gettempdir()) / f"waterjet-{os.getuid()}")
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    st = path.stat()
+    if st.st_uid != os.getuid() or st.st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise ConfigError("<environment>", "run directory", str(path),
+                          f"must belong to this account and be private (mode 0700), is {stat.S_IMODE(st.st_mode):04o} "
+                          f"owned by uid {st.st_uid}")
+    return path
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the router of one controller (or shop router) listens on, who logs in, who may do what."""
+
+    accounts: dict[str, Account]
+    network: list[str]  # endpoints stations reach
+    connect: list[str]  # routers this one connects to
+    private: str = ""  # the private plane's endpoint ("" for a shop router)
+    controller: tuple[str, str] | None = None  # the controller processes' login (accounts on)
+    local: tuple[str, str] | None = None  # a station on the controller's host (accounts on)
+    notice: str = ""  # what `waterjet up` tells the person starting it
+    open_network: bool = False
+    roles: dict[str, str] = field(default_factory=dict)  # principal -> role
+
+    @property
+    def auth(self) -> bool:
+        return bool(self.accounts)
+
+
+def plan_access(cfg: MachineConfig, private_socket: Path | None = None, shop: bool = False) -> Plan:
+    """The plan for `cfg`'s router: the controller's (with its private plane on `private_socket`),
+    or with `shop` the machine's shop router. ConfigError names the key at fault."""
+    a = cfg.zenoh.access
+    path = users_path(cfg)
+    try:
+        accounts = read_users(path)
+    except UsersError as exc:
+        raise ConfigError(cfg.source, TABLE, "users_file", str(exc)) from None
+    network, connect = list(cfg.zenoh.listen), list(cfg.zenoh.connect)
+    private = f"{PRIVATE_PROTOCOL}/{private_socket}" if private_socket is not None else ""
+    how = f"`waterjet users add NAME --role operator --machine {cfg.source}`"
+    if accounts:
+        roles = {name: acc.role for name, acc in accounts.items()}
+        if not shop:
+            roles[LOCAL_USER] = a.local_role
+        notice = (f"{len(accounts)} account(s) in {path}: stations log in "
+                  f"({', '.join(f'{n} {r}' for n, r in sorted(roles.items()))})")
+        controller = (CONTROLLER_USER, secrets.token_urlsafe(24)) if not shop else None
+        local = (LOCAL_USER, secrets.token_urlsafe(24)) if not shop else None
+        return Plan(accounts, network, connect, private, controller, local, notice, False, roles)
     if shop:
-        conf.insert_json5("id", json.dumps(shop_router_zid(cfg)))
-    upstream = shop_router_zid(cfg) if z.connect and not shop else None
-    conf.insert_json5("access_control", json.dumps(access_control(cfg, upstream_zid=upstream)))
+        raise ConfigError(cfg.source, TABLE, "users_file",
+                          f"{path} has no accounts: a shop router lets stations in by account; create them with {how}")
+    if a.open_network:
+        notice = (f"UNSAFE: [zenoh.access] open_network: any host reaching {', '.join(network)} may "
+                  f"command this machine as {a.open_role}, without logging in")
+        return Plan({}, network, connect, private, notice=notice, open_network=True, roles={LOCAL_USER: a.open_role})
+    loopback = [_loopback(ep) for ep in network]
+    notice = (f"no accounts in {path}: serving this host only ({', '.join(loopback)})"
+              + (f", not connecting to {', '.join(connect)}" if connect else "")
+              + f". To let stations on other hosts in, create accounts with {how} and start again")
+    return Plan({}, loopback, [], private, notice=notice, roles={LOCAL_USER: a.local_role})
+
+
+def role_of(cfg: MachineConfig, user: str) -> str | None:
+    """The role of `user` on this machine (None: no such account), read from the users file as
+    the router read it at start."""
+    a = cfg.zenoh.access
+    try:
+        accounts = read_users(users_path(cfg))
+    except (UsersError, OSError):
+        return None
+    if user == LOCAL_USER:
+        return a.open_role if a.open_network and not accounts else a.local_role
+    account = accounts.get(user)
+    return account.role if account is not None else None
+
+
+def require_role(cfg: MachineConfig, user: str, needed: str, what: str) -> str:
+    """`user`'s role when it includes `needed`; AccessRefused saying so otherwise."""
+    role = role_of(cfg, user)
+    if role is None:
+        raise AccessRefused(f"{what}: user {user!r} has no account on this machine")
+    if not role_at_least(role, needed):
+        raise AccessRefused(f"{what}: user {user!r} is an {role}; this needs an {needed}")
+    return role
+
+
+def router_config(cfg: MachineConfig, plan: Plan, *, shop: bool = False) -> zenoh.Config:
+    """The config of the router `plan` describes. With accounts it names a private copy of the
+    user/password dictionary that the caller must delete once Zenoh has read it (`open_router`
+    does); see `dictionary_file`."""
+    listen = ([plan.private] if plan.private else []) + plan.network
+    conf = zenoh_config("router", listen=listen, connect=plan.connect)
+    if plan.auth:
+        logins = {name: acc.password for name, acc in plan.accounts.items()}
+        link = (CONTROLLER_USER, _derived(plan.accounts, "controller link"))
+        if shop:
+            logins[CONTROLLER_USER] = link[1]  # the controller's router logs in here
+            conf.insert_json5("id", json.dumps(shop_router_zid(cfg, plan.accounts)))
+        else:
+            for user, password in (plan.controller, plan.local):
+                logins[user] = password
+        conf.insert_json5("transport/auth/usrpwd", json.dumps(
+            {"user": link[0], "password": link[1], "dictionary_file": str(_write_dictionary(logins))}))
+    upstream = shop_router_zid(cfg, plan.accounts) if plan.connect and plan.auth and not shop else None
+    conf.insert_json5("access_control", json.dumps(access_control(cfg, plan, upstream_zid=upstream, shop=shop)))
     return conf
 
 
-def client_config(endpoints: list[str], credentials: tuple[str, str] | None) -> zenoh.Config:
-    """A client session connecting to `endpoints`, authenticating as (user, password) if given."""
-    return zenoh_config("client", connect=endpoints, credentials=credentials)
-
-
-def controller_credentials(cfg: MachineConfig) -> tuple[str, str] | None:
-    """(user, password) the controller's own sessions authenticate with; None when access is off."""
-    if not cfg.zenoh.access.enabled:
-        return None
-    user = cfg.zenoh.access.controller_user
-    return user, _users(cfg)[user]
-
-
-def shop_router_zid(cfg: MachineConfig) -> str:
-    """The Zenoh ID of the machine's shop router: an HMAC of the machine root under the
-    controller user's password, so that both routers derive it and stations cannot guess it."""
-    users = _users(cfg)
+def shop_router_zid(cfg: MachineConfig, accounts: dict[str, Account]) -> str:
+    """The Zenoh ID of the machine's shop router, derived from the accounts both routers read."""
     root = Keys(cfg.zenoh.key_prefix, cfg.machine.name).root
-    digest = hmac.new(users[cfg.zenoh.access.controller_user].encode(), f"waterjet shop router {root}".encode(), hashlib.sha256)
-    return "a" + digest.hexdigest()[:31]  # 16 bytes; Zenoh refuses IDs with a leading zero
+    return "a" + _derived(accounts, f"waterjet shop router {root}")[:31]  # 16 bytes; no leading zero
 
 
-def access_control(cfg: MachineConfig, upstream_zid: str | None = None) -> dict[str, Any]:
-    """The `access_control` section for `cfg` (JSON-ready): default deny, one policy per role.
-    `upstream_zid` names a shop router this router connects to (see the module docstring)."""
-    a = cfg.zenoh.access
+def access_control(cfg: MachineConfig, plan: Plan, upstream_zid: str | None = None, shop: bool = False) -> dict[str, Any]:
+    """The `access_control` section (JSON-ready): default deny, the private plane everything,
+    each principal the public keys and, by role, its own command keys."""
     root = Keys(cfg.zenoh.key_prefix, cfg.machine.name).root
-    hmi_keys = WATCH_KEYS + READ_KEYS + ALIVE_KEYS + COMMAND_KEYS + UPLOAD_KEYS
     rules = [
         _rule("everything", ["ingress", "egress"], ALL_MESSAGES, ["**"]),
         _rule("watch in", ["ingress"], ["declare_subscriber"], _under(root, WATCH_KEYS)),
         _rule("watch out", ["egress"], ["put"], _under(root, WATCH_KEYS)),
         _rule("read in", ["ingress"], ["query"], _under(root, READ_KEYS)),
         _rule("read out", ["egress"], ["reply"], _under(root, READ_KEYS)),
-        _rule(
-            "alive in", ["ingress"], ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"],
-            _under(root, ALIVE_KEYS),
-        ),
+        _rule("alive in", ["ingress"], ["declare_liveliness_subscriber", "liveliness_query"], _under(root, ALIVE_KEYS)),
         _rule("alive out", ["egress"], ["liveliness_token", "reply"], _under(root, ALIVE_KEYS)),
-        _rule("command in", ["ingress"], ["query"], _under(root, COMMAND_KEYS)),
-        _rule("command out", ["egress"], ["reply"], _under(root, COMMAND_KEYS)),
-        _rule("upload in", ["ingress"], ["put", "query"], _under(root, UPLOAD_KEYS)),
-        _rule("upload out", ["egress"], ["reply"], _under(root, UPLOAD_KEYS)),
     ]
     observe = ["watch in", "watch out", "read in", "read out", "alive in", "alive out"]
-    operate = ["command in", "command out", "upload in", "upload out"]
-    subjects = [{"id": "controller", "usernames": [a.controller_user]}, {"id": "operators", "usernames": list(a.operators)}]
-    policies = [
-        {"id": "controller", "rules": ["everything"], "subjects": ["controller"]},
-        {"id": "operators", "rules": observe + operate, "subjects": ["operators"]},
-    ]
-    if a.observers:  # a subject with no usernames is a Cartesian product with nothing in it
-        subjects.append({"id": "observers", "usernames": list(a.observers)})
-        policies.append({"id": "observers", "rules": observe, "subjects": ["observers"]})
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    if shop:
+        subjects.append({"id": "controller", "usernames": [CONTROLLER_USER]})
+    elif plan.auth:
+        subjects.append({"id": "controller", "usernames": [CONTROLLER_USER], "link_protocols": [PRIVATE_PROTOCOL]})
+    else:
+        subjects.append({"id": "controller", "link_protocols": [PRIVATE_PROTOCOL]})
+    policies.append({"id": "controller", "rules": ["everything"], "subjects": ["controller"]})
+    every_station: list[str] = []
+    for principal, role in sorted(plan.roles.items()):
+        own = [f"token {principal}"]
+        rules.append(_rule(own[0], ["ingress"], ["liveliness_token"], [f"{root}/hmi/{principal}/**"]))
+        if role_at_least(role, "operator"):
+            own += [f"commands {principal}", f"answers {principal}"]
+            rules.append(_rule(own[1], ["ingress"], ["query"], [f"{root}/u/{principal}/**"]))
+            rules.append(_rule(own[2], ["egress"], ["reply"], [f"{root}/u/{principal}/**"]))
+        every_station += own
+        sid = f"station {principal}"
+        if plan.auth and principal == LOCAL_USER:
+            subjects.append({"id": sid, "usernames": [LOCAL_USER], "interfaces": ["lo"]})
+        elif plan.auth:
+            subjects.append({"id": sid, "usernames": [principal]})
+        else:
+            protocols = sorted({ep.split("/", 1)[0] for ep in plan.network} - {PRIVATE_PROTOCOL})
+            subjects.append({"id": sid, "link_protocols": protocols})
+        policies.append({"id": sid, "rules": observe + own, "subjects": [sid]})
     if upstream_zid is not None:
-        rules.append(_rule("announce out", ["egress"], ALL_MESSAGES, _under(root, hmi_keys)))
+        rules.append(_rule("announce out", ["egress"], ALL_MESSAGES,
+                           _under(root, WATCH_KEYS + READ_KEYS + ALIVE_KEYS + ("u/**",))))
         subjects.append({"id": "shop router", "zids": [upstream_zid]})
-        policies.append({"id": "shop router", "rules": observe + operate + ["announce out"], "subjects": ["shop router"]})
+        policies.append({"id": "shop router", "rules": observe + every_station + ["announce out"],
+                         "subjects": ["shop router"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
+def write_local_login(plan: Plan) -> Path | None:
+    """Write the local station's login for this run (0600) where stations on this host find it
+    (`cnc.bus.session.local_login`); its path, or None when no login is needed (then a stale one
+    for the same port, left by a controller that died, is removed)."""
+    port = next((_port(ep) for ep in plan.network if _port(ep)), None)
+    if port is None:
+        return None
+    path = local_login_path(port)
+    if plan.local is None:  # no login needed: one left by an earlier controller on this port would be refused
+        path.unlink(missing_ok=True)
+        return None
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(f"{plan.local[0]}:{plan.local[1]}\n")
+    return path
+
+
 def dictionary_file(conf: zenoh.Config) -> Path | None:
-    """The private dictionary copy a `router_config` names, or None (access off, or not ours)."""
+    """The private dictionary copy a `router_config` names, or None (no accounts, or not ours)."""
     raw = json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file"))
     if raw is None or not Path(raw).name.startswith(DICTIONARY_PREFIX):
         return None
     return Path(raw)
+
+
+def station_login(path: str | Path) -> tuple[str, str]:
+    """The (user, password) a station logs in with: the first user:password line of its login
+    file. ValueError names the file and what is wrong."""
+    try:
+        users = read_credentials(Path(path))  # its ValueError names the file and the line
+    except OSError as exc:
+        raise ValueError(f"{path}: {exc.strerror or exc}") from None
+    if not users:
+        raise ValueError(f"{path}: no user:password line")
+    return next(iter(users.items()))
 
 
 def _rule(rule_id: str, flows: list[str], messages: tuple[str, ...] | list[str], key_exprs: list[str]) -> dict[str, Any]:
@@ -168,42 +298,44 @@ def _under(root: str, keys: tuple[str, ...]) -> list[str]:
     return [f"{root}/{k}" for k in keys]
 
 
-def _users(cfg: MachineConfig) -> dict[str, str]:
-    """The credentials file's users; errors name `[zenoh.access]` and the key at fault."""
-    a = cfg.zenoh.access
-    if not a.credentials_file:
-        raise ConfigError(cfg.source, TABLE, "credentials_file", "access control needs a credentials file (user:password lines)")
-    path = credentials_path(cfg)
-    try:
-        users = read_credentials(path)
-    except OSError as exc:
-        raise ConfigError(cfg.source, TABLE, "credentials_file", f"{path}: {exc.strerror}") from None
-    except ValueError as exc:
-        raise ConfigError(cfg.source, TABLE, "credentials_file", str(exc)) from None
-    for key, names in (("controller_user", [a.controller_user]), ("operators", a.operators), ("observers", a.observers)):
-        missing = [u for u in names if u not in users]
-        if missing:
-            raise ConfigError(cfg.source, TABLE, key, f"{', '.join(missing)}: not in {path}")
-    return users
+def _derived(accounts: dict[str, Account], purpose: str) -> str:
+    """A secret both routers of a machine derive from its accounts, for `purpose`."""
+    key = hashlib.sha256("\n".join(f"{a.name}:{a.role}:{a.password}" for a in sorted(accounts.values(),
+                                                                                     key=lambda a: a.name)).encode())
+    return hmac.new(key.digest(), purpose.encode(), hashlib.sha256).hexdigest()
 
 
-def _write_dictionary(cfg: MachineConfig, users: dict[str, str]) -> Path:
-    """A private (0600) copy of the users the rules name, in Zenoh's strict `user:password` format."""
-    a = cfg.zenoh.access
-    named = dict.fromkeys([a.controller_user, *a.operators, *a.observers])
+def _write_dictionary(logins: dict[str, str]) -> Path:
+    """A private (0600) copy of the logins in Zenoh's strict `user:password` format."""
     fd, name = tempfile.mkstemp(prefix=DICTIONARY_PREFIX, suffix=".txt")
     with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.writelines(f"{user}:{users[user]}\n" for user in named)
+        f.writelines(f"{user}:{password}\n" for user, password in logins.items())
     return Path(name)
 
 
-def station_login(path: str | Path) -> tuple[str, str]:
-    """The (user, password) an observer or operator station logs in with: the first user:password
-    line of its credentials file. ValueError names the file and what is wrong."""
+_HOST_PORT = re.compile(r"^(?P<proto>[a-z-]+)/(?P<host>\[[^\]]*\]|[^:/]*):(?P<port>\d+)")
+
+
+def _loopback(endpoint: str) -> str:
+    """`endpoint` moved to the loopback interface (same protocol and port)."""
+    m = _HOST_PORT.match(endpoint)
+    if m is None or m["proto"] == PRIVATE_PROTOCOL:
+        return endpoint
+    host = "[::1]" if m["host"].startswith("[") else "127.0.0.1"
+    return f"{m['proto']}/{host}:{m['port']}{endpoint[m.end():]}"
+
+
+def _port(endpoint: str) -> int | None:
+    m = _HOST_PORT.match(endpoint)
+    return int(m["port"]) if m is not None and m["proto"] == "tcp" else None
+
+
+def open_machine_router(cfg: MachineConfig, plan: Plan, *, shop: bool = False) -> zenoh.Session:
+    """Open the router `plan` describes; the dictionary copy Zenoh read is removed at once."""
+    conf = router_config(cfg, plan, shop=shop)
+    dictionary = dictionary_file(conf)
     try:
-        users = read_credentials(Path(path))  # its ValueError names the file and the line
-    except OSError as exc:
-        raise ValueError(f"{path}: {exc.strerror or exc}") from None
-    if not users:
-        raise ValueError(f"{path}: no user:password line")
-    return next(iter(users.items()))
+        return zenoh.open(conf)
+    finally:
+        if dictionary is not None:
+            dictionary.unlink(missing_ok=True)

@@ -53,9 +53,27 @@ class Keys:
     def alarms_history(self) -> str:
         return f"{self.root}/alarms/history"
 
-    def cmd(self, verb: str) -> str:
-        """An operator command (the gateway answers; the command lock applies)."""
-        return f"{self.root}/cmd/{verb}"
+    def cmd(self, verb: str, user: str = "local") -> str:
+        """An operator command sent by `user` (the gateway answers; roles and the command lock
+        apply). Only `user` may query under `u/<user>/**`: the router's rules say who sent it."""
+        return f"{self.root}/u/{user}/cmd/{verb}"
+
+    def cmd_any(self, verb: str) -> str:
+        """Every user's command key for `verb` (what the gateway declares)."""
+        return f"{self.root}/u/*/cmd/{verb}"
+
+    def user_param(self, user: str, name: str) -> str:
+        """Changing control parameter `name` (a SetParam payload), sent by `user` (an engineer)."""
+        return f"{self.root}/u/{user}/param/{name}"
+
+    def user_params(self, user: str) -> str:
+        """Saving the control parameters in force into the machine file, asked by `user`."""
+        return f"{self.root}/u/{user}/params"
+
+    def user_of(self, key: str) -> str:
+        """The user a key under `u/<user>/` belongs to ("" for any other key)."""
+        head = f"{self.root}/u/"
+        return key[len(head):].split("/", 1)[0] if key.startswith(head) else ""
 
     @property
     def lock(self) -> str:
@@ -79,16 +97,22 @@ class Keys:
         return f"{self.root}/log/{what}"
 
     @property
+    def audit_history(self) -> str:
+        """The audit trail: every command, who sent it and its answer (queryable)."""
+        return f"{self.root}/audit/history"
+
+    @property
     def jobs_history(self) -> str:
         return f"{self.root}/jobs/history"
 
-    def station(self, station: str) -> str:
-        """Liveliness token of an operator station (HMI): its presence is the station's "network alive"."""
-        return f"{self.root}/hmi/{station}"
+    def station(self, station: str, user: str = "local", session: str = "") -> str:
+        """Liveliness token of an operator station (HMI) of `user`, one per Zenoh session
+        (`session`: its id): its presence is the station's "network alive"."""
+        return f"{self.root}/hmi/{user}/{station}" + (f"/{session}" if session else "")
 
     @property
     def stations(self) -> str:
-        return f"{self.root}/hmi/*"
+        return f"{self.root}/hmi/**"
 
     def alive(self, process: str) -> str:
         """Liveliness token of one controller process (or HMI station)."""

@@ -141,6 +141,7 @@ class LockState(msgspec.Struct, frozen=True):
     stations: list[str]  # operator stations alive (their liveliness tokens)
     seq: int
     version: int = SCHEMA_VERSION
+    holder_user: str = ""  # the user the holding station logged in as ("local" on the controller's host)
 
 
 class UploadProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -194,6 +195,25 @@ class JobRecord(msgspec.Struct, frozen=True):
 
 class JobPage(msgspec.Struct, frozen=True):
     entries: list[JobRecord]
+    more: bool
+    version: int = SCHEMA_VERSION
+
+
+class AuditRecord(msgspec.Struct, frozen=True):
+    """One command a station sent (`<root>/audit/history`): who, from where, what, and its answer."""
+
+    seq: int
+    at_ns: int
+    user: str  # the account it came from (the command key says so: only that user may send on it)
+    station: str
+    verb: str
+    command: str  # the command as sent (JSON; an upload by its name and size)
+    ok: bool
+    reason: str
+
+
+class AuditPage(msgspec.Struct, frozen=True):
+    entries: list[AuditRecord]
     more: bool
     version: int = SCHEMA_VERSION
 

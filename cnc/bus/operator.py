@@ -1,5 +1,5 @@
 """An operator station's handle on the controller: its liveliness token, the command lock, typed
-commands and program upload over `<root>/cmd/<verb>` (what an HMI or a script uses)."""
+commands and program upload over `<root>/u/<user>/cmd/<verb>` (what an HMI or a script uses)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import msgspec
 import zenoh
 
 from .keys import Keys
+from .session import LOCAL_USER
 from .messages import (
     LOGIC_COMMANDS, LoadProgram, LockRequest, LogStart, LogStop, ParamList, Reply, SaveParams, SetParam, UploadProgram,
     decode, encode,
@@ -26,15 +27,18 @@ LOADS = (UploadProgram, LoadProgram)
 class OperatorStation:
     """One station (`station` id, letters, digits, - and _): it is "alive" while this object is open."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys, station: str, timeout_s: float = 60.0) -> None:
-        self.session, self.keys, self.station, self.timeout_s = session, keys, station, timeout_s
-        self.token = session.liveliness().declare_token(keys.station(station))
-        self.attachment = json.dumps({"station": station}).encode()
+    def __init__(self, session: zenoh.Session, keys: Keys, station: str, timeout_s: float = 60.0,
+                 user: str = LOCAL_USER) -> None:
+        """`user`: who the session logged in as (`local` on the controller's own host, or without accounts)."""
+        self.session, self.keys, self.station, self.timeout_s, self.user = session, keys, station, timeout_s, user
+        zid = str(session.zid())
+        self.token = session.liveliness().declare_token(keys.station(station, user, zid))
+        self.attachment = json.dumps({"station": station, "session": zid}).encode()
 
     def request(self, command: msgspec.Struct, verb: str | None = None) -> Reply:
         """Send one command; the reply says ok or why not."""
         verb = verb or _VERBS[type(command)]
-        return self.ask(self.keys.cmd(verb), command, verb)
+        return self.ask(self.keys.cmd(verb, self.user), command, verb)
 
     def take_lock(self) -> Reply:
         return self.request(LockRequest(take=True))
@@ -44,11 +48,11 @@ class OperatorStation:
 
     def set_param(self, name: str, value: float) -> Reply:
         """Change one control parameter (`axis.x.kp_1_s`); the reply says when it applied, or why not."""
-        return self.ask(self.keys.param(name), SetParam(value), f"param {name}")
+        return self.ask(self.keys.user_param(self.user, name), SetParam(value), f"param {name}")
 
     def save_params(self) -> Reply:
         """Write the control parameters in force into the controller's machine file."""
-        return self.ask(self.keys.params, SaveParams(), "save params")
+        return self.ask(self.keys.user_params(self.user), SaveParams(), "save params")
 
     def log_start(self, start: LogStart) -> Reply:
         """Start a log run (logging never moves the machine: no command lock needed)."""

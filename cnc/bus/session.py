@@ -3,16 +3,23 @@
 from __future__ import annotations
 
 import json
+import os
+import re
+import tempfile
+from pathlib import Path
 
 import zenoh
 
-from ..config import MachineConfig
 
 
 # How long a silent link lasts before the other end declares this session gone (Zenoh's lease,
 # with a keep-alive every quarter of it). Zenoh's default is 10 s: a cut cable left the operator's
 # station "alive", and the cut running without it, that long. Every session of ours announces this.
 LEASE_S = 3.0
+
+# A station on the controller's own host: its account needs no set-up (`cnc.bus.access`).
+LOCAL_USER = "local"
+_LOOPBACK = re.compile(r"^tcp/(127\.0\.0\.1|localhost|\[::1\]):(\d+)$")
 
 
 def zenoh_config(
@@ -30,6 +37,8 @@ def zenoh_config(
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("transport/link/tx/lease", json.dumps(round(lease_s * 1000)))
     cfg.insert_json5("transport/link/tx/keep_alive", "4")
+    # Zenoh's shared-memory transport leaves a file per process in /dev/shm; ours is on its own
+    cfg.insert_json5("transport/shared_memory/enabled", "false")
     if listen is not None:
         cfg.insert_json5("listen/endpoints", json.dumps(listen))
     if connect is not None:
@@ -48,28 +57,35 @@ def connect_endpoints(listen: list[str]) -> list[str]:
     return out
 
 
+def local_login_path(port: int) -> Path:
+    """Where the controller listening on loopback port `port` writes the login of a station on its
+    own host (`cnc.bus.access.write_local_login`), in its account's private run directory."""
+    base = Path(os.environ.get("WATERJET_RUN_DIR") or Path(tempfile.gettempdir()) / f"waterjet-{os.getuid()}")
+    return base / f"local-{port}.login"
+
+
+def local_login(endpoints: list[str]) -> tuple[str, str] | None:
+    """The login of a station on the controller's own host, when every endpoint is on this host's
+    loopback and that controller wrote one (it has accounts); None otherwise."""
+    ports = {m.group(2) for m in (_LOOPBACK.match(ep) for ep in endpoints) if m is not None}
+    if len(ports) != 1 or len(endpoints) != sum(1 for ep in endpoints if _LOOPBACK.match(ep)):
+        return None
+    try:
+        user, _, password = local_login_path(int(ports.pop())).read_text(encoding="utf-8").strip().partition(":")
+    except OSError:
+        return None
+    return (user, password) if user and password else None
+
+
 def open_client(endpoints: list[str], credentials: tuple[str, str] | None = None) -> zenoh.Session:
-    """A client session on `endpoints`; with access control on, pass (user, password)
-    (`cnc.bus.access.controller_credentials` for the controller's own processes)."""
+    """A client session on `endpoints`; with accounts on, pass (user, password). Without, a session
+    to a controller on this host logs in with the local station's login when there is one."""
+    if credentials is None:
+        credentials = local_login(endpoints)
     return zenoh.open(zenoh_config("client", connect=endpoints, credentials=credentials))
 
 
-def open_router(
-    listen: list[str] | MachineConfig, connect: list[str] | None = None, *, shop: bool = False
-) -> zenoh.Session:
-    """A router session. Given endpoints, a plain router listening there (and connecting to
-    `connect`). Given a machine config, the router its `[zenoh]` table describes, with
-    authentication and access control when `[zenoh.access] enabled` (`shop`: the machine's
-    shop router, see `cnc.bus.access.router_config`)."""
-    if not isinstance(listen, MachineConfig):
-        return zenoh.open(zenoh_config("router", listen=listen, connect=connect))
-    from .access import dictionary_file, router_config  # access builds on zenoh_config above
-
-    conf = router_config(listen, shop=shop)
-    dictionary = dictionary_file(conf)
-    try:
-        return zenoh.open(conf)
-    finally:
-        # Zenoh has read the user/password dictionary while opening; the copy is not left behind.
-        if dictionary is not None:
-            dictionary.unlink(missing_ok=True)
+def open_router(listen: list[str], connect: list[str] | None = None) -> zenoh.Session:
+    """A plain router listening on `listen` (and connecting to `connect`): no accounts, no rules.
+    The controller's and a machine's shop router: `cnc.bus.access.open_machine_router`."""
+    return zenoh.open(zenoh_config("router", listen=listen, connect=connect))

@@ -37,9 +37,11 @@ def main() -> int:
     parser.add_argument("--machine", required=True)
     parser.add_argument("--prefix", default="wj")
     parser.add_argument("--station", required=True)
+    parser.add_argument("--login", default="", metavar="USER:PASSWORD", help="the account to log in with")
     args = parser.parse_args()
     model = MachineModel(args.station)
-    connection = Connection(model, [args.connect], Keys(args.prefix, args.machine), args.station)
+    credentials = tuple(args.login.split(":", 1)) if args.login else None
+    connection = Connection(model, [args.connect], Keys(args.prefix, args.machine), args.station, credentials)
     connection.start()
     print(json.dumps({"started": True}), flush=True)
     try:
