@@ -115,6 +115,12 @@ def build_parser() -> argparse.ArgumentParser:
     userscli.add_arguments(users_p)
     users_p.set_defaults(func=userscli.run)
 
+    certs_p = sub.add_parser("certs", help="the machine's TLS certificates: its CA, the routers', the stations'")
+    from . import certscli
+
+    certscli.add_arguments(certs_p)
+    certs_p.set_defaults(func=certscli.run)
+
     watch_p = sub.add_parser("watch", help="observe a running controller: live status, alarms and procedures (read-only)")
     from . import watch
 

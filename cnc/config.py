@@ -394,6 +394,11 @@ class GatewayConfig:
     program_dir: str = opt(
         "", doc="where uploaded programs are kept (relative to the machine file); empty: beside the alarm history"
     )
+    station_ping_ms: float = opt(1000.0, "ms", "how often the gateway asks the lock holder's station for an answer", 100.0, 10000.0)
+    station_lost_ms: float = opt(
+        6000.0, "ms", "no answer from the lock holder's station for this long: it is lost (as when its token goes)",
+        500.0, 60000.0,
+    )
 
 
 @dataclass(frozen=True)
@@ -412,6 +417,9 @@ class AccessConfig:
     open_role: str = opt("operator", doc="role of every station when open_network: observer, operator or engineer")
     local_role: str = opt(
         "engineer", doc="role of a station on the controller's own host (its own account, no login needed)"
+    )
+    tls_dir: str = opt(
+        "", doc="the machine's TLS directory (`waterjet certs`; relative to the machine file), for tls/ endpoints"
     )
 
 
@@ -687,6 +695,10 @@ def _check_access(cfg: MachineConfig) -> None:
     for key in ("open_role", "local_role"):
         if getattr(a, key) not in ROLES:
             raise ConfigError(src, "zenoh.access", key, f"{getattr(a, key)!r} is not one of {', '.join(ROLES)}")
+    tls = [ep for ep in [*cfg.zenoh.listen, *cfg.zenoh.connect] if ep.startswith("tls/")]
+    if tls and not a.tls_dir:
+        raise ConfigError(src, "zenoh.access", "tls_dir", f"{tls[0]} needs the machine's TLS directory "
+                          "(make it with `waterjet certs ca` and `waterjet certs controller --host ...`)")
     try:
         read_users(users_path(cfg))
     except UsersError as exc:

@@ -24,6 +24,7 @@ import os
 import queue
 import re
 import threading
+import time
 from pathlib import Path
 from typing import Any, Callable
 
@@ -119,10 +120,13 @@ class Door:
         self.workers = [threading.Thread(target=self._serve, args=(q, h), name=f"door-{n}", daemon=True)
                         for n, q, h in (("cmd", self.commands, self._command), ("upload", self.uploads, self._command),
                                         ("realtime", self.realtime, self._command), ("query", self.queries, self._query))]
+        self._closing = threading.Event()
+        self.workers.append(threading.Thread(target=self._ping_holder, name="door-ping", daemon=True))
         for w in self.workers:
             w.start()
 
     def close(self) -> None:
+        self._closing.set()
         self.stations.undeclare()
         for q in self.declared:
             q.undeclare()
@@ -213,6 +217,28 @@ class Door:
         elif self.lock.token_lost(token):
             self.realtime.put(("lost-operator", token.who))
         self._publish_lock()
+
+    def _ping_holder(self) -> None:
+        """Ask the lock holder's station for an answer every `[gateway] station_ping_ms`; none for
+        `station_lost_ms` and it is lost, as when its token goes. A link's lease normally ends the
+        token first, but Zenoh 1.10 does not expire a TLS link whose writes are stuck (a pulled cable
+        while status flows to the station): this catches that, and any station that stopped answering."""
+        period = self.config.gateway.station_ping_ms / 1e3
+        lost_after = self.config.gateway.station_lost_ms / 1e3
+        holder, answered = None, 0.0
+        while not self._closing.wait(period):
+            now = time.monotonic()
+            if self.lock.holder is not holder:
+                holder, answered = self.lock.holder, now
+            if holder is None:
+                continue
+            key = self.keys.ping(holder.station, holder.user, holder.session)
+            if any(r.ok is not None for r in self.session.get(key, timeout=period)):
+                answered = time.monotonic()
+            elif time.monotonic() - answered > lost_after and self.lock.token_lost(holder):
+                log.warning("gateway: station %r has not answered for %.1f s: lost", holder.who, time.monotonic() - answered)
+                self.realtime.put(("lost-operator", holder.who))
+                self._publish_lock()
 
     def _operator_lost(self, station: str) -> None:
         """The lock holder's station is gone: a cut holds (or goes on, `[gateway] on_operator_lost`);

@@ -26,6 +26,7 @@ import zenoh
 from .bus import messages
 from .bus.keys import Keys
 from .bus.messages import AlarmEvent, HistoryPage, ProcedureState, SchemaVersionError, Status, decode
+from .bus.certs import CertError, TlsFiles, files_for
 from .bus.session import connect_endpoints, open_client
 from .config import ConfigError, load_machine
 
@@ -336,13 +337,14 @@ class Watcher:
 
 
 def open_session(
-    endpoints: list[str], timeout_s: float = CONNECT_TIMEOUT_S, credentials: tuple[str, str] | None = None
+    endpoints: list[str], timeout_s: float = CONNECT_TIMEOUT_S, credentials: tuple[str, str] | None = None,
+    tls: TlsFiles | None = None,
 ) -> zenoh.Session:
     """A client session on `endpoints`, retrying until `timeout_s`; WatchError when none accepts."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            return open_client(endpoints, credentials)
+            return open_client(endpoints, credentials, tls)
         except zenoh.ZError:
             if time.monotonic() > deadline:
                 raise WatchError(f"no controller at {', '.join(endpoints)}: is it running?") from None
@@ -362,7 +364,10 @@ def add_connection_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--machine", "-m", default=DEFAULT_MACHINE, help=f"machine file (default {DEFAULT_MACHINE})")
     parser.add_argument("--prefix", help="key prefix (default: the machine file's [zenoh] key_prefix)")
     parser.add_argument("--credentials", metavar="FILE",
-                        help="a user:password line to log in with, when the controller has access control on")
+                        help="a user:password line to log in with, when the controller has accounts")
+    parser.add_argument("--tls", metavar="DIR", help="for tls/ endpoints: a directory with ca.pem and the station's "
+                        "certificate pair (`waterjet certs station NAME`)")
+    parser.add_argument("--tls-name", default="watch", help="the station certificate's name in --tls (default watch)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -370,6 +375,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_connection_arguments(parser)
     parser.add_argument("--json", action="store_true", help="every message as one JSON object per line")
     parser.add_argument("--seconds", type=float, metavar="N", help="stop after N seconds (default: until SIGINT/SIGTERM)")
+
+
+def _tls(args: argparse.Namespace) -> TlsFiles | None:
+    """The station's TLS files from `--tls` and `--tls-name`, or None."""
+    if not args.tls:
+        return None
+    try:
+        return files_for(Path(args.tls), args.tls_name).check()
+    except CertError as exc:
+        raise WatchError(f"--tls {exc}") from None
 
 
 def _credentials(path: str | None) -> tuple[str, str] | None:
@@ -419,7 +434,7 @@ def run(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        session = open_session(endpoints, credentials=_credentials(args.credentials))
+        session = open_session(endpoints, credentials=_credentials(args.credentials), tls=_tls(args))
         try:
             watcher = Watcher(session, keys, output, with_position=args.json)
             try:

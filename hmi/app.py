@@ -41,7 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"the machine's id, its machine file's [machine] name (default {DEFAULT_MACHINE!r})")
     parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key prefix, [zenoh] key_prefix (default {DEFAULT_PREFIX!r})")
     parser.add_argument("--station", help="this station's id (default hmi-<host name>)")
-    parser.add_argument("--credentials", metavar="FILE", help="a user:password line, when access control is on")
+    parser.add_argument("--credentials", metavar="FILE", help="a user:password line, when the controller has accounts")
+    parser.add_argument("--tls", metavar="DIR", help="for tls/ endpoints: a directory with ca.pem and this station's "
+                        "<station>.pem and <station>.key (`waterjet certs station NAME`)")
     parser.add_argument("--screenshot", metavar="OUT.png", help="render the screen to a PNG after --after seconds and exit")
     parser.add_argument("--after", type=float, default=3.0, metavar="SECONDS",
                         help="when --screenshot renders (default 3 s)")
@@ -96,7 +98,16 @@ def run(args: argparse.Namespace) -> int:
         os.environ["QT_QPA_PLATFORM"] = "offscreen"
     from .session import OperatorScreen
 
-    with OperatorScreen(endpoints, prefix, machine, station, credentials) as screen:
+    tls = None
+    if args.tls:
+        from cnc.bus.certs import CertError, files_for
+
+        try:
+            tls = files_for(Path(args.tls), station).check()
+        except CertError as exc:
+            print(f"waterjet hmi: --tls {exc}", file=sys.stderr)
+            return 2
+    with OperatorScreen(endpoints, prefix, machine, station, credentials, tls) as screen:
         if args.take_lock:
             screen.take_lock_when_connected()
         if args.screenshot:

@@ -11,6 +11,7 @@ from collections.abc import Callable
 import msgspec
 import zenoh
 
+from cnc.bus.certs import TlsFiles
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
     AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState,
@@ -53,9 +54,11 @@ class Connection:
     def __init__(
         self, model: MachineModel, endpoints: list[str], keys: Keys, station: str,
         credentials: tuple[str, str] | None = None, status_timeout_s: float = STATUS_TIMEOUT_S,
-        tuning: TuningModel | None = None,
+        tuning: TuningModel | None = None, tls: TlsFiles | None = None,
     ) -> None:
-        """`tuning`: also follow the control parameters and the data logger (the tuning windows)."""
+        """`tuning`: also follow the control parameters and the data logger (the tuning windows);
+        `tls`: the station's TLS files for `tls/` endpoints (`cnc.bus.certs`)."""
+        self.tls = tls
         self.model, self.endpoints, self.keys, self.station = model, endpoints, keys, station
         self.tuning = tuning
         self._next_tuning = 0.0
@@ -91,7 +94,7 @@ class Connection:
     def _try_open(self) -> bool:
         """Open the session and subscribe; False (and the reason kept) when no router accepts it."""
         try:
-            session = open_client(self.endpoints, self.credentials)
+            session = open_client(self.endpoints, self.credentials, self.tls)
         except zenoh.ZError as exc:
             why = re.sub(r"\s+at /\S+$", "", str(exc).strip())  # Zenoh appends its source location
             self.last_open_error = f"cannot reach {', '.join(self.endpoints)}: {why}"

@@ -26,12 +26,12 @@ class OperatorScreen:
     them down in reverse (the station's token goes last, so the lock is released cleanly)."""
 
     def __init__(self, endpoints: list[str], prefix: str, machine: str, station: str,
-                 credentials: tuple[str, str] | None = None) -> None:
+                 credentials: tuple[str, str] | None = None, tls=None) -> None:
         self.app = QApplication.instance() or QApplication(sys.argv[:1])
         self.model = MachineModel(station)
         self.tuning = TuningModel()
         self.connection = Connection(self.model, endpoints, Keys(prefix, machine), station, credentials,
-                                     tuning=self.tuning)
+                                     tuning=self.tuning, tls=tls)
         self.adapter = ModelAdapter(self.model)
         self.tuning_adapter = TuningAdapter(self.tuning)
         self.commands = CommandRunner(self.connection)

@@ -57,10 +57,10 @@ class Bus:
         self.network = [ep.replace("0.0.0.0", "127.0.0.1") for ep in self.plan.network]
         self.sessions: list[zenoh.Session] = []
 
-    def login(self, user: str | None, password: str | None = None) -> zenoh.Session:
+    def login(self, user: str | None, password: str | None = None, tls=None) -> zenoh.Session:
         """A station's session on the network endpoint as `user` (its own password unless one is given)."""
         credentials = None if user is None else (user, password if password is not None else PASSWORDS[user])
-        return self._keep(zenoh.open(zenoh_config("client", connect=self.network, credentials=credentials)))
+        return self._keep(zenoh.open(zenoh_config("client", connect=self.network, credentials=credentials, tls=tls)))
 
     def inside(self) -> zenoh.Session:
         """A controller process's session: on the private plane, with the controller's login of this run."""
@@ -321,3 +321,71 @@ def test_waterjet_users_adds_lists_changes_and_removes_accounts_never_printing_a
     assert missing.returncode == 2 and "no account 'bob'" in missing.stderr
     everything = "".join(r.stdout + r.stderr for r in (listed, added, changed, short, no_tty, missing))
     assert "secret" not in everything
+
+
+# -- TLS ---------------------------------------------------------------------------------------------
+
+
+def test_over_tls_a_station_needs_both_a_certificate_of_the_machines_ca_and_an_account(tmp_path):
+    from cnc.bus.certs import TlsFiles, files_for, issue, make_ca
+
+    tls = tmp_path / "machine.tls"
+    make_ca(tls, "waterjet")
+    issue(tls, "controller", ["127.0.0.1", "localhost"])
+    issue(tls, "panel")
+    stranger = tmp_path / "other.tls"  # a CA of some other machine, and a station certificate it signed
+    make_ca(stranger, "other")
+    issue(stranger, "panel")
+    port = free_port()
+    cfg = machine(tmp_path, **{"zenoh.listen": [f"tls/127.0.0.1:{port}"], "zenoh.access.tls_dir": str(tls)})
+    b = Bus(cfg, tmp_path)
+    try:
+        inside = b.inside()
+        seen: list[str] = []
+        _cmd = command_queryable(inside, f"{b.keys.root}/u/*/cmd/**", seen)
+        station = b.login("operator1", tls=files_for(tls, "panel"))
+        reached(inside, station, b.keys)
+        assert replies(station, b.keys.cmd("hold", "operator1")) == ["ok"]
+        for why, files, user in (
+            ("no certificate of its own", TlsFiles(tls / "ca.pem", tls / "ca.pem", tls / "ca.key"), "operator1"),
+            ("a certificate of another CA", TlsFiles(tls / "ca.pem", stranger / "panel.pem", stranger / "panel.key"),
+             "operator1"),
+            ("a certificate but no account", files_for(tls, "panel"), None),
+        ):
+            with pytest.raises(zenoh.ZError):
+                b.login(user, tls=files)
+                pytest.fail(f"let in with {why}")
+        with pytest.raises(zenoh.ZError):  # plain TCP to the TLS endpoint
+            zenoh.open(zenoh_config("client", connect=[f"tcp/127.0.0.1:{port}"], credentials=("operator1", "op-secret")))
+    finally:
+        b.close()
+
+
+def test_a_tls_endpoint_without_the_machines_tls_files_is_refused_naming_the_key(tmp_path):
+    with pytest.raises(ConfigError, match=r"tls_dir.*needs the machine's TLS directory"):
+        machine(tmp_path, **{"zenoh.listen": [f"tls/127.0.0.1:{free_port()}"]})
+    cfg = machine(tmp_path, **{"zenoh.listen": [f"tls/127.0.0.1:{free_port()}"], "zenoh.access.tls_dir": str(tmp_path / "none")})
+    with pytest.raises(ConfigError, match=r"tls_dir.*no CA certificate"):
+        plan_access(cfg, tmp_path / "bus.sock")
+
+
+def test_waterjet_certs_makes_a_ca_router_and_station_certificates_with_private_keys(tmp_path):
+    machine_file = tmp_path / "m.toml"
+    machine_file.write_text((REPO / "machines" / "waterjet.toml").read_text())
+
+    def certs(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "cnc.cli", "certs", *args, "--machine", str(machine_file)],
+                              capture_output=True, text=True, cwd=REPO, timeout=60)
+
+    assert "no CA here" in certs("station", "panel").stderr
+    made = certs("ca")
+    assert made.returncode == 0 and 'tls_dir = "m.tls"' in made.stdout
+    assert certs("ca").returncode == 2, "a second CA would invalidate every certificate"
+    empty = certs("controller", "--host", "")
+    assert empty.returncode == 2 and "is empty" in empty.stderr
+    assert certs("controller", "--host", "cnc1.shop", "--host", "10.0.0.5").returncode == 0
+    assert certs("station", "panel").returncode == 0
+    listed = certs("list").stdout
+    assert "controller.pem: controller (cnc1.shop, 10.0.0.5)" in listed and "panel.pem: panel" in listed
+    for key in ("ca.key", "controller.key", "panel.key"):
+        assert stat.S_IMODE((tmp_path / "m.tls" / key).stat().st_mode) == 0o600

@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from cnc.bus.session import LEASE_S
+from cnc.bus.certs import issue, make_ca
 from cnc.bus.users import Account, write_users
 
 from .conftest import MACHINE_FILE, REPO
@@ -31,14 +32,23 @@ CONTROLLER_NS, STATION_NS = f"wj-ctl-{PID}", f"wj-hmi-{PID}"
 VETH_CTL, VETH_HMI = f"wjc{PID}", f"wjh{PID}"
 SUBNET = f"10.{200 + PID % 50}.{PID % 250}"
 CONTROLLER_IP, STATION_IP = f"{SUBNET}.1", f"{SUBNET}.2"
-SHOP = f"tcp/{CONTROLLER_IP}:7447"
+SHOP = f"tls/{CONTROLLER_IP}:7447"  # stations reach the shop router over TLS, with the machine's certificates
 LOCAL = "tcp/127.0.0.1:7448"  # the controller's own router, on its host's loopback
 ACCOUNTS = {"alice": ("operator", "alice-secret"), "olga": ("observer", "olga-secret")}
 
-FRAME = """(a 150 x 75 mm frame at 100 mm/s: four and a half seconds of cutting)
+FRAME = """(a 150 x 75 mm frame three times at 100 mm/s: some 14 seconds of cutting)
+(longer than the controller takes to lose a station over TLS: 6 s, a dead link's lease does not)
 G21 G90 G64 P0.05 F6000
 G0 X100 Y100
 M3
+G1 X250
+G1 Y175
+G1 X100
+G1 Y100
+G1 X250
+G1 Y175
+G1 X100
+G1 Y100
 G1 X250
 G1 Y175
 G1 X100
@@ -128,9 +138,9 @@ class Host:
 
 
 class Station(Host):
-    def __init__(self, ns: str, endpoint: str, machine: str, name: str, login: str = "") -> None:
+    def __init__(self, ns: str, endpoint: str, machine: str, name: str, login: str = "", tls: str = "") -> None:
         super().__init__(ns, "station.py", "--connect", endpoint, "--machine", machine, "--station", name,
-                         *(["--login", login] if login else []))
+                         *(["--login", login] if login else []), *(["--tls", tls] if tls else []))
         self.name = name
 
     def observe(self) -> dict:
@@ -160,7 +170,13 @@ def hosts(network, tmp_path_factory):
     """The shop router and the controller on the controller's host; a station on each host."""
     tmp = tmp_path_factory.mktemp("two-hosts")
     machine_file = tmp / "machine.toml"  # the shipped machine with two accounts beside it (machine.users)
-    machine_file.write_text(MACHINE_FILE.read_text())
+    machine_file.write_text(MACHINE_FILE.read_text() + '\n[zenoh.access]\ntls_dir = "machine.tls"\n')
+    tls = tmp / "machine.tls"  # its CA, the routers' certificates and the stations'
+    make_ca(tls, "waterjet")
+    issue(tls, "router", [CONTROLLER_IP])
+    issue(tls, "controller", [CONTROLLER_IP, "127.0.0.1"])
+    for station in ("remote", "probe"):
+        issue(tls, station)
     write_users(tmp / "machine.users", {n: Account(n, role, password) for n, (role, password) in ACCOUNTS.items()})
     started: list[Host] = []
     try:
@@ -178,10 +194,10 @@ def hosts(network, tmp_path_factory):
         machine = controller.banner["machine"]
         local = Station(CONTROLLER_NS, LOCAL, machine, "watch")
         started.append(local)
-        remote = Station(STATION_NS, SHOP, machine, "remote", login="alice:" + ACCOUNTS["alice"][1])
+        remote = Station(STATION_NS, SHOP, machine, "remote", login="alice:" + ACCOUNTS["alice"][1], tls=str(tls))
         started.append(remote)
         (tmp / "frame.ngc").write_text(FRAME)
-        yield remote, local, tmp / "frame.ngc"
+        yield remote, local, tmp / "frame.ngc", tls
     finally:
         for host in reversed(started):
             host.close()
@@ -191,7 +207,7 @@ def hosts(network, tmp_path_factory):
 
 
 def test_a_cycle_run_from_another_host_holds_when_the_link_is_cut_and_catches_up_when_it_is_back(hosts):
-    remote, local, program = hosts
+    remote, local, program, _tls = hosts
     remote.wait(lambda s: s["reachable"], 30.0, "the controller across the link")
     remote.command("LockRequest", take=True)
     # reset until nothing waits for one (on a busy host the PLC link may still be coming up)
@@ -232,11 +248,12 @@ def test_a_cycle_run_from_another_host_holds_when_the_link_is_cut_and_catches_up
     assert 3001 in done["codes"], "cycle finished message"
 
 
-def probe(login: str = "", other: str = "alice") -> dict:
+def probe(login: str = "", other: str = "alice", tls: Path | None = None) -> dict:
     """A session from the station's host, through the shop router (tests/hosts/probe.py)."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     res = subprocess.run(["ip", "netns", "exec", STATION_NS, sys.executable, str(HOSTS / "probe.py"), "--connect", SHOP,
-                          "--machine", "waterjet", "--other", other, *(["--login", login] if login else [])],
+                          "--machine", "waterjet", "--other", other, *(["--login", login] if login else []),
+                          *(["--tls", str(tls)] if tls else [])],
                          cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     return json.loads(res.stdout.splitlines()[-1])
@@ -245,13 +262,14 @@ def probe(login: str = "", other: str = "alice") -> dict:
 def test_from_another_host_nothing_is_reached_without_an_account_and_an_observer_only_watches(hosts):
     """Secure by default across a real network: no account, no session; an observer sees the status
     but neither its own command key nor another user's answers; nobody reaches internal keys."""
-    remote, _local, _program = hosts
+    remote, _local, _program, tls = hosts
     remote.wait(lambda s: s["reachable"], 30.0, "the controller across the link")
-    assert probe()["opened"] is False, "a session without an account was let in"
-    assert probe("olga:wrong-password")["opened"] is False
-    observer = probe("olga:" + ACCOUNTS["olga"][1])
+    assert probe("olga:" + ACCOUNTS["olga"][1])["opened"] is False, "a session without the machine's certificate"
+    assert probe(tls=tls)["opened"] is False, "a session without an account was let in"
+    assert probe("olga:wrong-password", tls=tls)["opened"] is False
+    observer = probe("olga:" + ACCOUNTS["olga"][1], tls=tls)
     assert observer["opened"] and observer["status"], observer
     assert observer["own"] == [] and observer["other"] == [] and observer["internal"] == [], observer
-    operator = probe("alice:" + ACCOUNTS["alice"][1], other="olga")
+    operator = probe("alice:" + ACCOUNTS["alice"][1], other="olga", tls=tls)
     assert operator["internal"] == [] and operator["other"] == [], operator
     assert operator["own"] and "lock" in operator["own"][0], "the operator's own command key is answered"

@@ -393,3 +393,24 @@ def test_every_command_and_refusal_is_in_the_audit_trail_with_its_user_and_stati
         assert rows[0].at_ns <= rows[-1].at_ns and [r.seq for r in rows] == sorted(r.seq for r in rows)
     finally:
         op.close()
+
+
+def test_a_lock_holder_that_stops_answering_is_lost_even_while_its_token_stays(tmp_path):
+    """The gateway asks the lock holder's station for an answer: a station whose link is dead but
+    whose token a router keeps (Zenoh does not expire a stuck TLS link) still loses the lock."""
+    config = machine_config(**NEAR_HOME, **{"gateway.station_ping_ms": 200.0, "gateway.station_lost_ms": 1000.0})
+    keys = Keys(config.zenoh.key_prefix, config.machine.name)
+    with Supervisor(config, clock="virtual", history_path=tmp_path / "h.sqlite", plc_sim_times=fast_plant()) as sup:
+        session = open_client([config.zenoh.listen[0]])
+        op = OperatorStation(session, keys, "panel")
+        try:
+            assert op.take_lock().ok and get(session, keys.lock, LockState).holder == "panel"
+            op.pong.undeclare()  # it stops answering; its liveliness token stays
+            sup.wait_until(lambda: get(session, keys.lock, LockState).holder == "", 10.0, "the silent holder lost")
+            assert get(session, keys.lock, LockState).stations == [], "its token no longer counts"
+            op.pong = session.declare_queryable(keys.ping("panel", "local", str(session.zid())),
+                                                lambda q: q.reply(q.key_expr, b"pong"))
+            assert op.take_lock().ok, "answering again, the station takes the lock again"
+        finally:
+            op.close()
+            session.close()

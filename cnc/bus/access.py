@@ -53,7 +53,8 @@ from typing import Any
 
 import zenoh
 
-from ..config import ConfigError, MachineConfig, read_credentials, users_path
+from ..config import ConfigError, MachineConfig, beside, read_credentials, users_path
+from .certs import CertError, TlsFiles, files_for
 from .keys import Keys
 from .session import LOCAL_USER, local_login_path, zenoh_config
 from .users import ROLES, Account, UsersError, read_users, role_at_least
@@ -110,6 +111,7 @@ class Plan:
     notice: str = ""  # what `waterjet up` tells the person starting it
     open_network: bool = False
     roles: dict[str, str] = field(default_factory=dict)  # principal -> role
+    tls: TlsFiles | None = None  # the router's TLS files, for tls/ endpoints
 
     @property
     def auth(self) -> bool:
@@ -126,6 +128,12 @@ def plan_access(cfg: MachineConfig, private_socket: Path | None = None, shop: bo
     except UsersError as exc:
         raise ConfigError(cfg.source, TABLE, "users_file", str(exc)) from None
     network, connect = list(cfg.zenoh.listen), list(cfg.zenoh.connect)
+    tls = None
+    if a.tls_dir:
+        try:
+            tls = files_for(beside(cfg, a.tls_dir), "router" if shop else "controller").check()
+        except CertError as exc:
+            raise ConfigError(cfg.source, TABLE, "tls_dir", str(exc)) from None
     private = f"{PRIVATE_PROTOCOL}/{private_socket}" if private_socket is not None else ""
     how = f"`waterjet users add NAME --role operator --machine {cfg.source}`"
     if accounts:
@@ -136,19 +144,20 @@ def plan_access(cfg: MachineConfig, private_socket: Path | None = None, shop: bo
                   f"({', '.join(f'{n} {r}' for n, r in sorted(roles.items()))})")
         controller = (CONTROLLER_USER, secrets.token_urlsafe(24)) if not shop else None
         local = (LOCAL_USER, secrets.token_urlsafe(24)) if not shop else None
-        return Plan(accounts, network, connect, private, controller, local, notice, False, roles)
+        return Plan(accounts, network, connect, private, controller, local, notice, False, roles, tls)
     if shop:
         raise ConfigError(cfg.source, TABLE, "users_file",
                           f"{path} has no accounts: a shop router lets stations in by account; create them with {how}")
     if a.open_network:
         notice = (f"UNSAFE: [zenoh.access] open_network: any host reaching {', '.join(network)} may "
                   f"command this machine as {a.open_role}, without logging in")
-        return Plan({}, network, connect, private, notice=notice, open_network=True, roles={LOCAL_USER: a.open_role})
+        return Plan({}, network, connect, private, notice=notice, open_network=True, roles={LOCAL_USER: a.open_role},
+                    tls=tls)
     loopback = [_loopback(ep) for ep in network]
     notice = (f"no accounts in {path}: serving this host only ({', '.join(loopback)})"
               + (f", not connecting to {', '.join(connect)}" if connect else "")
               + f". To let stations on other hosts in, create accounts with {how} and start again")
-    return Plan({}, loopback, [], private, notice=notice, roles={LOCAL_USER: a.local_role})
+    return Plan({}, loopback, [], private, notice=notice, roles={LOCAL_USER: a.local_role}, tls=tls)
 
 
 def role_of(cfg: MachineConfig, user: str) -> str | None:
@@ -180,7 +189,7 @@ def router_config(cfg: MachineConfig, plan: Plan, *, shop: bool = False) -> zeno
     user/password dictionary that the caller must delete once Zenoh has read it (`open_router`
     does); see `dictionary_file`."""
     listen = ([plan.private] if plan.private else []) + plan.network
-    conf = zenoh_config("router", listen=listen, connect=plan.connect)
+    conf = zenoh_config("router", listen=listen, connect=plan.connect, tls=plan.tls)
     if plan.auth:
         logins = {name: acc.password for name, acc in plan.accounts.items()}
         link = (CONTROLLER_USER, _derived(plan.accounts, "controller link"))
@@ -228,12 +237,14 @@ def access_control(cfg: MachineConfig, plan: Plan, upstream_zid: str | None = No
     policies.append({"id": "controller", "rules": ["everything"], "subjects": ["controller"]})
     every_station: list[str] = []
     for principal, role in sorted(plan.roles.items()):
-        own = [f"token {principal}"]
+        own = [f"token {principal}", f"pong {principal}", f"ping {principal}"]
         rules.append(_rule(own[0], ["ingress"], ["liveliness_token"], [f"{root}/hmi/{principal}/**"]))
+        rules.append(_rule(own[1], ["ingress"], ["declare_queryable", "reply"], [f"{root}/ping/{principal}/**"]))
+        rules.append(_rule(own[2], ["egress"], ["query"], [f"{root}/ping/{principal}/**"]))
         if role_at_least(role, "operator"):
             own += [f"commands {principal}", f"answers {principal}"]
-            rules.append(_rule(own[1], ["ingress"], ["query"], [f"{root}/u/{principal}/**"]))
-            rules.append(_rule(own[2], ["egress"], ["reply"], [f"{root}/u/{principal}/**"]))
+            rules.append(_rule(own[-2], ["ingress"], ["query"], [f"{root}/u/{principal}/**"]))
+            rules.append(_rule(own[-1], ["egress"], ["reply"], [f"{root}/u/{principal}/**"]))
         every_station += own
         sid = f"station {principal}"
         if plan.auth and principal == LOCAL_USER:
@@ -246,7 +257,7 @@ def access_control(cfg: MachineConfig, plan: Plan, upstream_zid: str | None = No
         policies.append({"id": sid, "rules": observe + own, "subjects": [sid]})
     if upstream_zid is not None:
         rules.append(_rule("announce out", ["egress"], ALL_MESSAGES,
-                           _under(root, WATCH_KEYS + READ_KEYS + ALIVE_KEYS + ("u/**",))))
+                           _under(root, WATCH_KEYS + READ_KEYS + ALIVE_KEYS + ("u/**", "ping/**"))))
         subjects.append({"id": "shop router", "zids": [upstream_zid]})
         policies.append({"id": "shop router", "rules": observe + every_station + ["announce out"],
                          "subjects": ["shop router"]})

@@ -110,6 +110,11 @@ class Keys:
         (`session`: its id): its presence is the station's "network alive"."""
         return f"{self.root}/hmi/{user}/{station}" + (f"/{session}" if session else "")
 
+    def ping(self, station: str, user: str = "local", session: str = "") -> str:
+        """A station answers here (`OperatorStation`): the gateway asks the lock holder's regularly,
+        so a station behind a dead link is lost even where the link's lease does not expire it."""
+        return f"{self.root}/ping/{user}/{station}" + (f"/{session}" if session else "")
+
     @property
     def stations(self) -> str:
         return f"{self.root}/hmi/**"

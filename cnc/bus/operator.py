@@ -33,6 +33,8 @@ class OperatorStation:
         self.session, self.keys, self.station, self.timeout_s, self.user = session, keys, station, timeout_s, user
         zid = str(session.zid())
         self.token = session.liveliness().declare_token(keys.station(station, user, zid))
+        # the gateway's ping of the lock holder: answered by Zenoh's thread at once
+        self.pong = session.declare_queryable(keys.ping(station, user, zid), lambda q: q.reply(q.key_expr, b"pong"))
         self.attachment = json.dumps({"station": station, "session": zid}).encode()
 
     def request(self, command: msgspec.Struct, verb: str | None = None) -> Reply:
@@ -85,4 +87,5 @@ class OperatorStation:
         return self.request(UploadProgram(name, text))
 
     def close(self) -> None:
+        self.pong.undeclare()
         self.token.undeclare()

@@ -7,8 +7,12 @@ import os
 import re
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import zenoh
+
+if TYPE_CHECKING:
+    from .certs import TlsFiles
 
 
 
@@ -28,6 +32,7 @@ def zenoh_config(
     connect: list[str] | None = None,
     credentials: tuple[str, str] | None = None,
     lease_s: float = LEASE_S,
+    tls: "TlsFiles | None" = None,
 ) -> zenoh.Config:
     """A session config: `router` listens, `client`/`peer` connect; scouting off (explicit
     topology). `credentials` (user, password) authenticate it to a router with access control.
@@ -46,6 +51,12 @@ def zenoh_config(
     if credentials is not None:
         user, password = credentials
         cfg.insert_json5("transport/auth/usrpwd", json.dumps({"user": user, "password": password}))
+    if tls is not None:  # tls/ endpoints: check the other side against the machine's CA, show our own pair
+        link = {"root_ca_certificate": str(tls.ca), "connect_certificate": str(tls.certificate),
+                "connect_private_key": str(tls.key), "enable_mtls": True}  # mutual: both sides show a certificate
+        if mode == "router":  # and a router asks every station for one the CA signed
+            link.update(listen_certificate=str(tls.certificate), listen_private_key=str(tls.key))
+        cfg.insert_json5("transport/link/tls", json.dumps(link))
     return cfg
 
 
@@ -77,12 +88,14 @@ def local_login(endpoints: list[str]) -> tuple[str, str] | None:
     return (user, password) if user and password else None
 
 
-def open_client(endpoints: list[str], credentials: tuple[str, str] | None = None) -> zenoh.Session:
-    """A client session on `endpoints`; with accounts on, pass (user, password). Without, a session
-    to a controller on this host logs in with the local station's login when there is one."""
+def open_client(endpoints: list[str], credentials: tuple[str, str] | None = None,
+                tls: "TlsFiles | None" = None) -> zenoh.Session:
+    """A client session on `endpoints`; with accounts on, pass (user, password), and for `tls/`
+    endpoints the station's TLS files (`cnc.bus.certs`). Without credentials, a session to a
+    controller on this host logs in with the local station's login when there is one."""
     if credentials is None:
         credentials = local_login(endpoints)
-    return zenoh.open(zenoh_config("client", connect=endpoints, credentials=credentials))
+    return zenoh.open(zenoh_config("client", connect=endpoints, credentials=credentials, tls=tls))
 
 
 def open_router(listen: list[str], connect: list[str] | None = None) -> zenoh.Session:

@@ -9,9 +9,11 @@ import argparse
 import json
 import sys
 import threading
+from pathlib import Path
 
 import zenoh
 
+from cnc.bus.certs import files_for
 from cnc.bus.keys import Keys
 from cnc.bus.messages import LockRequest, Reset, encode
 from cnc.bus.session import zenoh_config
@@ -23,11 +25,14 @@ def main() -> int:
     parser.add_argument("--machine", required=True)
     parser.add_argument("--login", default="", metavar="USER:PASSWORD")
     parser.add_argument("--other", default="alice", help="another user, whose command key is tried too")
+    parser.add_argument("--tls", default="", metavar="DIR", help="ca.pem and <name>.pem/.key for tls/ endpoints")
+    parser.add_argument("--tls-name", default="probe")
     args = parser.parse_args()
     keys = Keys("wj", args.machine)
     credentials = tuple(args.login.split(":", 1)) if args.login else None
     try:
-        session = zenoh.open(zenoh_config("client", connect=[args.connect], credentials=credentials))
+        tls = files_for(Path(args.tls), args.tls_name) if args.tls else None
+        session = zenoh.open(zenoh_config("client", connect=[args.connect], credentials=credentials, tls=tls))
     except zenoh.ZError as exc:
         print(json.dumps({"opened": False, "why": str(exc).splitlines()[0]}), flush=True)
         return 0

@@ -11,8 +11,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from cnc.bus import messages
+from cnc.bus.certs import files_for
 from cnc.bus.keys import Keys
 from hmi.connection import Connection
 from hmi.model import MachineModel
@@ -38,10 +40,12 @@ def main() -> int:
     parser.add_argument("--prefix", default="wj")
     parser.add_argument("--station", required=True)
     parser.add_argument("--login", default="", metavar="USER:PASSWORD", help="the account to log in with")
+    parser.add_argument("--tls", default="", metavar="DIR", help="ca.pem and <station>.pem/.key for tls/ endpoints")
     args = parser.parse_args()
     model = MachineModel(args.station)
     credentials = tuple(args.login.split(":", 1)) if args.login else None
-    connection = Connection(model, [args.connect], Keys(args.prefix, args.machine), args.station, credentials)
+    tls = files_for(Path(args.tls), args.station) if args.tls else None
+    connection = Connection(model, [args.connect], Keys(args.prefix, args.machine), args.station, credentials, tls=tls)
     connection.start()
     print(json.dumps({"started": True}), flush=True)
     try:
