@@ -48,8 +48,8 @@ from cnc.bus.keys import Keys  # noqa: E402
 from cnc.bus.messages import AlarmEvent, CycleStart, Status, decode  # noqa: E402
 from cnc.bus.session import connect_endpoints, open_client  # noqa: E402
 from cnc.config import load_machine  # noqa: E402
-from cnc.layout import ClockKind, LinkState  # noqa: E402
-from cnc.supervisor import Supervisor, SupervisorError  # noqa: E402
+from cnc.data.layout import ClockKind, LinkState  # noqa: E402
+from cnc.runtime.supervisor import Supervisor, SupervisorError  # noqa: E402
 from plc_link.sim_model import PlantTimes  # noqa: E402
 
 DEFAULT_MACHINE = Path(__file__).resolve().parent.parent / "machines" / "waterjet.toml"

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Fault reactions on the real-time clock: every fault of `cnc.faultinject` injected into a cut.
+"""Fault reactions on the real-time clock: every fault of `cnc.sim.faultinject` injected into a cut.
 
 On the real-time clock a tick is a millisecond of wall time, so the figures count everything
 from the injection: the detection of a fault the controller learns of in wall time (a process
@@ -21,12 +21,12 @@ import tempfile
 from pathlib import Path
 
 from cnc.config import load_machine
-from cnc.demo import free_port
-from cnc.faultinject import (
+from cnc.sim.demo import free_port
+from cnc.sim.faultinject import (
     FAST_PLANT, SCENARIO_OVERRIDES, Reaction, catalogue, inject_during_cut, pause_on_the_straight, recover,
 )
-from cnc.layout import ServoFault
-from cnc.supervisor import Supervisor
+from cnc.data.layout import ServoFault
+from cnc.runtime.supervisor import Supervisor
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -29,7 +29,7 @@ from PySide6.QtWidgets import QApplication  # noqa: E402
 
 from cnc.bus.messages import ProgramPath  # noqa: E402
 from cnc.config import load_machine  # noqa: E402
-from cnc.door import program_path  # noqa: E402
+from cnc.gateway.door import program_path  # noqa: E402
 from cnc.machine_dialect import dialect_for  # noqa: E402
 from gcode.interp import Interpreter  # noqa: E402
 from hmi.contour import ContourView  # noqa: E402

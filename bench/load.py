@@ -70,9 +70,9 @@ from cnc.bus.messages import AlarmEvent, CycleStart, Home, Position, Reply, Rese
 from cnc.bus.operator import OperatorStation  # noqa: E402
 from cnc.bus.session import connect_endpoints, open_client  # noqa: E402
 from cnc.config import ConfigError, MachineConfig, load_machine  # noqa: E402
-from cnc.layout import LinkState, PlannerState, ServoState  # noqa: E402
+from cnc.data.layout import LinkState, PlannerState, ServoState  # noqa: E402
 from cnc.logic.states import CyclePhase, MachineState  # noqa: E402
-from cnc.supervisor import Supervisor, SupervisorError  # noqa: E402
+from cnc.runtime.supervisor import Supervisor, SupervisorError  # noqa: E402
 from plc_link.sim_model import PlantTimes  # noqa: E402
 
 DEFAULT_MACHINE = Path(__file__).resolve().parent.parent / "machines" / "waterjet.toml"

@@ -32,10 +32,10 @@ from servo_timing import on_free_port, summarize  # noqa: E402
 
 from cnc.bus.messages import CycleStart, Home, LoadProgram, Reset, SetMode  # noqa: E402
 from cnc.config import load_machine  # noqa: E402
-from cnc.demo import demo_program  # noqa: E402
-from cnc.layout import ClockKind, LinkState, PlannerState  # noqa: E402
+from cnc.sim.demo import demo_program  # noqa: E402
+from cnc.data.layout import ClockKind, LinkState, PlannerState  # noqa: E402
 from cnc.logic.states import MachineState  # noqa: E402
-from cnc.supervisor import Supervisor  # noqa: E402
+from cnc.runtime.supervisor import Supervisor  # noqa: E402
 from plc_link.sim_model import PlantTimes  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent

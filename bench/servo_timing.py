@@ -57,11 +57,11 @@ from cnc.bus.messages import (
     Home, LoadProgram, LogSetting, LogStart, LogState, LogStop, Reply, Start, Stop, decode, encode,
 )
 from cnc.config import ConfigError, MachineConfig, load_machine
-from cnc.demo import free_port
-from cnc.fifo import SetpointFifo
-from cnc.layout import ClockKind, PlannerState, ServoFault, ServoState
+from cnc.sim.demo import free_port
+from cnc.data.fifo import SetpointFifo
+from cnc.data.layout import ClockKind, PlannerState, ServoFault, ServoState
 from cnc.ptp import move_setpoints
-from cnc.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor, SupervisorError
+from cnc.runtime.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor, SupervisorError
 
 DEFAULT_MACHINE = Path(__file__).resolve().parent.parent / "machines" / "waterjet.toml"
 FEEDERS = ("direct", "planner", "logging")

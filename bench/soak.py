@@ -47,9 +47,9 @@ from servo_timing import BenchError, Snapshot, on_free_port, percentile_us, syst
 
 from cnc.bus.messages import CycleStart, SetMode  # noqa: E402
 from cnc.config import ConfigError, MachineConfig, load_machine  # noqa: E402
-from cnc.layout import LinkState, RunResult  # noqa: E402
+from cnc.data.layout import LinkState, RunResult  # noqa: E402
 from cnc.logic.states import CyclePhase  # noqa: E402
-from cnc.supervisor import Supervisor, SupervisorError  # noqa: E402
+from cnc.runtime.supervisor import Supervisor, SupervisorError  # noqa: E402
 
 DEFAULT_MACHINE = Path(__file__).resolve().parent.parent / "machines" / "waterjet.toml"
 SUPERVISOR = "supervisor + router (this process)"

@@ -31,8 +31,8 @@ from cnc.bus.messages import Stop  # noqa: E402
 from cnc.bus.operator import OperatorStation  # noqa: E402
 from cnc.bus.session import open_client  # noqa: E402
 from cnc.config import load_machine  # noqa: E402
-from cnc.layout import LinkState  # noqa: E402
-from cnc.supervisor import Supervisor  # noqa: E402
+from cnc.data.layout import LinkState  # noqa: E402
+from cnc.runtime.supervisor import Supervisor  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 TARGET_MS = 50.0

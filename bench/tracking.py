@@ -19,8 +19,8 @@ import sys
 from pathlib import Path
 
 from cnc.config import load_machine
-from cnc.demo import free_port
-from cnc.simulate import simulate
+from cnc.sim.demo import free_port
+from cnc.sim.simulate import simulate
 
 REPO = Path(__file__).resolve().parent.parent
 PROGRAM = REPO / "bench" / "fig10_contour.ngc"
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{label:<42}{ours:>9.2f}   {f'{peer:g} um ({what})':<21}{ours / peer:>6.2f}x")
     print(f"tracking error rms {um(m['tracking_error_rms_mm']):.2f} um; rapids' contour error {um(m['contour_error_rapid_max_mm']):.1f} um")
     if args.plot:
-        from cnc.plots import plot_run
+        from cnc.logger.plots import plot_run
 
         r = result.trace
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,7 @@ def _machine_arg(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_up(args: argparse.Namespace) -> int:
-    from .supervisor import Supervisor, SupervisorError
+    from .runtime.supervisor import Supervisor, SupervisorError
 
     config = load_machine(args.machine, {"zenoh.listen": args.listen} if args.listen else None)
     stop = {"requested": False}
@@ -51,7 +51,7 @@ def _cmd_up(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from .demo import run_demo
+    from .sim.demo import run_demo
 
     return run_demo(args.machine, clock=args.clock)
 
@@ -64,7 +64,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .simulate import run_cli
+    from .sim.simulate import run_cli
 
     logging.getLogger("cnc").setLevel(logging.WARNING)  # the figures are the output
     return run_cli(args.program, args.machine, args.json, args.plot, sys.stdout, sys.stderr)
@@ -128,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
     watch_p.set_defaults(func=watch.run)
 
     log_p = sub.add_parser("log", help="the data logger: list, start and stop log runs, export one to MATLAB or CSV")
-    from . import logcli
+    from .logger import logcli
 
     logcli.add_arguments(log_p)
     log_p.set_defaults(func=logcli.run)

@@ -26,9 +26,9 @@ import numpy as np
 from ruckig import ControlInterface, InputParameter, Result, Ruckig, Trajectory
 
 from .config import MachineConfig
-from .fifo import SetpointFlag, setpoint_dtype
+from .data.fifo import SetpointFlag, setpoint_dtype
 from .hw.board import AxisIn
-from .layout import ServoFault, ServoState
+from .data.layout import ServoFault, ServoState
 
 CHUNK_S = 0.02  # setpoints pushed per step: a switch is seen within this much motion
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from .config import MachineConfig
 from .hw.board import DigitalIn
-from .layout import LinkState, Proc, ServoFault
+from .data.layout import LinkState, Proc, ServoFault
 
 
 class StopCause(enum.IntFlag):

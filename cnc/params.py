@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .config import MachineConfig, loads_machine
-from .layout import MAX_PARAMS
+from .data.layout import MAX_PARAMS
 
 # (table, key, owner, when it may change, when it takes effect) per option; axis options for every axis
 _AXIS_OPTIONS = ("kp_1_s", "ki_1_s2", "velocity_ff", "accel_ff_s", "integral_limit_mm_s", "following_error_limit_mm")

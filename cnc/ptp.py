@@ -14,7 +14,7 @@ import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Trajectory
 
 from .config import MachineConfig
-from .fifo import SetpointFlag, setpoint_dtype
+from .data.fifo import SetpointFlag, setpoint_dtype
 
 
 class MoveError(ValueError):

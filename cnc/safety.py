@@ -9,7 +9,7 @@ is refused at load, naming the id it lacks. Every servo fault, a drive's include
 
 from __future__ import annotations
 
-from .layout import ServoFault
+from .data.layout import ServoFault
 
 ERROR, FATAL = "error", "fatal"
 LEVEL_ORDER = ("info", "warning", "error", "fatal")

@@ -39,13 +39,13 @@ from typing import Callable
 
 from .brake import PathBrake, PathPoint
 from .config import MachineConfig
-from .dataserver import SharedArea
-from .fifo import OUTPUT_MASK, SetpointFifo, SetpointFlag
+from .data.dataserver import SharedArea
+from .data.fifo import OUTPUT_MASK, SetpointFifo, SetpointFlag
 from .hw.board import AxisIn, DigitalOut
 from .interlock import CATEGORY_0, Interlock, fault_of
-from .layout import HIST_BINS, Proc, ServoFault, ServoState
+from .data.layout import HIST_BINS, Proc, ServoFault, ServoState
 from .params import registry
-from .trace import TraceRing
+from .data.trace import TraceRing
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException
 from pymodbus.framer import FramerType
 
 from cnc.config import PlcConfig
-from cnc.layout import LinkState
+from cnc.data.layout import LinkState
 
 from . import rtu
 from .image import PlcImage, ReadRequest, WriteRequest

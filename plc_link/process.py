@@ -19,10 +19,10 @@ import os
 import time
 
 from cnc.config import MachineConfig
-from cnc.dataserver import SharedArea
-from cnc.layout import MAX_PLC_VARS, LinkState, Proc, controller_layouts
-from cnc.rt import enter_realtime
-from cnc.runtime import Runtime, child_setup, set_ready
+from cnc.data.dataserver import SharedArea
+from cnc.data.layout import MAX_PLC_VARS, LinkState, Proc, controller_layouts
+from cnc.runtime.rt import enter_realtime
+from cnc.runtime.child import Runtime, child_setup, set_ready
 
 from .master import NO_PORT, PlcMaster
 

@@ -407,7 +407,7 @@ def launch_simulator_process(
 
 
 def _child_main(plc: PlcConfig, times: PlantTimes | None, conn: Connection) -> None:
-    from cnc.runtime import die_with_parent
+    from cnc.runtime.child import die_with_parent
 
     die_with_parent()  # a simulator outliving its controller would hold the pty for the next one
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us in order

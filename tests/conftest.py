@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from cnc.config import MachineConfig, load_machine
-from cnc.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor
+from cnc.runtime.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")  # Qt tests render without a display
 
@@ -57,7 +57,7 @@ def pytest_terminal_summary(terminalreporter) -> None:
         for line in matrix_table(SAFETY_MATRIX):
             terminalreporter.write_line(line)
     if FAULT_REACTIONS:
-        from cnc.faultinject import table
+        from cnc.sim.faultinject import table
 
         terminalreporter.section("faults injected through the real processes (virtual clock)")
         terminalreporter.write_line(table(FAULT_REACTIONS))
@@ -72,7 +72,7 @@ def matrix_table(cells: list) -> list[str]:
         bound = "coast (cat. 0)" if c.bound_mm is None else f"{c.bound_mm:.2f}"
         rows.append((c.state, c.fault, str(c.detect_ticks), c.jet_ticks, f"{c.speed_mm_s:.0f}", f"{c.stop_mm:.2f}", bound,
                      c.trip + (f" ({c.note})" if c.note else ""), c.alarm, "ok" if c.recovered else "FAILED"))
-    from cnc.faultinject import text_table
+    from cnc.sim.faultinject import text_table
 
     lines = text_table(rows)
     lines.append("detect: ticks (1 ms) from the cause (at the board, in the PLC's image, a process falling silent) to the "
@@ -82,7 +82,7 @@ def matrix_table(cells: list) -> list[str]:
 
 
 def fast_plant():
-    from cnc.faultinject import FAST_PLANT
+    from cnc.sim.faultinject import FAST_PLANT
 
     return FAST_PLANT
 
@@ -90,7 +90,7 @@ def fast_plant():
 @contextmanager
 def full_controller(config: MachineConfig, history_path: Path):
     """Every controller process and the PLC simulator on the virtual clock, the PLC link up."""
-    from cnc.layout import LinkState
+    from cnc.data.layout import LinkState
 
     with Supervisor(config, clock="virtual", history_path=history_path, plc_sim_times=fast_plant()) as sup:
         sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
@@ -101,7 +101,7 @@ def reset_and_home(sup: Supervisor, request) -> None:
     """Reset (the drives come on a few ticks after the reply), then home once the servo holds:
     `request(msg)` sends a command and returns its Reply (an operator station's, or the logic's)."""
     from cnc.bus.messages import Home, Reset
-    from cnc.layout import ServoState
+    from cnc.data.layout import ServoState
 
     reply = request(Reset())
     assert reply.ok, reply.reason
@@ -129,7 +129,7 @@ def press_button_when_asked(sup: Supervisor, until, timeout_s: float, what: str)
 @pytest.fixture(autouse=True, scope="module")
 def _earlier_modules_objects_out_of_the_collectors_way():
     """What earlier modules left alive goes to the permanent generation, as the controller's
-    processes do with theirs (cnc.rt): one test process accumulates it across the suite, and every
+    processes do with theirs (cnc.runtime.rt): one test process accumulates it across the suite, and every
     full collection would scan it all again, the per-test collection below included. The tick rig's
     cells, CPU-bound and allocating, ran three times slower late in the suite than alone."""
     gc.collect()
@@ -195,7 +195,7 @@ def feed(sup: Supervisor, setpoints: np.ndarray, timeout_s: float = 60.0) -> Non
 
 def enable_and_hold(sup: Supervisor) -> list[float]:
     """Close the loop and wait until the servo holds; returns the held position."""
-    from cnc.layout import ServoState
+    from cnc.data.layout import ServoState
 
     sup.enable()
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the servo to hold position")
@@ -210,7 +210,7 @@ def ask(sup: Supervisor, command) -> None:
 
 def wait_planner_idle(sup: Supervisor, timeout_s: float = 120.0) -> dict:
     """Until the planner is idle again (homing, a program, a jog done); returns the motion block."""
-    from cnc.layout import PlannerState
+    from cnc.data.layout import PlannerState
 
     sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE, timeout_s, "the planner to be idle")
     return sup.motion()

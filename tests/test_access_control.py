@@ -23,7 +23,7 @@ from cnc.bus.keys import Keys
 from cnc.bus.session import local_login, open_client, zenoh_config
 from cnc.bus.users import Account, read_users, write_users
 from cnc.config import ConfigError, MachineConfig
-from cnc.demo import free_port
+from cnc.sim.demo import free_port
 
 from .conftest import REPO, machine_config
 

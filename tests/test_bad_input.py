@@ -27,11 +27,11 @@ from cnc.bus.session import open_client
 from cnc.check import check_program
 from cnc.cli import main as waterjet
 from cnc.config import ConfigError, MachineConfig, load_machine
-from cnc.layout import PlannerState
+from cnc.data.layout import PlannerState
 from cnc.logic.states import MachineState
 from cnc.machine_dialect import dialect_for
 from cnc.planner.preflight import PreflightRefusal, preflight
-from cnc.supervisor import Supervisor
+from cnc.runtime.supervisor import Supervisor
 from gcode.errors import GCodeError
 from gcode.interp import Interpreter
 

@@ -11,7 +11,7 @@ import pytest
 
 from cnc.hw.clock import RealtimeClock, VirtualClock, make_clock
 from cnc.ptp import move_setpoints
-from cnc.supervisor import DIRECT_FEED, Supervisor
+from cnc.runtime.supervisor import DIRECT_FEED, Supervisor
 
 from .conftest import REPO, enable_and_hold, feed, machine_config
 
@@ -46,7 +46,7 @@ def _python(code: str) -> subprocess.CompletedProcess:
 def test_refused_realtime_scheduling_warns_and_falls_back_cleanly():
     code = (
         "import logging, os, resource\n"
-        "from cnc.rt import enter_realtime\n"
+        "from cnc.runtime.rt import enter_realtime\n"
         "resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))\n"
         "resource.setrlimit(resource.RLIMIT_MEMLOCK, (0, 0))\n"
         "os.setgid(65534); os.setuid(65534)\n"
@@ -66,7 +66,7 @@ def test_a_long_computation_started_by_a_realtime_thread_runs_under_the_normal_s
     # of work for a large program, which at SCHED_FIFO held a CPU and tripped the drive watchdog
     code = (
         "import os, threading\n"
-        "from cnc.rt import leave_realtime\n"
+        "from cnc.runtime.rt import leave_realtime\n"
         "os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))\n"
         "seen = []\n"
         "def work():\n"
@@ -106,7 +106,7 @@ def test_a_structure_built_with_the_collector_paused_is_left_out_of_later_collec
     # heartbeat timeout; built under collector_paused they are never passed over again
     code = (
         "import gc\n"
-        "from cnc.rt import collector_paused\n"
+        "from cnc.runtime.rt import collector_paused\n"
         "gc.collect(); before = gc.get_freeze_count()\n"
         "with collector_paused():\n"
         "    inside = gc.isenabled()\n"

@@ -94,8 +94,8 @@ def test_reference_file_documents_every_option_and_is_in_sync():
 
 def test_paths_in_the_machine_file_are_taken_from_its_directory_and_the_history_defaults_to_the_state_dir(tmp_path, monkeypatch):
     from cnc.config import beside
-    from cnc.procs import program_dir
-    from cnc.supervisor import default_history_path
+    from cnc.runtime.procs import program_dir
+    from cnc.runtime.supervisor import default_history_path
 
     machine = tmp_path / "m" / "machine.toml"
     machine.parent.mkdir()
@@ -141,7 +141,7 @@ def test_a_catalogue_without_an_alarm_the_controller_raises_is_refused_naming_it
 
 def test_every_servo_fault_and_stop_cut_cause_has_its_alarm_in_the_shipped_catalogue():
     from cnc.interlock import CAUSE_FAULTS, StopCause
-    from cnc.layout import ServoFault
+    from cnc.data.layout import ServoFault
     from cnc.safety import fault_alarm, minimum_levels
 
     config = load_machine(MACHINE_FILE)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import multiprocessing
 
-from cnc.dataserver import BlockLayout, FieldSpec, SharedArea, unique_name
+from cnc.data.dataserver import BlockLayout, FieldSpec, SharedArea, unique_name
 
 LAYOUT = BlockLayout("t", [FieldSpec("a", "Q"), FieldSpec("v", "d", 5), FieldSpec("b", "I"), FieldSpec("c", "q", 3)])
 

@@ -1,4 +1,4 @@
-"""Every fault through the real processes (`cnc.faultinject.catalogue()`), each at least once, at
+"""Every fault through the real processes (`cnc.sim.faultinject.catalogue()`), each at least once, at
 50 and 500 mm/s: put on the simulated machine while it cuts, the jet closes within a tick of the
 tick that acted, the axes stop within the bound, the right alarm is in the history, the
 supervisor restarts what it may, and the machine is reset and cuts again without a restart. One
@@ -18,14 +18,14 @@ from cnc.bus.keys import Keys
 from cnc.bus.messages import Jog, Reset, SetMode, Stop
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
-from cnc.faultinject import (
+from cnc.sim.faultinject import (
     SCENARIO_OVERRIDES, Fault, ask, catalogue, cutting_now, inject_during_cut, logic_block, pause_on_the_straight,
     program_path, ready_to_cut, recover, start_cut,
 )
 from cnc.hw.board import DigitalOut
-from cnc.layout import PlannerState, ServoFault, ServoState
+from cnc.data.layout import PlannerState, ServoFault, ServoState
 from cnc.logic.states import CyclePhase, MachineState
-from cnc.supervisor import Supervisor
+from cnc.runtime.supervisor import Supervisor
 
 from .conftest import FAULT_REACTIONS, NEAR_HOME, fast_plant, machine_config
 
@@ -144,7 +144,7 @@ def test_losing_the_lock_holders_station_holds_the_cut_and_stops_a_jog(controlle
 
 
 def _note(fault: str, state: str, alarm: str):
-    from cnc.faultinject import Reaction
+    from cnc.sim.faultinject import Reaction
 
     return Reaction(fault, 0.0, -1, -1, 0.0, None, state, alarm)
 

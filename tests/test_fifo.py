@@ -7,8 +7,8 @@ import multiprocessing
 import numpy as np
 import pytest
 
-from cnc.dataserver import unique_name
-from cnc.fifo import SetpointFifo, SetpointFlag, setpoint_dtype
+from cnc.data.dataserver import unique_name
+from cnc.data.fifo import SetpointFifo, SetpointFlag, setpoint_dtype
 
 N_RECORDS = 1_000_000
 

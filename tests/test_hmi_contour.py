@@ -10,7 +10,7 @@ import pytest
 
 from cnc.bus.messages import ProgramPath
 from cnc.config import load_machine
-from cnc.door import program_path
+from cnc.gateway.door import program_path
 from cnc.machine_dialect import dialect_for
 from gcode.interp import Interpreter
 from hmi.contour import ContourView

@@ -18,7 +18,7 @@ from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.alarms.catalogue import AlarmAction, AlarmLevel
 from cnc.alarms.history import AlarmHistory
-from cnc.supervisor import Supervisor
+from cnc.runtime.supervisor import Supervisor
 from hmi.connection import Connection
 from hmi.model import MachineModel, PlcState, Screen
 

@@ -6,8 +6,8 @@ import pytest
 
 from cnc.bus.messages import Home, Stop
 from cnc.hw.board import AxisIn
-from cnc.layout import PlannerState, ServoFault, ServoState
-from cnc.supervisor import MOTION_ONLY, Supervisor
+from cnc.data.layout import PlannerState, ServoFault, ServoState
+from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import ask, enable_and_hold, home, machine_config, wait_planner_idle
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import os
 import subprocess
 
-from cnc.dataserver import BlockLayout
+from cnc.data.dataserver import BlockLayout
 from cnc.hw.board import DigitalIn
 from cnc.interlock import CATEGORY_0, Interlock, StopCause, fault_of, process_gone
-from cnc.layout import LinkState, Proc, ServoFault, command_layout, plc_layout
+from cnc.data.layout import LinkState, Proc, ServoFault, command_layout, plc_layout
 
 from .conftest import machine_config
 

@@ -15,8 +15,8 @@ from cnc.bus.keys import Keys
 from cnc.bus.messages import AlarmEvent, CycleStart, Position, ProgramInfo, SetMode, Status, decode, encode
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
-from cnc.door import program_path
-from cnc.layout import PlannerState
+from cnc.gateway.door import program_path
+from cnc.data.layout import PlannerState
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.machine_dialect import dialect_for
 from gcode.interp import Interpreter

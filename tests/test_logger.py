@@ -16,7 +16,7 @@ from cnc.bus.messages import CycleStart, LogLive, LogRunData, LogSetting, LogSta
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.bus.messages import decode, encode
-from cnc.layout import PlannerState
+from cnc.data.layout import PlannerState
 from cnc.bus.logexport import columns, read_csv
 from cnc.logic.states import MachineState
 

@@ -19,9 +19,9 @@ from cnc.bus.messages import (
     ProcedureEnd, ProcedureStart, ProcedureState, ProcedureStop, Pump, Reply, Reset, Resume, SetMode, Stop, decode,
 )
 from cnc.hw.board import DigitalOut
-from cnc.layout import LinkState, PlannerState, RunResult, ServoFault, ServoState
+from cnc.data.layout import LinkState, PlannerState, RunResult, ServoFault, ServoState
 from cnc.logic.states import CyclePhase, MachineState
-from cnc.supervisor import Supervisor
+from cnc.runtime.supervisor import Supervisor
 
 from .conftest import logic, press_button_when_asked, reset_and_home
 from .test_stale_motion import nest
@@ -404,7 +404,7 @@ def test_stop_is_answered_while_a_long_program_load_is_under_way(plc_controller,
     from cnc.bus.operator import OperatorStation
     from cnc.bus.session import open_client
 
-    from cnc.procs import program_dir
+    from cnc.runtime.procs import program_dir
 
     sup = plc_controller
     path = Path(program_dir(sup.config, sup.runtime.history_path)) / "big.ngc"  # stations load from there

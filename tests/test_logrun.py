@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cnc.bus.messages import LogSetting
-from cnc.logrun import LogRun, LogSettingError
+from cnc.logger.logrun import LogRun, LogSettingError
 
 DT = 0.001
 KNOWN = ["ramp", "x.following_error", "jet"]

@@ -12,7 +12,7 @@ from cnc.bus.messages import CycleStart, SetMode
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.config import ConfigError, load_machine
-from cnc.layout import PlannerState
+from cnc.data.layout import PlannerState
 from cnc.logic.states import MachineState
 from cnc.params import ParamError, find, registry, save, values_of
 

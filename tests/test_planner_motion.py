@@ -14,7 +14,7 @@ import pytest
 
 from gcode.interp import interpret
 
-from cnc.fifo import SetpointFlag
+from cnc.data.fifo import SetpointFlag
 from cnc.machine_dialect import dialect_for
 from cnc.planner.measure import ProgrammedPath, peaks
 from cnc.planner.runner import ProgramRunner, RunState

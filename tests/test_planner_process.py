@@ -14,8 +14,8 @@ import pytest
 from cnc.bus.keys import Keys
 from cnc.bus.messages import GoTo, Hold, Jog, JogStop, LoadProgram, Override, Resume, Start, Status, Stop, decode
 from cnc.bus.session import open_client
-from cnc.layout import PlannerState, RunResult, ServoState
-from cnc.supervisor import MOTION_ONLY, Supervisor
+from cnc.data.layout import PlannerState, RunResult, ServoState
+from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import MACHINE_FILE, REPO, ask, enable_and_hold, home, machine_config, wait_planner_idle
 

@@ -11,8 +11,8 @@ import time
 import pytest
 
 from cnc.config import PlcVarConfig, load_machine
-from cnc.dataserver import SharedArea, unique_name
-from cnc.layout import LinkState, Proc, controller_layouts
+from cnc.data.dataserver import SharedArea, unique_name
+from cnc.data.layout import LinkState, Proc, controller_layouts
 from plc_link import rtu
 from plc_link.image import ImageError, PlcImage
 from plc_link.master import PlcExceptionResponse, PlcMaster, PlcTimeout

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from cnc.plots import DPI, FIGSIZE_IN, min_max_envelope, plot_run
+from cnc.logger.plots import DPI, FIGSIZE_IN, min_max_envelope, plot_run
 
 from .conftest import REPO
 
@@ -126,5 +126,5 @@ def test_a_time_base_that_is_not_one_dimensional_is_refused(tmp_path):
 
 
 def test_importing_the_plot_module_does_not_import_matplotlib():
-    code = "import sys, cnc.plots; sys.exit('matplotlib' in sys.modules)"
+    code = "import sys, cnc.logger.plots; sys.exit('matplotlib' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], cwd=REPO).returncode == 0

@@ -25,7 +25,7 @@ import pytest
 from cnc.brake import stop_distance_bound_mm
 from cnc.hw.board import DigitalOut
 from cnc.interlock import StopCause
-from cnc.layout import LinkState, Proc, ServoFault, ServoState
+from cnc.data.layout import LinkState, Proc, ServoFault, ServoState
 from cnc.planner.runner import RunState
 from cnc.safety import fault_alarm
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cnc.dataserver import SharedArea, unique_name
-from cnc.fifo import SetpointFifo, SetpointFlag, setpoint_dtype
+from cnc.data.dataserver import SharedArea, unique_name
+from cnc.data.fifo import SetpointFifo, SetpointFlag, setpoint_dtype
 from cnc.hw.board import AxisIn, DigitalIn, DigitalOut
-from cnc.layout import ServoFault, ServoState, controller_layouts
+from cnc.data.layout import ServoFault, ServoState, controller_layouts
 from cnc.ptp import move_setpoints
 from cnc.brake import StopProfile, stop_distance_bound_mm
 from cnc.servo import Servo
@@ -118,7 +118,7 @@ def test_setpoint_output_flags_drive_the_jet_valve(direct_controller):
 
 
 def test_an_unhomed_axis_has_no_soft_limits_but_its_hard_limit_switch_trips():
-    from cnc.supervisor import DIRECT_FEED, Supervisor
+    from cnc.runtime.supervisor import DIRECT_FEED, Supervisor
 
     with Supervisor(machine_config(**{"sim.axes.x.start_position_mm": 3.0}), clock="virtual", processes=DIRECT_FEED) as sup:
         start = enable_and_hold(sup)
@@ -240,7 +240,7 @@ def test_a_position_reference_shifts_the_frame_without_moving_the_table():
 def test_homing_against_the_index_pulse_puts_the_machine_frame_on_the_table():
     """The simulated encoder counts from power-up (encoder_zero_mm); a reference on the latched
     index pulse (every 10 mm of machine position) gives positions in machine coordinates."""
-    from cnc.supervisor import DIRECT_FEED, Supervisor
+    from cnc.runtime.supervisor import DIRECT_FEED, Supervisor
 
     config = machine_config(**{"sim.axes.x.encoder_zero_mm": 123.0})
     with Supervisor(config, clock="virtual", processes=DIRECT_FEED) as sup:

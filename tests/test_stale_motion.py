@@ -10,9 +10,9 @@ import time
 import pytest
 
 from cnc.bus.messages import GoTo, Hold, Home, Jog, JogRefresh, LoadProgram, Stamp, Start, Stop
-from cnc.layout import PlannerState, RunResult, ServoState
+from cnc.data.layout import PlannerState, RunResult, ServoState
 from cnc.planner.client import PlannerClient
-from cnc.supervisor import MOTION_ONLY, Supervisor
+from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import enable_and_hold, home, machine_config, wait_planner_idle
 

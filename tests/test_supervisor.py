@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from cnc.supervisor import MOTION_ONLY, Supervisor
+from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import MACHINE_FILE, REPO, enable_and_hold, free_port, machine_config
 
@@ -160,7 +160,7 @@ def test_while_one_process_is_restarted_the_others_are_still_watched(virtual_con
 def test_a_terminated_hardware_server_leaves_the_board_safe_first(virtual_controller):
     """SIGTERM (the supervisor's end, a system shutdown): the board goes to its safe state before
     anything else; its last image says so."""
-    from cnc.fifo import SetpointFlag
+    from cnc.data.fifo import SetpointFlag
     from cnc.hw.board import DigitalOut
 
     sup = virtual_controller

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from cnc.dataserver import unique_name
-from cnc.trace import TraceRing
+from cnc.data.dataserver import unique_name
+from cnc.data.trace import TraceRing
 
 
 def write(ring: TraceRing, tick: int) -> None:

@@ -18,9 +18,9 @@ import zenoh
 from cnc.bus.keys import Keys
 from cnc.bus.messages import SCHEMA_VERSION, AlarmEvent, CycleStart, Status, decode
 from cnc.bus.session import open_client, open_router
-from cnc.layout import LinkState, PlannerState
+from cnc.data.layout import LinkState, PlannerState
 from cnc.logic.states import CyclePhase, MachineState, Mode
-from cnc.supervisor import Supervisor
+from cnc.runtime.supervisor import Supervisor
 from cnc.watch import AlarmFollower, History
 
 from .conftest import MACHINE_FILE, REPO, free_port, full_controller, machine_config

@@ -7,10 +7,10 @@ import signal
 
 import pytest
 
-from cnc.fifo import SetpointFlag
+from cnc.data.fifo import SetpointFlag
 from cnc.hw.board import AxisIn, DigitalOut
-from cnc.layout import ServoFault, ServoState
-from cnc.supervisor import DIRECT_FEED, Supervisor
+from cnc.data.layout import ServoFault, ServoState
+from cnc.runtime.supervisor import DIRECT_FEED, Supervisor
 
 from .conftest import enable_and_hold, machine_config
 

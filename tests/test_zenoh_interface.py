@@ -17,9 +17,9 @@ from cnc.bus.messages import (
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
-from cnc.layout import LinkState, PlannerState, RunResult
+from cnc.data.layout import LinkState, PlannerState, RunResult
 from cnc.logic.states import CyclePhase, MachineState
-from cnc.supervisor import Supervisor
+from cnc.runtime.supervisor import Supervisor
 
 from .conftest import NEAR_HOME, fast_plant, logic, machine_config, press_button_when_asked, reset_and_home
 

@@ -24,14 +24,14 @@ import subprocess
 import numpy as np
 
 from cnc.config import MachineConfig
-from cnc.dataserver import SharedArea, unique_name
-from cnc.fifo import SetpointFifo
+from cnc.data.dataserver import SharedArea, unique_name
+from cnc.data.fifo import SetpointFifo
 from cnc.hw.board import DigitalOut
 from cnc.hw.clock import VirtualClock
 from cnc.hw.server import HardwareServer
 from cnc.hw.sim_board import SimBoard
 from cnc.homing import Homing, HomingError, Push, Reference, Unhome
-from cnc.layout import ClockKind, LinkState, Proc, ServoState, controller_layouts
+from cnc.data.layout import ClockKind, LinkState, Proc, ServoState, controller_layouts
 from cnc.machine_dialect import dialect_for
 from cnc.planner.runner import ProgramRunner
 from cnc.planner.sections import move_steps, program_steps

@@ -21,7 +21,7 @@ door open, the hardware server drops the jet and abrasive outputs whatever the s
 
 The image also records, as the board saw them, the tick the jet valve last closed and the last
 tick an axis moved: how fast the machine reached a safe state after a fault is read there, in
-ticks, whichever process reacted (fault injection, `cnc.faultinject`).
+ticks, whichever process reacted (fault injection, `cnc.sim.faultinject`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ import time
 
 from ..brake import StopProfile
 from ..config import MachineConfig
-from ..dataserver import SharedArea
-from ..layout import HIST_BINS, ClockKind, Proc
+from ..data.dataserver import SharedArea
+from ..data.layout import HIST_BINS, ClockKind, Proc
 from .board import BoardInputs, DigitalIn, DigitalOut, IOBoard
 from .clock import RealtimeClock, VirtualClock
 from .timers import TimerClient

@@ -23,7 +23,7 @@ from typing import Protocol
 
 from ..bus.messages import Hold, Reply, Resume, Start, Stop
 from ..config import MachineConfig
-from ..layout import PlannerState, RunResult
+from ..data.layout import PlannerState, RunResult
 from .signals import PlcOutputs, Snapshot
 from .states import CyclePhase
 

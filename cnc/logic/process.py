@@ -45,11 +45,11 @@ from ..bus.messages import (
     Reply, Resume, SchemaVersionError, Stamp, Stop, decode, encode,
 )
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
-from ..dataserver import SharedArea
+from ..data.dataserver import SharedArea
 from ..hw.board import AxisIn, DigitalOut
 from ..interlock import StopCause
-from ..jobs import JobHistory, jobs_path
-from ..layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
+from ..gateway.jobs import JobHistory, jobs_path
+from ..data.layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..safety import fault_alarm
 from .cycle import AutoCycle
 from .pressure import PlcView, PressureWatch

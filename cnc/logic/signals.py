@@ -7,10 +7,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..config import MachineConfig
-from ..dataserver import SharedArea
+from ..data.dataserver import SharedArea
 from ..hw.board import DigitalIn, DigitalOut
 from ..interlock import StopCause
-from ..layout import LinkState, ServoState
+from ..data.layout import LinkState, ServoState
 
 _DIN = {"estop_ok": DigitalIn.ESTOP_OK, "doors_closed": DigitalIn.DOORS_CLOSED, "mains_on": DigitalIn.MAINS_ON}
 MACHINE_SIGNALS = ("plc_link", "pump_pressure", "homed", "drives_on", "jet_on", "state", "mode", "moving")

@@ -56,14 +56,14 @@ from ..bus.messages import (
     encode,
 )
 from ..config import MachineConfig
-from ..dataserver import SharedArea
-from ..fifo import SetpointFifo
+from ..data.dataserver import SharedArea
+from ..data.fifo import SetpointFifo
 from ..homing import Homing, HomingError, Push, Reference, Unhome
-from ..layout import PlannerState, Proc, RunResult, ServoFault, ServoState
+from ..data.layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
 from ..params import registry, with_values
 from ..programs import ProgramRefused, read_program
-from ..rt import collector_paused, leave_realtime
+from ..runtime.rt import collector_paused, leave_realtime
 from .preflight import PreflightRefusal, preflight
 from .runner import ProgramRunner, RunState
 from .sections import move_steps, program_steps

@@ -27,7 +27,7 @@ import numpy as np
 from gcode.program import Program
 
 from ..config import MachineConfig
-from ..fifo import SetpointFlag, setpoint_dtype
+from ..data.fifo import SetpointFlag, setpoint_dtype
 from .sections import Section, Step, program_steps
 from .stream import SectionStream, WindowJob
 

@@ -20,7 +20,7 @@ from gcode.canon import DWELL, LINE, RAPID
 from gcode.program import Program
 
 from ..config import MachineConfig
-from ..fifo import SetpointFlag
+from ..data.fifo import SetpointFlag
 from .geometry import PathArrays
 from .limits import (
     GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, section_limits, section_zones, smoothing_for,

@@ -10,8 +10,8 @@ import sys
 import threading
 
 from cnc.config import load_machine
-from cnc.faultinject import FAST_PLANT
-from cnc.supervisor import Supervisor
+from cnc.sim.faultinject import FAST_PLANT
+from cnc.runtime.supervisor import Supervisor
 
 
 def main() -> int:

@@ -31,22 +31,22 @@ from typing import Any, Callable
 import msgspec
 import zenoh
 
-from .alarms import AlarmHistory, AlarmLevel, HistoryError
+from ..alarms import AlarmHistory, AlarmLevel, HistoryError
 from .audit import AuditTrail, AuditWriter, audit_path
-from .bus.access import AccessRefused, require_role
-from .bus.keys import Keys
-from .bus.messages import (
+from ..bus.access import AccessRefused, require_role
+from ..bus.keys import Keys
+from ..bus.messages import (
     LOGIC_COMMANDS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue, ProcedureInfo,
     ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SchemaVersionError,
     UploadProgram, decode, encode,
 )
-from .config import MachineConfig
+from ..config import MachineConfig
 from .jobs import JobHistory, jobs_path
 from .lock import LockRefused, OperatorLock, Token
-from .logic.client import LogicClient
-from .machine_dialect import dialect_for
-from .programs import ProgramDirectory, ProgramRefused
-from .rt import collector_paused
+from ..logic.client import LogicClient
+from ..machine_dialect import dialect_for
+from ..programs import ProgramDirectory, ProgramRefused
+from ..runtime.rt import collector_paused
 
 log = logging.getLogger(__name__)
 

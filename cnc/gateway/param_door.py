@@ -22,15 +22,15 @@ from typing import Any
 import msgspec
 import zenoh
 
-from . import params
+from .. import params
 from .audit import AuditWriter
-from .bus.access import AccessRefused, require_role
-from .bus.keys import Keys
-from .bus.messages import ParamInfo, ParamList, Reply, SaveParams, SchemaVersionError, SetParam, decode, encode
-from .config import ConfigError, MachineConfig, cross_check, load_machine
-from .dataserver import SharedArea
+from ..bus.access import AccessRefused, require_role
+from ..bus.keys import Keys
+from ..bus.messages import ParamInfo, ParamList, Reply, SaveParams, SchemaVersionError, SetParam, decode, encode
+from ..config import ConfigError, MachineConfig, cross_check, load_machine
+from ..data.dataserver import SharedArea
 from .door import station_of
-from .layout import PlannerState
+from ..data.layout import PlannerState
 from .lock import LockRefused, OperatorLock
 
 log = logging.getLogger(__name__)

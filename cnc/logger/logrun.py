@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bus.messages import LogSetting
-from .logic.conditions import Condition, ConditionError, compile_condition
+from ..bus.messages import LogSetting
+from ..logic.conditions import Condition, ConditionError, compile_condition
 
 MODES = ("timed", "continuous", "triggered")
 

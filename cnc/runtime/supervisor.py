@@ -33,19 +33,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from .bus.keys import Keys
-from .bus.access import Plan, open_machine_router, plan_access, run_dir, write_local_login
-from .config import MachineConfig, beside
-from .dataserver import BlockWriter, SharedArea, unique_name
-from .fifo import SetpointFifo
-from .hw.timers import TimerClient
-from .layout import Proc, ServoFault, ServoState, controller_layouts
-from .bus.messages import Drives, Reset, Stamp
-from .logic.client import LogicClient
-from .planner.client import PlannerClient
+from ..bus.keys import Keys
+from ..bus.access import Plan, open_machine_router, plan_access, run_dir, write_local_login
+from ..config import MachineConfig, beside
+from ..data.dataserver import BlockWriter, SharedArea, unique_name
+from ..data.fifo import SetpointFifo
+from ..hw.timers import TimerClient
+from ..data.layout import Proc, ServoFault, ServoState, controller_layouts
+from ..bus.messages import Drives, Reset, Stamp
+from ..logic.client import LogicClient
+from ..planner.client import PlannerClient
 from .procs import PROCESS_MAINS
-from .runtime import HANG_DUMP_SIGNAL, Runtime
-from .trace import TraceRing
+from .child import HANG_DUMP_SIGNAL, Runtime
+from ..data.trace import TraceRing
 
 _ROUTERS = itertools.count(1)  # routers this process opened: each its own socket
 

@@ -18,7 +18,7 @@ import threading
 import time
 from pathlib import Path
 
-from .bus.messages import AuditPage, AuditRecord
+from ..bus.messages import AuditPage, AuditRecord
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from .bus.messages import LockState
+from ..bus.messages import LockState
 
 _STATION = re.compile(r"[A-Za-z0-9_-]{1,64}\Z")
 

@@ -27,18 +27,18 @@ import msgspec
 import numpy as np
 import zenoh
 
-from .bus.keys import Keys
-from .bus.messages import (
+from ..bus.keys import Keys
+from ..bus.messages import (
     LogColumn, LogLive, LogRunData, LogRunSummary, LogSamples, LogStart, LogState, LogStop, Reply,
     SchemaVersionError, decode, encode,
 )
-from .config import MachineConfig
-from .dataserver import SharedArea
-from .layout import Proc
+from ..config import MachineConfig
+from ..data.dataserver import SharedArea
+from ..data.layout import Proc
 from .logrun import LogRun, LogSettingError
 from .logvars import BlockSampler, log_variables, trace_columns
-from .params import registry
-from .trace import TraceRing
+from ..params import registry
+from ..data.trace import TraceRing
 
 log = logging.getLogger(__name__)
 

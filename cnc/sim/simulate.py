@@ -30,15 +30,15 @@ from gcode.canon import RAPID
 from gcode.interp import Interpreter
 from gcode.program import Program
 
-from .bus.messages import Home, LoadProgram, Start
-from .config import MachineConfig, load_machine
+from ..bus.messages import Home, LoadProgram, Start
+from ..config import MachineConfig, load_machine
 from .demo import free_port
-from .fifo import SetpointFlag
-from .layout import PlannerState, RunResult, ServoState
-from .machine_dialect import dialect_for
-from .planner.measure import ProgrammedPath, peaks
-from .planner.path import elements_from_program, sample
-from .supervisor import MOTION_ONLY, Supervisor, SupervisorError
+from ..data.fifo import SetpointFlag
+from ..data.layout import PlannerState, RunResult, ServoState
+from ..machine_dialect import dialect_for
+from ..planner.measure import ProgrammedPath, peaks
+from ..planner.path import elements_from_program, sample
+from ..runtime.supervisor import MOTION_ONLY, Supervisor, SupervisorError
 
 CHUNK_TICKS = 20_000  # ticks per step of the clock: well within the trace ring
 SETTLE_S = 0.2  # recorded after the last setpoint: the table comes to rest
@@ -200,7 +200,7 @@ def run_cli(program: str, machine: str, json_out: str | None, plot_out: str | No
     if json_out:
         Path(json_out).write_text(json.dumps({"program": result.program, **result.metrics}, indent=2) + "\n")
     if plot_out:
-        from .plots import plot_run
+        from ..logger.plots import plot_run
 
         r = result.trace
         plot_run(

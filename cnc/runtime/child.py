@@ -10,8 +10,8 @@ import signal
 from dataclasses import dataclass, field
 from typing import Any
 
-from .config import MachineConfig
-from .hw.timers import TimerClient
+from ..config import MachineConfig
+from ..hw.timers import TimerClient
 
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 HANG_DUMP_SIGNAL = signal.SIGUSR2  # a child writes every thread's stack to stderr: sent before a hung one is killed

@@ -10,7 +10,7 @@ from __future__ import annotations
 import sqlite3
 from pathlib import Path
 
-from .bus.messages import JobPage, JobRecord
+from ..bus.messages import JobPage, JobRecord
 
 MAX_PAGE = 1000
 

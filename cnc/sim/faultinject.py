@@ -33,13 +33,13 @@ from pathlib import Path
 
 from plc_link.sim_model import PlantTimes
 
-from .alarms import AlarmHistory
-from .brake import stop_distance_bound_mm
-from .bus.messages import CycleStart, Home, LoadProgram, Override, Reset, Resume, SetMode, Stop
-from .hw.board import DigitalOut
-from .layout import LinkState, PlannerState, ServoFault, ServoState
-from .logic.states import CyclePhase, MachineState
-from .supervisor import Supervisor
+from ..alarms import AlarmHistory
+from ..brake import stop_distance_bound_mm
+from ..bus.messages import CycleStart, Home, LoadProgram, Override, Reset, Resume, SetMode, Stop
+from ..hw.board import DigitalOut
+from ..data.layout import LinkState, PlannerState, ServoFault, ServoState
+from ..logic.states import CyclePhase, MachineState
+from ..runtime.supervisor import Supervisor
 
 # A long straight first cut (every fault lands on it, far from its end), then a frame.
 CUT_PROGRAM = """(fault injection: a long straight cut, then a frame; every fault lands on the straight)

@@ -18,16 +18,16 @@ from pathlib import Path
 
 import zenoh
 
-from .bus.keys import Keys
-from .bus.messages import AxisStatus, Position, ProgramProgress, Status, encode
+from ..bus.keys import Keys
+from ..bus.messages import AxisStatus, Position, ProgramProgress, Status, encode
 from .door import Door
-from .config import MachineConfig
-from .dataserver import SharedArea
-from .fifo import SetpointFifo
-from .hw.board import AxisIn, DigitalIn, DigitalOut
-from .alarms import AlarmLevel
-from .layout import ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
-from .logic.states import CyclePhase, MachineState, Mode
+from ..config import MachineConfig
+from ..data.dataserver import SharedArea
+from ..data.fifo import SetpointFifo
+from ..hw.board import AxisIn, DigitalIn, DigitalOut
+from ..alarms import AlarmLevel
+from ..data.layout import ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
+from ..logic.states import CyclePhase, MachineState, Mode
 from .param_door import ParamDoor
 
 _LEVELS = {int(level): level.name.lower() for level in AlarmLevel}

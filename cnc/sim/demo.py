@@ -31,19 +31,19 @@ import sys
 import tempfile
 from pathlib import Path
 
-from .alarms import AlarmHistory
-from .bus.keys import Keys
-from .bus.messages import (
+from ..alarms import AlarmHistory
+from ..bus.keys import Keys
+from ..bus.messages import (
     AlarmEvent, CycleStart, Home, ProcedureState, Reset, SetMode, Status, decode,
 )
-from .bus.operator import OperatorStation
-from .bus.session import connect_endpoints, open_client
-from .config import load_machine
+from ..bus.operator import OperatorStation
+from ..bus.session import connect_endpoints, open_client
+from ..config import load_machine
 from .faultinject import reset_until_clear
-from .hw.board import DigitalOut
-from .layout import PlannerState, RunResult, ServoState
-from .logic.states import CyclePhase, MachineState
-from .supervisor import Supervisor, SupervisorError
+from ..hw.board import DigitalOut
+from ..data.layout import PlannerState, RunResult, ServoState
+from ..logic.states import CyclePhase, MachineState
+from ..runtime.supervisor import Supervisor, SupervisorError
 
 POSITION_TOLERANCE_MM = 0.005
 

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bus.messages import LogVariable
-from .config import MachineConfig
-from .dataserver import SharedArea
-from .fifo import SetpointFlag
+from ..bus.messages import LogVariable
+from ..config import MachineConfig
+from ..data.dataserver import SharedArea
+from ..data.fifo import SetpointFlag
 
 _AXIS_VARIABLES = (
     ("position", "mm", "measured position"),

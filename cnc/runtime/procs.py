@@ -13,14 +13,14 @@ import os
 import signal
 from pathlib import Path
 
-from .bus.keys import Keys
-from .bus.session import open_client
-from .dataserver import SharedArea
-from .fifo import SetpointFifo
-from .layout import ClockKind, Proc, controller_layouts
+from ..bus.keys import Keys
+from ..bus.session import open_client
+from ..data.dataserver import SharedArea
+from ..data.fifo import SetpointFifo
+from ..data.layout import ClockKind, Proc, controller_layouts
 from .rt import enter_realtime, keep_gc_out
-from .runtime import Runtime, child_setup, set_ready
-from .trace import TraceRing
+from .child import Runtime, child_setup, set_ready
+from ..data.trace import TraceRing
 
 log = logging.getLogger(__name__)
 
@@ -36,8 +36,8 @@ def _token(rt: Runtime, name: str):
 
 
 def run_hardware(rt: Runtime, ready) -> None:
-    from .hw.clock import make_clock
-    from .hw.server import HardwareServer, make_board
+    from ..hw.clock import make_clock
+    from ..hw.server import HardwareServer, make_board
 
     child_setup(rt, "hardware")
     area = _attach(rt)
@@ -73,7 +73,7 @@ def run_hardware(rt: Runtime, ready) -> None:
 
 
 def run_servo(rt: Runtime, ready) -> None:
-    from .servo import Servo
+    from ..servo import Servo
 
     child_setup(rt, "servo")
     area = _attach(rt)
@@ -110,7 +110,7 @@ def run_planner(rt: Runtime, ready) -> None:
     import gc
     import sys
 
-    from .planner.process import Planner
+    from ..planner.process import Planner
 
     child_setup(rt, "planner")
     area = _attach(rt)
@@ -136,7 +136,7 @@ def run_planner(rt: Runtime, ready) -> None:
 
 def program_dir(config, history_path: str) -> str:
     """`[gateway] program_dir` beside the machine file, or `programs/` beside the alarm history."""
-    from .config import beside
+    from ..config import beside
 
     if not config.gateway.program_dir:
         return str(Path(history_path).parent / "programs") if history_path else ""
@@ -144,7 +144,7 @@ def program_dir(config, history_path: str) -> str:
 
 
 def run_gateway(rt: Runtime, ready) -> None:
-    from .gateway import Gateway
+    from ..gateway.process import Gateway
 
     child_setup(rt, "gateway")
     area = _attach(rt)
@@ -163,7 +163,7 @@ def run_gateway(rt: Runtime, ready) -> None:
 
 
 def run_logic(rt: Runtime, ready) -> None:
-    from .logic.process import Logic
+    from ..logic.process import Logic
 
     child_setup(rt, "logic")
     area = _attach(rt)
@@ -193,7 +193,7 @@ def run_plc_link(rt: Runtime, ready) -> None:
 
 
 def run_logger(rt: Runtime, ready) -> None:
-    from .logger import Logger
+    from ..logger.process import Logger
 
     child_setup(rt, "logger")
     os.nice(10)  # off the servo's path: everything else on the controller goes first

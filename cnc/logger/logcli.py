@@ -19,10 +19,10 @@ from pathlib import Path
 
 import msgspec
 
-from .bus.keys import Keys
-from .bus.messages import LogRunData, LogSetting, LogStart, LogState, LogStop, Reply, decode, encode
-from .config import ConfigError
-from .watch import WatchError, _credentials, _tls, add_connection_arguments, address, open_session
+from ..bus.keys import Keys
+from ..bus.messages import LogRunData, LogSetting, LogStart, LogState, LogStop, Reply, decode, encode
+from ..config import ConfigError
+from ..watch import WatchError, _credentials, _tls, add_connection_arguments, address, open_session
 
 ANSWER_TIMEOUT_S = 10.0
 
@@ -113,7 +113,7 @@ def _report(reply: Reply) -> int:
 
 
 def _export(session, keys: Keys, args: argparse.Namespace) -> int:  # noqa: ANN001
-    from .bus.logexport import to_csv, to_mat
+    from ..bus.logexport import to_csv, to_mat
 
     fmt = args.format or (Path(args.out).suffix.lstrip(".") if args.out and Path(args.out).suffix in (".mat", ".csv")
                           else "mat")

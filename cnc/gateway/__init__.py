@@ -1,0 +1,1 @@
+"""The gateway: the HMI's door (commands, lock, programs, histories, audit) and the cyclic status."""

@@ -1,0 +1,1 @@
+"""The process runtime: the supervisor, the table of processes and their entry points, real-time set-up."""

@@ -1,0 +1,1 @@
+"""Simulation and test aids: fault injection, the demo operator, `waterjet simulate`."""
