@@ -8,9 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
-from .config import ConfigError, load_machine
-
-DEFAULT_MACHINE = "machines/waterjet.toml"
+from .config import DEFAULT_MACHINE, ConfigError, load_machine
 
 
 def _machine_arg(p: argparse.ArgumentParser) -> None:

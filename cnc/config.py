@@ -23,6 +23,8 @@ AXIS_NAMES = ("x", "y", "z")
 _REQUIRED: Any = object()
 
 
+DEFAULT_MACHINE = "machines/waterjet.toml"  # the machine file every command uses unless told otherwise
+
 class ConfigError(ValueError):
     """A machine file is malformed; the message names file, table and key."""
 

@@ -28,7 +28,7 @@ from .bus.keys import Keys
 from .bus.messages import AlarmEvent, HistoryPage, ProcedureState, SchemaVersionError, Status, decode
 from .bus.certs import CertError, TlsFiles, files_for
 from .bus.session import connect_endpoints, open_client
-from .config import ConfigError, load_machine
+from .config import DEFAULT_MACHINE, ConfigError, load_machine
 
 CONNECT_TIMEOUT_S = 3.0  # how long the router may take to accept the session
 ANSWER_TIMEOUT_S = 3.0  # how long the controller may take to answer or publish anything
@@ -357,8 +357,6 @@ def open_session(
 def add_connection_arguments(parser: argparse.ArgumentParser) -> None:
     """How a terminal tool finds the controller (`address`): `--connect`, `--machine`, `--prefix`,
     `--credentials` (shared by `waterjet watch` and `waterjet log`)."""
-    from .cli import DEFAULT_MACHINE  # here, not at import: cli imports this module to wire it in
-
     parser.add_argument("--connect", action="append", metavar="ENDPOINT",
                         help="Zenoh endpoint of the controller (repeatable; default: the machine file's [zenoh] listen)")
     parser.add_argument("--machine", "-m", default=DEFAULT_MACHINE, help=f"machine file (default {DEFAULT_MACHINE})")
@@ -401,8 +399,6 @@ def _credentials(path: str | None) -> tuple[str, str] | None:
 
 def _machine_file(path: str) -> Path:
     """The machine file; the default one is also looked for beside the package (run from anywhere)."""
-    from .cli import DEFAULT_MACHINE
-
     if not Path(path).exists() and path == DEFAULT_MACHINE:
         here = Path(__file__).resolve().parent.parent / DEFAULT_MACHINE
         if here.exists():

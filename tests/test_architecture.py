@@ -31,3 +31,92 @@ def test_only_the_hmi_imports_qt():
 def test_the_hmi_reaches_the_controller_only_through_the_bus_schemas():
     bad = [(p.name, m) for p, m in _imports("hmi") if m.startswith("cnc") and not m.startswith("cnc.bus")]
     assert bad == []
+
+
+# -- the layering, transitively ------------------------------------------------------------------
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """Every project module and the project modules it imports (relative imports resolved,
+    imports inside functions included: a lazy import is still a dependency)."""
+    packages = ("cnc", "hmi", "plc_link", "gcode")
+    modules: dict[str, Path] = {}
+    for package in packages:
+        for path in (REPO / package).rglob("*.py"):
+            parts = list(path.relative_to(REPO).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            modules[".".join(parts)] = path
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        is_package = path.name == "__init__.py"
+        base = name.split(".") if is_package else name.split(".")[:-1]
+        edges: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            targets: list[str] = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    anchor = base[: len(base) - (node.level - 1)]
+                    module = ".".join(anchor + ([node.module] if node.module else []))
+                else:
+                    module = node.module or ""
+                targets = [module] + [f"{module}.{a.name}" for a in node.names]
+            for target in targets:
+                while target and target not in modules:  # `a.b.C` (a class) is a use of module `a.b`
+                    target = target.rpartition(".")[0]
+                if target and target != name:
+                    edges.add(target)
+        graph[name] = edges
+    return graph
+
+
+def _reach(graph: dict[str, set[str]], start: str) -> set[str]:
+    seen, todo = set(), [start]
+    while todo:
+        for nxt in graph[todo.pop()]:
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
+# What assembles the controller and so may start the PLC link: the supervisor, its table of process entry points,
+# the simulation aids and the command line. The PLC link builds on the rest (the machine file, the data plane,
+# a child process's set-up), and nothing of that rest reaches back into it.
+COMPOSITION = ("cnc.runtime.supervisor", "cnc.runtime.procs", "cnc.sim", "cnc.cli")
+
+
+def test_plc_link_builds_on_the_controllers_core_and_no_module_import_runs_in_a_circle_between_them():
+    graph = _module_graph()
+    for name in graph:
+        if name.startswith("plc_link"):
+            reached = _reach(graph, name)
+            assert not [m for m in reached if m.startswith(COMPOSITION)], f"{name} reaches the composition layer"
+        elif name.startswith("cnc") and not name.startswith(COMPOSITION):
+            reached = _reach(graph, name)
+            assert not [m for m in reached if m.startswith("plc_link")], f"{name} reaches plc_link"
+    for name in graph:  # and no module reaches itself again (an import cycle across modules)
+        cycle = name in _reach(graph, name)
+        crosses = cycle and any(m.startswith("plc_link") for m in _reach(graph, name)) and name.startswith("cnc")
+        assert not crosses, f"{name} is in an import cycle through plc_link"
+
+
+def test_the_hmi_reaches_no_part_of_the_running_controller_even_indirectly():
+    """Through the bus it reaches the schemas, the sessions and the machine file's validation (with
+    the enums that validation checks), never a process of the controller or the PLC link."""
+    graph = _module_graph()
+    reached = set().union(*(_reach(graph, m) for m in graph if m.startswith("hmi")))
+    running = ("cnc.runtime", "cnc.gateway", "cnc.logger", "cnc.sim", "cnc.servo", "cnc.hw", "cnc.planner", "cnc.logic",
+               "cnc.alarms", "cnc.cli", "plc_link")
+    assert sorted(m for m in reached if m.startswith(running)) == []
+
+
+def test_the_tick_path_reaches_neither_the_network_nor_the_disk_writers_nor_the_screen():
+    graph = _module_graph()
+    for tick in ("cnc.servo", "cnc.hw.server", "cnc.interlock", "cnc.brake"):
+        reached = _reach(graph, tick)
+        bad = sorted(m for m in reached if m.startswith(("cnc.gateway", "cnc.logger", "cnc.sim", "cnc.alarms", "hmi", "plc_link",
+                                                          "cnc.runtime.supervisor")))
+        assert bad == [], f"{tick} reaches {bad}"
