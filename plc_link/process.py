@@ -22,6 +22,7 @@ from cnc.config import MachineConfig
 from cnc.data.dataserver import SharedArea
 from cnc.data.layout import MAX_PLC_VARS, LinkState, Proc, controller_layouts
 from cnc.runtime.rt import enter_realtime
+from cnc.runtime.table import realtime_priority
 from cnc.runtime.child import Runtime, child_setup, set_ready
 
 from .master import NO_PORT, PlcMaster
@@ -117,7 +118,7 @@ def run_plc_link(rt: Runtime, ready) -> None:
     if rt.clock == "realtime":
         # below the logic: the PLC's safety and plant signals must not wait behind a busy host
         # (a program being planned, fifty observers): three exchanges late is a lost link
-        enter_realtime(max(1, rt.config.timing.realtime_priority - 4), "plc link")
+        enter_realtime(realtime_priority(rt.config, "plc_link"), "plc link")
     set_ready(ready)
     try:
         link.run()

@@ -171,3 +171,19 @@ def test_a_terminated_hardware_server_leaves_the_board_safe_first(virtual_contro
     sup.children["hardware"].process.join(10.0)
     hw = sup.hw()
     assert hw["safe_state"] == 1 and not hw["digital_out"] & DigitalOut.JET_VALVE, "the last image: safe, jet closed"
+
+
+def test_the_process_table_names_every_process_once_and_every_entry_point_resolves():
+    from cnc.data.layout import Proc
+    from cnc.runtime.table import BY_NAME, PROCESSES, START_STAGES, realtime_priority
+
+    assert sorted(p.slot for p in PROCESSES) == sorted(s for s in Proc if s != Proc.SUPERVISOR)
+    assert [n for stage in START_STAGES for n in stage] == [p.name for p in sorted(PROCESSES, key=lambda p: p.stage)]
+    assert START_STAGES[0] == ("servo",) and "hardware" in START_STAGES[1], "the servo waits for the first tick"
+    for spec in PROCESSES:
+        assert callable(spec.main()), spec.entry
+        assert spec.restart in ("always", "faulted", "never")
+    config = machine_config()
+    priorities = [realtime_priority(config, p.name) for p in PROCESSES if p.rt_rank is not None]
+    assert realtime_priority(config, "hardware") == max(priorities) > realtime_priority(config, "servo")
+    assert BY_NAME["hardware"].restart == "never" and BY_NAME["servo"].restart == "faulted"

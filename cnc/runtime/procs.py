@@ -19,6 +19,7 @@ from ..data.dataserver import SharedArea
 from ..data.fifo import SetpointFifo
 from ..data.layout import ClockKind, Proc, controller_layouts
 from .rt import enter_realtime, keep_gc_out
+from .table import realtime_priority
 from .child import Runtime, child_setup, set_ready
 from ..data.trace import TraceRing
 
@@ -55,7 +56,7 @@ def run_hardware(rt: Runtime, ready) -> None:
     clock = make_clock(rt.clock, rt.config.timing.period_s)
     kind = ClockKind.VIRTUAL
     if rt.clock == "realtime":
-        status = enter_realtime(rt.config.timing.realtime_priority, "hardware server")
+        status = enter_realtime(realtime_priority(rt.config, "hardware"), "hardware server")
         kind = ClockKind.REALTIME if status.granted else ClockKind.REALTIME_FALLBACK
     server = HardwareServer(rt.config, area, board, clock, list(rt.timer_clients.values()), kind)
     running.append(server)
@@ -85,7 +86,7 @@ def run_servo(rt: Runtime, ready) -> None:
     shutdown = area.blocks["supervisor"].array["shutdown"]
     my_bit = 1 << Proc.SERVO
     if rt.clock == "realtime":
-        enter_realtime(max(1, rt.config.timing.realtime_priority - 1), "servo")
+        enter_realtime(realtime_priority(rt.config, "servo"), "servo")
     keep_gc_out()
     set_ready(ready)
     try:
@@ -119,7 +120,7 @@ def run_planner(rt: Runtime, ready) -> None:
     planner = Planner(rt.config, area, fifo, session, rt.timer_clients["planner"])
     if rt.clock == "realtime":
         # below the servo, above the rest: setpoints must be there when the servo needs them
-        enter_realtime(max(1, rt.config.timing.realtime_priority - 2), "planner")
+        enter_realtime(realtime_priority(rt.config, "planner"), "planner")
     gc.collect()
     gc.freeze()  # the planner allocates freely (numpy); collections stay short, the FIFO covers them
     sys.setswitchinterval(0.001)  # the refills get the interpreter within 1 ms of the planning thread
@@ -171,7 +172,7 @@ def run_logic(rt: Runtime, ready) -> None:
     logic = Logic(rt.config, area, session, rt.timer_clients["logic"], rt.history_path)
     if rt.clock == "realtime":
         # below the planner: the soft-PLC's 4 ms scan has slack, the FIFO refills have less
-        enter_realtime(max(1, rt.config.timing.realtime_priority - 3), "logic")
+        enter_realtime(realtime_priority(rt.config, "logic"), "logic")
     import gc
 
     gc.collect()
@@ -184,12 +185,6 @@ def run_logic(rt: Runtime, ready) -> None:
         session.close()
         del logic
         area.close()
-
-
-def run_plc_link(rt: Runtime, ready) -> None:
-    from plc_link.process import run_plc_link as run
-
-    run(rt, ready)
 
 
 def run_logger(rt: Runtime, ready) -> None:
@@ -211,9 +206,3 @@ def run_logger(rt: Runtime, ready) -> None:
         del logger
         trace.close()
         area.close()
-
-
-PROCESS_MAINS = {
-    "hardware": run_hardware, "servo": run_servo, "planner": run_planner, "gateway": run_gateway,
-    "logic": run_logic, "plc_link": run_plc_link, "logger": run_logger,
-}

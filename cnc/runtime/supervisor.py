@@ -43,7 +43,7 @@ from ..data.layout import Proc, ServoFault, ServoState, controller_layouts
 from ..bus.messages import Drives, Reset, Stamp
 from ..logic.client import LogicClient
 from ..planner.client import PlannerClient
-from .procs import PROCESS_MAINS
+from .table import BY_NAME, START_ORDER, START_STAGES
 from .child import HANG_DUMP_SIGNAL, Runtime
 from ..data.trace import TraceRing
 
@@ -59,6 +59,8 @@ def _private_socket() -> Path:
         if pid.isdigit() and not Path(f"/proc/{pid}").exists():
             old.unlink(missing_ok=True)
     return here / f"bus-{os.getpid()}-{next(_ROUTERS)}.sock"
+
+
 log = logging.getLogger(__name__)
 
 FIFO_CAPACITY = 8192  # 8 s of setpoints at 1 kHz
@@ -76,26 +78,6 @@ class SupervisorError(RuntimeError):
     """The controller could not start, or lost a process it cannot run without."""
 
 
-@dataclass(frozen=True)
-class ProcessPolicy:
-    slot: Proc
-    restart: str  # "always" | "faulted" (restart into a latched fault) | "never" (fatal)
-
-
-POLICIES = {
-    "servo": ProcessPolicy(Proc.SERVO, "faulted"),
-    "hardware": ProcessPolicy(Proc.HARDWARE, "never"),
-    "planner": ProcessPolicy(Proc.PLANNER, "always"),
-    "plc_link": ProcessPolicy(Proc.PLC_LINK, "always"),
-    "logic": ProcessPolicy(Proc.LOGIC, "always"),
-    "gateway": ProcessPolicy(Proc.GATEWAY, "always"),
-    "logger": ProcessPolicy(Proc.LOGGER, "always"),
-}
-START_ORDER = ("servo", "hardware", "planner", "plc_link", "logic", "gateway", "logger")
-# The servo waits for ticks before the hardware server gives them; the PLC link reports its state
-# before the control logic reads it (a link not yet started would be an alarm); within a stage the
-# processes do not depend on each other.
-START_STAGES = (("servo",), ("hardware",), ("planner", "plc_link"), ("logic", "gateway", "logger"))
 MOTION_ONLY = ("servo", "hardware", "planner", "gateway")  # no soft-PLC: the supervisor's process commands (motion tests, simulate)
 DIRECT_FEED = ("servo", "hardware", "gateway")  # no planner: the supervisor's process feeds the FIFO (servo tests)
 TRACE_CAPACITY = 1 << 16  # ticks the trace ring holds between two drains
@@ -138,9 +120,9 @@ class Supervisor:
     ) -> None:
         if clock not in ("realtime", "virtual"):
             raise ValueError(f"clock {clock!r} is not one of: realtime, virtual")
-        unknown = [p for p in processes if p not in POLICIES]
+        unknown = [p for p in processes if p not in BY_NAME]
         if unknown:
-            raise ValueError(f"unknown controller process {unknown[0]!r} (known: {', '.join(POLICIES)})")
+            raise ValueError(f"unknown controller process {unknown[0]!r} (known: {', '.join(BY_NAME)})")
         self.config, self.clock, self.log_level = config, clock, log_level
         self.process_names = tuple(p for p in START_ORDER if p in processes)
         self.history_path = str(history_path) if history_path is not None else default_history_path(config)
@@ -186,7 +168,7 @@ class Supervisor:
             self.command.set("token", secrets.randbits(63))
             self.command.publish()
         self.control: BlockWriter = self.area.writer("supervisor")
-        self.control.set("members", sum(1 << POLICIES[name].slot for name in self.process_names) | 1 << Proc.SUPERVISOR)
+        self.control.set("members", sum(1 << BY_NAME[name].slot for name in self.process_names) | 1 << Proc.SUPERVISOR)
         self.control.publish()
         # without a planner process the supervisor feeds the FIFO, and so writes `motion`
         self.motion_writer: BlockWriter | None = None if "planner" in self.process_names else self.area.writer("motion")
@@ -254,7 +236,7 @@ class Supervisor:
 
     def _launch(self, name: str) -> tuple[Any, Any]:
         ready = self.ctx.Event()
-        proc = self.ctx.Process(target=PROCESS_MAINS[name], args=(self.runtime, ready), name=f"wj-{name}")
+        proc = self.ctx.Process(target=BY_NAME[name].main(), args=(self.runtime, ready), name=f"wj-{name}")
         proc.start()
         return proc, ready
 
@@ -367,7 +349,7 @@ class Supervisor:
         """Ask these processes to stop, together, then wait for each (terminated, then killed, when late)."""
         children = [(name, self.children.pop(name)) for name in names if name in self.children]
         for name, _ in children:
-            self.control.set("shutdown", self.control.get("shutdown") | 1 << POLICIES[name].slot)
+            self.control.set("shutdown", self.control.get("shutdown") | 1 << BY_NAME[name].slot)
         if children:
             self.control.publish()
         for name, child in children:
@@ -393,7 +375,7 @@ class Supervisor:
             if not child.process.is_alive():
                 self._on_death(name, f"exited with code {child.process.exitcode}")
                 continue
-            beat = int(self._beats[POLICIES[name].slot])
+            beat = int(self._beats[BY_NAME[name].slot])
             if beat != child.last_beat or paused:
                 child.last_beat, child.last_beat_change = beat, now
             elif now - child.last_beat_change > self.config.supervisor.heartbeat_timeout_s:
@@ -407,7 +389,7 @@ class Supervisor:
         self._watchdog_seen = tripped
 
     def _on_death(self, name: str, why: str) -> None:
-        policy = POLICIES[name]
+        policy = BY_NAME[name]
         self._note(f"{name} process {why}")
         # without the servo (or the board) the hardware server brings the axes to rest itself, then
         # holds the board safe; the planner's and the logic's losses the servo handles in the tick
@@ -453,7 +435,7 @@ class Supervisor:
                 child.last_beat_change = now
                 self.children[name] = child
                 self._note(f"{name} process restarted"
-                           + (" into a latched fault: reset to continue" if POLICIES[name].restart == "faulted" else ""))
+                           + (" into a latched fault: reset to continue" if BY_NAME[name].restart == "faulted" else ""))
                 if pending.made_safe:  # back: the latched servo fault and its alarm now wait for the operator's reset
                     self._release_safe = True
             elif not pending.process.is_alive() or now > pending.deadline:
