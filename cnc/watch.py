@@ -28,6 +28,7 @@ from .bus.keys import Keys
 from .bus.messages import AlarmEvent, HistoryPage, ProcedureState, SchemaVersionError, Status, decode
 from .bus.certs import CertError, TlsFiles, files_for
 from .bus.session import connect_endpoints, open_client
+from .bus.states import ServoFault
 from .config import DEFAULT_MACHINE, ConfigError, load_machine
 
 CONNECT_TIMEOUT_S = 3.0  # how long the router may take to accept the session
@@ -145,7 +146,7 @@ def status_line(st: Status) -> str:
     else:
         p = st.program
         program = f"{p.name} {100 * p.progress:5.1f} % line {p.line} ETA {_duration(p.eta_s)} ({p.result})"
-    fault = f" | FAULT {st.fault}{' ' + st.fault_axis if st.fault_axis else ''}" if st.fault != "NONE" else ""
+    fault = f" | FAULT {st.fault}{' ' + st.fault_axis if st.fault_axis else ''}" if st.fault != ServoFault.NONE.name else ""
     return (
         f"{_clock(st.stamp_ns)} {st.machine_state} {st.mode} phase {st.cycle_phase} | planner {st.planner_state}"
         f" | {axes} | feed {st.feed_actual_mm_s:7.1f} mm/s ({100 * st.feed_override:.0f} %)"

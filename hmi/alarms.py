@@ -18,6 +18,7 @@ from PySide6.QtWidgets import (
 )
 
 from cnc.bus.messages import Acknowledge, AlarmEvent, HistoryPage, Reset
+from cnc.bus.states import AlarmLevel
 
 from .adapter import ModelAdapter
 from .commands import CommandRunner, enable_while_commanding
@@ -25,7 +26,7 @@ from .style import LEVEL_COLOURS, clock, level_colour
 
 log = logging.getLogger(__name__)
 
-LEVELS = ("fatal", "error", "warning", "info")
+LEVELS = tuple(level.text for level in sorted(AlarmLevel, reverse=True))  # the worst first
 Search = Callable[[str, list[str], "list[int] | None"], HistoryPage]  # text, levels, codes -> newest matching
 MESSAGES_SHOWN = 200  # newest history entries in the message area
 SEARCH_DELAY_MS = 200  # typing in the search field re-filters after this pause

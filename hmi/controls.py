@@ -22,6 +22,7 @@ from cnc.bus.messages import (
     CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop, LockRequest, Override, ProcedureStart, Pump,
     Reset, Resume, SetMode, Stop,
 )
+from cnc.bus.states import Mode
 
 from .adapter import ModelAdapter
 from .commands import CommandRunner, enable_while_commanding
@@ -58,8 +59,8 @@ class CommandBar(QWidget):
         modes.setExclusive(True)
         modes.addButton(self.manual)
         modes.addButton(self.auto)
-        self.manual.clicked.connect(lambda: self.commands.send(SetMode("MANUAL")))
-        self.auto.clicked.connect(lambda: self.commands.send(SetMode("AUTO")))
+        self.manual.clicked.connect(lambda: self.commands.send(SetMode(Mode.MANUAL.name)))
+        self.auto.clicked.connect(lambda: self.commands.send(SetMode(Mode.AUTO.name)))
         self.reset = _button("Reset", "Reset the faults whose cause has gone and switch the drives on")
         self.reset.clicked.connect(lambda: self.commands.send(Reset()))
         self.stop = _button("STOP", "Stop the motion and the cycle (Esc)")
@@ -118,8 +119,8 @@ class CommandBar(QWidget):
         st = self.model.status
         if st is None:
             return
-        self.manual.setChecked(st.mode == "MANUAL")
-        self.auto.setChecked(st.mode == "AUTO")
+        self.manual.setChecked(st.mode == Mode.MANUAL.name)
+        self.auto.setChecked(st.mode == Mode.AUTO.name)
         if not self.override.isSliderDown() and not self._override_timer.isActive():
             self.override.blockSignals(True)
             self.override.setValue(int(round(st.feed_override * 100)))

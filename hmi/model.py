@@ -13,13 +13,17 @@ from cnc.bus.messages import (
     ActiveAlarm, AlarmEvent, AlarmList, HistoryPage, LockState, Position, ProcedureCatalogue, ProcedureInfo,
     ProcedureState, ProgramInfo, ProgramPath, Status,
 )
+from cnc.bus.states import AlarmLevel, CyclePhase, LinkState, MachineState, Mode, PlannerState, RunResult, ServoFault
 
 from .observable import Observable
 
 TOPICS = ("status", "position", "alarms", "history", "procedure", "catalogue", "lock", "program", "connection", "screen",
           "error")
 HISTORY_KEPT = 20000  # entries of the message history held in memory (the oldest go first)
-LATCHED_LEVELS = ("warning", "error", "fatal")  # levels that stay listed, cleared, until reset (the alarm book's rule)
+LATCHED_LEVELS = tuple(level.text for level in AlarmLevel if level.latched)  # listed, cleared, until reset (the alarm book's rule)
+
+_FAULTED = (MachineState.FAULT.name, MachineState.ESTOP.name)  # a fault waits for the operator
+_STOPS_CUT = tuple(level.text for level in AlarmLevel if level.stops_cut)
 
 
 class Screen(enum.Enum):
@@ -299,11 +303,11 @@ class MachineModel(Observable):
         st = self._status
         if st is None or not self._reachable:
             return Screen.OFFLINE
-        if st.machine_state in ("FAULT", "ESTOP"):
+        if st.machine_state in _FAULTED:
             return Screen.FAULT
         if self._procedure_shown(st):
             return Screen.PROCEDURE
-        return Screen.AUTO if st.mode == "AUTO" else Screen.MANUAL
+        return Screen.AUTO if st.mode == Mode.AUTO.name else Screen.MANUAL
 
     def _procedure_shown(self, st: Status) -> bool:
         """A procedure takes the screen while it runs, and afterwards until the operator ends it,
@@ -329,8 +333,8 @@ class MachineModel(Observable):
                 current = progress.segment
             else:
                 return -1
-            if progress is not None and progress.result == "DONE" and (
-                    current < 0 or self._status.planner_state == "IDLE"):
+            if progress is not None and progress.result == RunResult.DONE.name and (
+                    current < 0 or self._status.planner_state == PlannerState.IDLE.name):
                 return segments
             return min(current, segments) if segments else current
 
@@ -359,9 +363,9 @@ class MachineModel(Observable):
         RUNNING (its transport sequence, or the automatic cycle, is under way)."""
         with self._lock:
             st = self._status
-            if st is None or st.plc_link != "OK" or not st.plc_inputs.get("plc_running", 0.0):
+            if st is None or st.plc_link != LinkState.OK.name or not st.plc_inputs.get("plc_running", 0.0):
                 return PlcState.STOPPED
-            busy = st.plc_inputs.get("transport_step", 0.0) > 0 or st.cycle_phase not in ("NONE", "PROCEDURE")
+            busy = st.plc_inputs.get("transport_step", 0.0) > 0 or st.cycle_phase not in (CyclePhase.NONE.name, CyclePhase.PROCEDURE.name)
             return PlcState.RUNNING if busy else PlcState.STARTED
 
     def needs_reset(self) -> bool:
@@ -369,7 +373,7 @@ class MachineModel(Observable):
         tripped, or an alarm is latched (its condition gone, the reset still owed)."""
         with self._lock:
             st = self._status
-            if st is not None and (st.machine_state in ("FAULT", "ESTOP") or st.fault != "NONE"):
+            if st is not None and (st.machine_state in _FAULTED or st.fault != ServoFault.NONE.name):
                 return True
             return any(a.level in LATCHED_LEVELS for a in self._active.values())
 
@@ -384,7 +388,7 @@ class MachineModel(Observable):
                 found += _status_faults(st)
             found += [f"{a.code} {a.text}" + (f": {a.detail}" if a.detail else "")
                       for a in sorted(self._active.values(), key=lambda a: a.raised_seq)
-                      if a.active and a.level in ("error", "fatal")]
+                      if a.active and a.level in _STOPS_CUT]
             return found
 
 
@@ -402,7 +406,7 @@ def _status_faults(st: Status) -> list[str]:
         found.append("Emergency stop pressed (or the safety circuit is open)")
     if not st.doors_closed:
         found.append("Safety door open")
-    if st.fault != "NONE":
+    if st.fault != ServoFault.NONE.name:
         found.append(f"Servo fault {st.fault}" + (f" on axis {st.fault_axis.upper()}" if st.fault_axis else ""))
     if st.watchdog_tripped:
         found.append("Drive watchdog tripped")
@@ -411,7 +415,7 @@ def _status_faults(st: Status) -> list[str]:
             found.append(f"Axis {a.name.upper()}: drive not ready")
         if a.limit_min or a.limit_max:
             found.append(f"Axis {a.name.upper()}: {'minimum' if a.limit_min else 'maximum'} limit switch")
-    if st.plc_link != "OK":
+    if st.plc_link != LinkState.OK.name:
         found.append(f"PLC link {st.plc_link}")
     else:
         if st.plc_inputs.get("plc_alarm", 0.0):

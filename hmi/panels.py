@@ -12,12 +12,14 @@ from __future__ import annotations
 from PySide6.QtWidgets import QGridLayout, QGroupBox, QLabel, QProgressBar, QVBoxLayout, QWidget
 
 from cnc.bus.messages import Status
+from cnc.bus.states import CyclePhase, LinkState, MachineState, PlannerState, RunResult
 
 from .adapter import ModelAdapter
 from .model import PlcState
 from .style import BAD, OFF, OK, WARN, Lamp, duration, value_label
 
-RUNNING_STATES = ("RUNNING", "HOMING", "JOGGING")
+RUNNING_STATES = tuple(s.name for s in (MachineState.RUNNING, MachineState.HOMING, MachineState.JOGGING))
+_PLANNER_AT_REST = tuple(s.name for s in (PlannerState.IDLE, PlannerState.HELD, PlannerState.PAUSED))
 PLC_COLOURS = {PlcState.STOPPED: OFF, PlcState.STARTED: WARN, PlcState.RUNNING: OK}
 
 
@@ -134,11 +136,11 @@ class StatusPanels(QWidget):
             return
         v = self.values
         v["mode"].setText(st.mode)
-        running = st.machine_state in RUNNING_STATES or st.planner_state not in ("IDLE", "HELD", "PAUSED")
+        running = st.machine_state in RUNNING_STATES or st.planner_state not in _PLANNER_AT_REST
         v["execution"].setText("running" if running else "stopped")
         v["state"].setText(st.machine_state)
         v["phase"].setText(st.cycle_phase)
-        target = "until stopped" if st.cycles_target == 0 and st.cycle_phase != "NONE" else str(st.cycles_target)
+        target = "until stopped" if st.cycles_target == 0 and st.cycle_phase != CyclePhase.NONE.name else str(st.cycles_target)
         v["cycles"].setText(f"{st.cycles_done} of {target}")
         homed = bool(st.axes) and all(a.homed for a in st.axes)
         self.lamps["homed"].set(OK if homed else WARN, "yes" if homed else
@@ -178,8 +180,9 @@ class StatusPanels(QWidget):
             self.progress.setValue(0)
         else:
             v["program"].setText(f"{p.name} ({p.lines} lines)")
-            status = st.planner_state if st.planner_state != "IDLE" else (p.result if p.result != "NONE" else "loaded")
-            v["program_status"].setText(status + (f": {st.error}" if st.error and p.result == "FAULT" else ""))
+            status = st.planner_state if st.planner_state != PlannerState.IDLE.name else (
+                p.result if p.result != RunResult.NONE.name else "loaded")
+            v["program_status"].setText(status + (f": {st.error}" if st.error and p.result == RunResult.FAULT.name else ""))
             v["block"].setText(f"N{p.line}" if p.segment >= 0 else "-")
             self.progress.setValue(int(round(1000 * max(0.0, min(1.0, p.progress)))))
             eta = duration(p.eta_s) if p.segment >= 0 else "-"
@@ -187,7 +190,7 @@ class StatusPanels(QWidget):
         self.lamps["jet"].set(OK if st.jet_on else OFF, "ON (cutting)" if st.jet_on else "off")
 
     def _refresh_devices(self, st: Status) -> None:
-        link_ok = st.plc_link == "OK"
+        link_ok = st.plc_link == LinkState.OK.name
         self.lamps["plc_link"].set(OK if link_ok else BAD, st.plc_link)
         plc = self.model.plc_state()
         self.lamps["plc_state"].set(PLC_COLOURS[plc], plc.value)

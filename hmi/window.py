@@ -20,6 +20,7 @@ from PySide6.QtWidgets import (
 )
 
 from cnc.bus.messages import Reply
+from cnc.bus.states import Mode
 
 from .adapter import ModelAdapter
 from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea, Search
@@ -93,7 +94,7 @@ class ProcedurePage(QWidget):
 
     def _show_manual(self) -> None:
         st = self.model.status
-        self._manual_area.setVisible(st is not None and st.mode == "MANUAL")
+        self._manual_area.setVisible(st is not None and st.mode == Mode.MANUAL.name)
 
 
 class MainWindow(QMainWindow):

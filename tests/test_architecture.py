@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import enum
 from pathlib import Path
 
 from .conftest import REPO
@@ -120,3 +121,22 @@ def test_the_tick_path_reaches_neither_the_network_nor_the_disk_writers_nor_the_
         bad = sorted(m for m in reached if m.startswith(("cnc.gateway", "cnc.logger", "cnc.sim", "cnc.alarms", "hmi", "plc_link",
                                                           "cnc.runtime.supervisor")))
         assert bad == [], f"{tick} reaches {bad}"
+
+
+def test_the_screen_and_the_gateway_compare_states_by_their_enums_never_by_spelled_out_names():
+    """cnc.bus.states defines every state, fault and alarm level once, for the controller and the
+    HMI; a comparison against a literal such as "RUNNING" would silently break on a rename."""
+    from cnc.bus import states
+
+    names = {m.name for e in vars(states).values() if isinstance(e, type) and issubclass(e, enum.Enum) for m in e}
+    names |= {m.name.lower() for m in states.AlarmLevel}
+    spelled = []
+    for package in ("hmi", "cnc/gateway"):
+        for path in (REPO / package).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text(), str(path))):
+                if isinstance(node, ast.Compare):
+                    for side in [node.left, *node.comparators]:
+                        elements = side.elts if isinstance(side, (ast.Tuple, ast.List, ast.Set)) else [side]
+                        spelled += [(path.name, node.lineno, e.value) for e in elements
+                                    if isinstance(e, ast.Constant) and isinstance(e.value, str) and e.value in names]
+    assert spelled == []

@@ -6,42 +6,8 @@ import enum
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from cnc.bus.states import AlarmLevel  # noqa: F401 - defined with the schemas, shared with the HMI
 from cnc.config import MachineConfig
-
-
-class AlarmLevel(enum.IntEnum):
-    """How severe an alarm is. A larger value is more severe, so `max()` of levels is the worst one
-    and `level >= AlarmLevel.ERROR` reads as "at least an error". The numbers are stable."""
-
-    INFO = 1
-    WARNING = 2
-    ERROR = 3
-    FATAL = 4
-
-    @property
-    def stops_cut(self) -> bool:
-        """Fatal and error alarms stop the cut and keep the machine from starting until reset."""
-        return self >= AlarmLevel.ERROR
-
-    @property
-    def latched(self) -> bool:
-        """Whether the alarm stays listed after its condition clears, until reset. Info-level
-        entries are prompts and notices, not faults: they disappear when cleared."""
-        return self > AlarmLevel.INFO
-
-    @property
-    def text(self) -> str:
-        """The level as the machine file and the bus messages spell it: fatal | error | warning | info."""
-        return self.name.lower()
-
-    @classmethod
-    def parse(cls, text: str) -> AlarmLevel:
-        """The level named by `text` (as in the machine file); ValueError naming it when unknown."""
-        try:
-            return cls[text.upper()]
-        except KeyError:
-            known = ", ".join(level.text for level in cls)
-            raise ValueError(f"alarm level {text!r} is not one of {known}") from None
 
 
 class AlarmAction(enum.Enum):

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import enum
 
+from ..bus.states import ClockKind, LinkState, PlannerState, RunResult, ServoFault, ServoState  # noqa: F401 - the schema's
 from .dataserver import BlockLayout, FieldSpec as F
 
 HIST_BINS = 5000  # 1 us bins: 0..4999 us, the last bin collects everything later
@@ -43,65 +44,6 @@ class Proc(enum.IntEnum):
     LOGIC = 5
     PLC_LINK = 6
     LOGGER = 7
-
-
-class ClockKind(enum.IntEnum):
-    VIRTUAL = 0
-    REALTIME = 1  # SCHED_FIFO and mlockall in force
-    REALTIME_FALLBACK = 2  # absolute deadlines, but the scheduler class could not be raised
-
-
-class ServoState(enum.IntEnum):
-    DISABLED = 0  # drives off, loop open, commanded position follows actual
-    HOLDING = 1  # drives on, holding the last commanded position
-    TRACKING = 2  # drives on, following setpoints from the FIFO
-    FAULT = 3  # tripped: speed 0, drives off, jet off until reset
-    STOPPING = 4  # tripped, jet off, the drives still on: the servo brings the axes to rest itself, then FAULT
-
-
-class PlannerState(enum.IntEnum):
-    """What the planner is doing. Numbers are stable."""
-
-    IDLE = 0
-    RUNNING = 1  # a program
-    HOLDING = 2  # decelerating to a feed hold
-    HELD = 3
-    PAUSED = 4  # at a program stop (M0, M1, M60), waiting for cycle start
-    STOPPING = 5  # decelerating, then the program ends
-    HOMING = 6
-    JOGGING = 7
-    MOVING = 8  # go-to-position
-
-
-class RunResult(enum.IntEnum):
-    """How the last program run ended."""
-
-    NONE = 0
-    DONE = 1
-    ABORTED = 2  # stopped by the operator
-    FAULT = 3  # the servo tripped, or the planner failed
-
-
-class ServoFault(enum.IntEnum):
-    """Why the servo tripped. Numbers are stable: never reuse one."""
-
-    NONE = 0
-    FOLLOWING_ERROR = 1
-    SOFT_LIMIT = 2
-    HARD_LIMIT = 3
-    DRIVE_FAULT = 4
-    WATCHDOG = 5
-    ESTOP = 6
-    RESTARTED = 7  # the servo process was restarted: position continuity must be confirmed by reset
-    SAFE_STATE = 8  # the supervisor forced the safe state
-    UNDERRUN = 9  # the setpoint FIFO ran dry in the middle of a motion
-    MAINS = 10  # the machine mains went off: the drives have no power
-    DOORS = 11  # a safety door opened
-    SAFETY_CIRCUIT = 12  # the PLC reports the safety circuit open
-    BARRIER = 13  # a light barrier was interrupted while the automatic cycle ran
-    PUMP = 14  # the pump reports a fault, or its pressure fell below the commander's floor with the jet open
-    PLC_LINK = 15  # the PLC's inputs stopped being fresh (link lost, or its process hung or dead)
-    COMMANDER = 16  # the commander (the control logic) stopped beating, or died while writing its block
 
 
 def hw_layout(n: int) -> BlockLayout:
@@ -271,15 +213,6 @@ def sim_layout(n: int) -> BlockLayout:
             F("limit_switch_mask", "I"),  # bits 2i, 2i+1: axis i's min, max limit switch forced active (a tripped switch)
         ],
     )
-
-
-class LinkState(enum.IntEnum):
-    """The PLC link as the PLC-link process sees it. Numbers are stable."""
-
-    DOWN = 0  # not started, or no serial port
-    CONNECTING = 1  # port opening, or waiting before a reconnection attempt
-    OK = 2  # exchanging
-    LOST = 3  # lost_after_cycles consecutive exchanges failed; reconnecting
 
 
 MAX_PLC_VARS = 64  # values per image direction (config.MAX_PLC_VARS)

@@ -40,6 +40,7 @@ from ..bus.messages import (
     ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SchemaVersionError,
     UploadProgram, decode, encode,
 )
+from ..bus.states import MachineState
 from ..config import MachineConfig
 from .jobs import JobHistory, jobs_path
 from .lock import LockRefused, OperatorLock, Token
@@ -246,10 +247,10 @@ class Door:
         state = self.machine_state()
         log.warning("gateway: operator station %r lost (machine %s)", station, state)
         why = f"operator station {station!r} lost (network, host or program)"
-        if self.config.gateway.on_operator_lost == "hold" and state == "RUNNING":
+        if self.config.gateway.on_operator_lost == "hold" and state == MachineState.RUNNING.name:
             reply = self.logic.request(Hold(why=f"{why}: feed hold"))
             log.warning("gateway: feed hold after the operator was lost: %s", "ok" if reply.ok else reply.reason)
-        elif state in ("JOGGING", "HOMING"):
+        elif state in (MachineState.JOGGING.name, MachineState.HOMING.name):
             reply = self.logic.request(Hold(why=f"{why}: the {state.lower()} stopped"))
             log.warning("gateway: %s stopped after the operator was lost: %s", state.lower(), "ok" if reply.ok else reply.reason)
 
