@@ -15,6 +15,7 @@ import pytest
 
 from cnc.config import MachineConfig, load_machine
 from cnc.runtime.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor
+from cnc.sim.operator import logic_block, press_button_when_asked  # noqa: F401 - the scripted operator, for the tests
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")  # Qt tests render without a display
 
@@ -110,20 +111,7 @@ def reset_and_home(sup: Supervisor, request) -> None:
     assert reply.ok, reply.reason
 
 
-def logic(sup: Supervisor) -> dict:
-    """The control logic's block: mode, state, phase, cycles, procedure."""
-    return sup.area.reader("logic").read_dict()
-
-
-def press_button_when_asked(sup: Supervisor, until, timeout_s: float, what: str) -> None:
-    """Wait for `until()`, playing the operator at the transport station: press its button
-    whenever the transport procedure waits for it."""
-    def step() -> bool:
-        lo = logic(sup)
-        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
-            sup.plc_sim.press_button()
-        return until()
-    sup.wait_until(step, timeout_s, what)
+logic = logic_block  # the control logic's block (mode, state, phase, cycles, procedure), as the tests name it
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -1,1 +1,1 @@
-"""Simulation and test aids: fault injection, the demo operator, `waterjet simulate`."""
+"""Simulation and test aids: the scripted operator, fault injection, the demo, `waterjet simulate`."""

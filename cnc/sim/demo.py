@@ -39,11 +39,11 @@ from ..bus.messages import (
 from ..bus.operator import OperatorStation
 from ..bus.session import connect_endpoints, open_client
 from ..config import load_machine
-from .faultinject import reset_until_clear
 from ..hw.board import DigitalOut
 from ..data.layout import PlannerState, RunResult, ServoState
 from ..logic.states import CyclePhase, MachineState
 from ..runtime.supervisor import Supervisor, SupervisorError
+from .operator import Refused, ask, logic_block, press_button_when_asked, reset_until_clear
 
 POSITION_TOLERANCE_MM = 0.005
 
@@ -189,7 +189,7 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
                   f"events over Zenoh", flush=True)
             if counter.value == 0:
                 errors.append("no status message reached the subscriber")
-        except (SupervisorError, TimeoutError) as exc:
+        except (SupervisorError, Refused, TimeoutError) as exc:
             errors.append(str(exc))
         finally:
             stop.set()
@@ -208,39 +208,19 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
     return 1 if errors else 0
 
 
-def _ask(sup: Supervisor, what: str, command) -> None:
-    reply = sup.logic.request(command)
-    if not reply.ok:
-        raise SupervisorError(f"{what} refused: {reply.reason}")
-
-
-def _logic(sup: Supervisor) -> dict:
-    return sup.area.reader("logic").read_dict()
-
-
-def _operator(sup: Supervisor, until, timeout_s: float, what: str) -> None:
-    """Wait for `until()`, pressing the transport-station button whenever the procedure asks for it."""
-    def step() -> bool:
-        lo = _logic(sup)
-        if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
-            sup.plc_sim.press_button()
-        return until()
-    sup.wait_until(step, timeout_s, what)
-
-
 def _run(sup: Supervisor, program: Path) -> list[str]:
     """Reset, home, load, two automatic cycles with a door opened in the second, reset, one more."""
     reset_until_clear(sup)  # on a busy host the PLC link may come up late: its alarm waits for a reset
-    _ask(sup, "home", Home())
-    sup.wait_until(lambda: _logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
+    ask(sup, Home(), "home")
+    sup.wait_until(lambda: logic_block(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
                    120.0, "homing")
     print(f"demo: homed; X {sup.servo()['actual_mm'][0]:.3f} Y {sup.servo()['actual_mm'][1]:.3f}", flush=True)
     _upload(sup, program)
     m = sup.motion()
     print(f"demo: loaded {m['program_name']}: {m['program_lines']} lines, {m['total_mm']:.0f} mm of path, "
           f"planned cycle time {m['planned_s']:.2f} s", flush=True)
-    _ask(sup, "AUTO mode", SetMode("AUTO"))
-    _ask(sup, "cycle start", CycleStart(cycles=2))
+    ask(sup, SetMode("AUTO"), "AUTO mode")
+    ask(sup, CycleStart(cycles=2), "cycle start")
     print("demo: cycle start, 2 cycles", flush=True)
     t0, runs = sup.hw()["tick"], sup.motion()["run_seq"]
 
@@ -249,10 +229,10 @@ def _run(sup: Supervisor, program: Path) -> list[str]:
         return (m["run_seq"] == runs + 2 and m["state"] == PlannerState.RUNNING and m["done_mm"] > 0.3 * m["total_mm"]
                 and bool(sup.hw()["digital_out"] & DigitalOut.JET_VALVE))
 
-    _operator(sup, second_cut_under_way, 300.0, "the second cut")
+    press_button_when_asked(sup, second_cut_under_way, 300.0, "the second cut")
     print("demo: opening a safety door during the second cut", flush=True)
     sup.set_sim(doors_open=1)
-    sup.wait_until(lambda: _logic(sup)["state"] == MachineState.FAULT and sup.motion()["state"] == PlannerState.IDLE
+    sup.wait_until(lambda: logic_block(sup)["state"] == MachineState.FAULT and sup.motion()["state"] == PlannerState.IDLE
                    and sup.servo()["state"] == ServoState.FAULT, 30.0, "the safe stop")
     errors = []
     if sup.hw()["digital_out"] & DigitalOut.JET_VALVE:
@@ -260,13 +240,14 @@ def _run(sup: Supervisor, program: Path) -> list[str]:
     hw, s = sup.hw(), sup.servo()
     print(f"demo: the jet closed {hw['jet_off_tick'] - s['fault_tick']} tick(s) after the servo saw the door; it stopped "
           f"the axes on the path from {s['trip_speed_mm_s']:.0f} mm/s in {s['brake_distance_mm']:.2f} mm; state "
-          f"{MachineState(_logic(sup)['state']).name}; closing the door, reset", flush=True)
+          f"{MachineState(logic_block(sup)['state']).name}; closing the door, reset", flush=True)
     sup.set_sim(doors_open=0)
     sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 10.0, "a clean reset")
-    sup.wait_until(lambda: _logic(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
-    _ask(sup, "cycle start", CycleStart(cycles=1))
-    _operator(sup, lambda: sup.motion()["run_seq"] == runs + 3 and _logic(sup)["phase"] == CyclePhase.NONE, 300.0,
-              "the cycle after the reset")
+    sup.wait_until(lambda: logic_block(sup)["state"] == MachineState.READY, 10.0, "READY after the reset")
+    ask(sup, CycleStart(cycles=1), "cycle start")
+    press_button_when_asked(
+        sup, lambda: sup.motion()["run_seq"] == runs + 3 and logic_block(sup)["phase"] == CyclePhase.NONE, 300.0,
+        "the cycle after the reset")
     m, s = sup.motion(), sup.servo()
     took = (sup.hw()["tick"] - t0) * sup.config.timing.period_s
     print(
@@ -337,7 +318,7 @@ def _keep_running_with_screen(sup: Supervisor, screen: subprocess.Popen) -> None
           "button is pressed for you); close the window to end the demo", flush=True)
 
     def done() -> bool:
-        lo = _logic(sup)
+        lo = logic_block(sup)
         if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
             sup.plc_sim.press_button()
         return screen.poll() is not None

@@ -35,11 +35,12 @@ from plc_link.sim_model import PlantTimes
 
 from ..alarms import AlarmHistory
 from ..brake import stop_distance_bound_mm
-from ..bus.messages import CycleStart, Home, LoadProgram, Override, Reset, Resume, SetMode, Stop
+from ..bus.messages import CycleStart, Override, Resume, Stop
+from ..data.layout import ServoFault, ServoState
 from ..hw.board import DigitalOut
-from ..data.layout import LinkState, PlannerState, ServoFault, ServoState
 from ..logic.states import CyclePhase, MachineState
 from ..runtime.supervisor import Supervisor
+from .operator import ask, logic_block, ready_to_cut, reset_until_clear  # noqa: F401 - the scripted operator, for the tests too
 
 # A long straight first cut (every fault lands on it, far from its end), then a frame.
 CUT_PROGRAM = """(fault injection: a long straight cut, then a frame; every fault lands on the straight)
@@ -176,66 +177,8 @@ def catalogue() -> list[Fault]:
 
 
 # -- driving the machine ----------------------------------------------------------------------
-def logic_block(sup: Supervisor) -> dict:
-    return sup.area.reader("logic").read_dict()
-
-
 def jet_on(sup: Supervisor) -> bool:
     return bool(sup.hw()["digital_out"] & DigitalOut.JET_VALVE)
-
-
-def ask(sup: Supervisor, msg, what: str, timeout_s: float = 20.0) -> None:
-    """Send a command to the control logic until it is accepted (a restarted logic may not answer yet)."""
-    reasons: list[str] = []
-
-    def accepted() -> bool:
-        try:
-            reply = sup.logic.request(msg)
-        except Exception as exc:  # noqa: BLE001 - no logic yet: Zenoh's timeout or no route
-            reasons.append(str(exc))
-            return False
-        reasons.append(reply.reason)
-        return reply.ok
-    try:
-        sup.wait_until(accepted, timeout_s, what)
-    except TimeoutError as exc:
-        raise TimeoutError(f"{exc}: {reasons[-1] if reasons else 'no reply'}") from None
-
-
-def reset_until_clear(sup: Supervisor, timeout_s: float = 30.0) -> None:
-    """The PLC link up, then reset until nothing waits for one and the drives are on: a cause
-    that has just gone (a released e-stop, a link that came up late on a busy host) may still be
-    seen by the scan that serves the first reset, and a stop may still be running out."""
-    sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, timeout_s, "the PLC link")
-
-    def reset_done() -> bool:
-        try:
-            reply = sup.logic.request(Reset())
-        except Exception:  # noqa: BLE001 - a restarted logic not answering yet
-            return False
-        if not reply.ok:
-            return False
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline:
-            if not logic_block(sup)["blocking"] and sup.servo()["state"] == ServoState.HOLDING:
-                return True
-            time.sleep(0.01)
-        return False
-    sup.wait_until(reset_done, timeout_s, "the reset: drives on, no alarm waiting")
-
-
-def ready_to_cut(sup: Supervisor, program: Path) -> None:
-    """From any state: reset, drives on, homed, the program loaded, AUTO, READY."""
-    reset_until_clear(sup)
-    if sup.motion()["override"] != 1.0:
-        ask(sup, Override(100.0), "the feed override back to 100 %")
-    if sup.servo()["homed_mask"] != (1 << len(sup.config.axis_names)) - 1:
-        ask(sup, SetMode("MANUAL"), "MANUAL mode")
-        ask(sup, Home(), "homing")
-    sup.wait_until(lambda: logic_block(sup)["state"] == MachineState.READY
-                   and sup.motion()["state"] == PlannerState.IDLE, 60.0, "READY, homed")
-    ask(sup, LoadProgram(str(program)), "the program to load")
-    ask(sup, SetMode("AUTO"), "AUTO mode")
 
 
 def pause_on_the_straight(sup: Supervisor, workdir: Path, speed_mm_s: float, attempts: int = 3) -> None:

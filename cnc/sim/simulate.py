@@ -39,6 +39,7 @@ from ..machine_dialect import dialect_for
 from ..planner.measure import ProgrammedPath, peaks
 from ..planner.path import elements_from_program, sample
 from ..runtime.supervisor import MOTION_ONLY, Supervisor, SupervisorError
+from .operator import Refused, ask_planner as _ask_planner
 
 CHUNK_TICKS = 20_000  # ticks per step of the clock: well within the trace ring
 SETTLE_S = 0.2  # recorded after the last setpoint: the table comes to rest
@@ -60,7 +61,7 @@ class SimulationResult:
 
 
 def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
-    """Home, load, run; return the figures. Raises SimulationError with the planner's reason on refusal.
+    """Home, load, run; return the figures. Raises Refused with the planner's reason on refusal.
     `config` should listen on a port of its own (see `run_cli`)."""
     dt = config.timing.period_s
     with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
@@ -69,7 +70,7 @@ def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
         sup.pause_virtual_clock()
         sup.set_tracing(True)
         sup.trace.drain()
-        _ask(sup, Start(), "start")
+        _ask_planner(sup, Start(), "start")
         records = _run_to_end(sup, m0["run_seq"] + 1)
         m, s = sup.motion(), sup.servo()
     program = _as_run(program_path, config, s0["commanded_mm"])
@@ -95,21 +96,15 @@ def _as_run(program_path: str, config: MachineConfig, start_mm: list[float]) -> 
     return Interpreter(dialect, program_path).run(Path(program_path).read_bytes())
 
 
-def _ask(sup: Supervisor, command, what: str) -> None:
-    reply = sup.planner.request(command)
-    if not reply.ok:
-        raise SimulationError(f"{what} refused: {reply.reason}")
-
-
 def _prepare(sup: Supervisor, program_path: str) -> None:
     sup.enable()
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the servo to close the loop")
-    _ask(sup, Home(), "homing")
+    _ask_planner(sup, Home(), "homing")
     sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE, 300.0, "homing")
     if sup.motion()["error"]:
         raise SimulationError(f"homing failed: {sup.motion()['error']}")
     sup.wait_until(lambda: abs(max(sup.servo()["following_error_mm"], key=abs)) < 0.002, 10.0, "the axes to settle")
-    _ask(sup, LoadProgram(str(Path(program_path).resolve())), "loading the program")
+    _ask_planner(sup, LoadProgram(str(Path(program_path).resolve())), "loading the program")
 
 
 def _run_to_end(sup: Supervisor, run: int) -> np.ndarray:
@@ -193,7 +188,7 @@ def run_cli(program: str, machine: str, json_out: str | None, plot_out: str | No
     config = load_machine(machine, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"]})
     try:
         result = simulate(program, config)
-    except (SimulationError, SupervisorError, TimeoutError) as exc:
+    except (SimulationError, Refused, SupervisorError, TimeoutError) as exc:
         print(f"waterjet simulate: {exc}", file=err)
         return 1
     report(result, out)
