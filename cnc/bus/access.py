@@ -160,28 +160,41 @@ def plan_access(cfg: MachineConfig, private_socket: Path | None = None, shop: bo
     return Plan({}, loopback, [], private, notice=notice, roles={LOCAL_USER: a.local_role}, tls=tls)
 
 
+@dataclass(frozen=True)
+class Roles:
+    """Who has which role, read from the users file once (the router's rules are fixed when it
+    starts too): checking a command never touches the disk, a STOP least of all."""
+
+    of: dict[str, str]
+
+    @classmethod
+    def load(cls, cfg: MachineConfig) -> "Roles":
+        a = cfg.zenoh.access
+        try:
+            accounts = read_users(users_path(cfg))
+        except (UsersError, OSError):
+            accounts = {}  # the router refused to start on such a file; nobody but `local` here
+        roles = {name: acc.role for name, acc in accounts.items()}
+        roles[LOCAL_USER] = a.open_role if a.open_network and not accounts else a.local_role
+        return cls(roles)
+
+    def role(self, user: str) -> str | None:
+        """The role of `user` on this machine; None: no such account."""
+        return self.of.get(user)
+
+    def require(self, user: str, needed: str, what: str) -> str:
+        """`user`'s role when it includes `needed`; AccessRefused saying so otherwise."""
+        role = self.role(user)
+        if role is None:
+            raise AccessRefused(f"{what}: user {user!r} has no account on this machine")
+        if not role_at_least(role, needed):
+            raise AccessRefused(f"{what}: user {user!r} is an {role}; this needs an {needed}")
+        return role
+
+
 def role_of(cfg: MachineConfig, user: str) -> str | None:
-    """The role of `user` on this machine (None: no such account), read from the users file as
-    the router read it at start."""
-    a = cfg.zenoh.access
-    try:
-        accounts = read_users(users_path(cfg))
-    except (UsersError, OSError):
-        return None
-    if user == LOCAL_USER:
-        return a.open_role if a.open_network and not accounts else a.local_role
-    account = accounts.get(user)
-    return account.role if account is not None else None
-
-
-def require_role(cfg: MachineConfig, user: str, needed: str, what: str) -> str:
-    """`user`'s role when it includes `needed`; AccessRefused saying so otherwise."""
-    role = role_of(cfg, user)
-    if role is None:
-        raise AccessRefused(f"{what}: user {user!r} has no account on this machine")
-    if not role_at_least(role, needed):
-        raise AccessRefused(f"{what}: user {user!r} is an {role}; this needs an {needed}")
-    return role
+    """The role of `user` on this machine (None: no such account), from the users file now."""
+    return Roles.load(cfg).role(user)
 
 
 def router_config(cfg: MachineConfig, plan: Plan, *, shop: bool = False) -> zenoh.Config:

@@ -33,7 +33,7 @@ import zenoh
 
 from ..alarms import AlarmHistory, AlarmLevel, HistoryError
 from .audit import AuditTrail, AuditWriter, audit_path
-from ..bus.access import AccessRefused, require_role
+from ..bus.access import AccessRefused, Roles
 from ..bus.keys import Keys
 from ..bus.messages import (
     LOGIC_COMMANDS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue, ProcedureInfo,
@@ -91,6 +91,7 @@ class Door:
         self.programs = ProgramDirectory(self.program_dir, config.gcode.max_program_bytes)
         self.machine_state, self.motion = machine_state, motion
         self.lock = OperatorLock()
+        self.roles = Roles.load(config)
         self.audit = AuditWriter(audit_path(history_path))
         self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
         self.uploaded: dict[str, tuple[str, str, Any]] = {}  # program hash -> (name, text, interpreted Program)
@@ -155,7 +156,7 @@ class Door:
         user, station = self.keys.user_of(str(query.key_expr)), station_of(query)
         payload = query.payload.to_bytes() if query.payload is not None else b"{}"
         try:
-            require_role(self.config, user, "operator", verb)
+            self.roles.require(user, "operator", verb)
             if verb == "lock":
                 reply = self._lock(user, station, session_of(query), decode(payload, LockRequest))
             else:

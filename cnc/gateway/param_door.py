@@ -24,7 +24,7 @@ import zenoh
 
 from .. import params
 from .audit import AuditWriter
-from ..bus.access import AccessRefused, require_role
+from ..bus.access import AccessRefused, Roles
 from ..bus.keys import Keys
 from ..bus.messages import ParamInfo, ParamList, Reply, SaveParams, SchemaVersionError, SetParam, decode, encode
 from ..config import ConfigError, MachineConfig, cross_check, load_machine
@@ -45,6 +45,7 @@ class ParamDoor:
                  lock: OperatorLock | None, audit: AuditWriter | None = None) -> None:
         """`audit`: where changes and saves are recorded (the gateway's trail; None: not recorded)."""
         self.config, self.session, self.keys, self.lock, self.audit = config, session, keys, lock, audit
+        self.roles = Roles.load(config)
         self.specs = params.registry(config)
         self.out = area.writer("params")
         self.out.load_current()
@@ -138,7 +139,7 @@ class ParamDoor:
 
     def _require(self, user: str, query: Any, what: str) -> None:
         """An engineer's station holding the command lock (the lock only where the gateway has one)."""
-        require_role(self.config, user, "engineer", f"cannot {what}")
+        self.roles.require(user, "engineer", f"cannot {what}")
         if self.lock is not None:
             try:
                 self.lock.require(user, station_of(query))
