@@ -19,10 +19,13 @@ import time
 from pathlib import Path
 
 from ..bus.messages import AuditPage, AuditRecord
+from .store import open_store, page_rows
 
 log = logging.getLogger(__name__)
 
-MAX_PAGE = 1000
+_TABLE = ("CREATE TABLE IF NOT EXISTS audit (seq INTEGER PRIMARY KEY AUTOINCREMENT, at_ns INTEGER NOT NULL, "
+          "user TEXT NOT NULL, station TEXT NOT NULL, verb TEXT NOT NULL, command TEXT NOT NULL, "
+          "ok INTEGER NOT NULL, reason TEXT NOT NULL)")
 UNRECORDED = ("jog_refresh",)  # many a second while a key is held: the jog's start and stop are recorded
 
 
@@ -36,21 +39,7 @@ class AuditTrail:
 
     def __init__(self, path: str | Path, readonly: bool = False) -> None:
         self.path = Path(path)
-        try:
-            if readonly:
-                self.db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True, check_same_thread=False)
-            else:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-                self.db = sqlite3.connect(self.path, check_same_thread=False)
-                self.db.execute("PRAGMA journal_mode=WAL")
-                self.db.execute(
-                    "CREATE TABLE IF NOT EXISTS audit (seq INTEGER PRIMARY KEY AUTOINCREMENT, at_ns INTEGER NOT NULL, "
-                    "user TEXT NOT NULL, station TEXT NOT NULL, verb TEXT NOT NULL, command TEXT NOT NULL, "
-                    "ok INTEGER NOT NULL, reason TEXT NOT NULL)"
-                )
-                self.db.commit()
-        except sqlite3.Error as exc:
-            raise RuntimeError(f"{self.path}: cannot open the audit trail: {exc}") from None
+        self.db = open_store(self.path, _TABLE, "audit trail", readonly)
 
     def append(self, at_ns: int, user: str, station: str, verb: str, command: str, ok: bool, reason: str) -> None:
         self.db.execute("INSERT INTO audit (at_ns, user, station, verb, command, ok, reason) VALUES (?, ?, ?, ?, ?, ?, ?)",
@@ -59,19 +48,9 @@ class AuditTrail:
 
     def page(self, offset: int = 0, limit: int = 100, newest_first: bool = True, user: str = "") -> AuditPage:
         """Rows, newest first by default, optionally of one user; `more` when the page is not the last."""
-        limit = max(1, min(limit, MAX_PAGE))
-        where, args = ("WHERE user = ?", [user]) if user else ("", [])
-        try:
-            rows = self.db.execute(
-                f"SELECT seq, at_ns, user, station, verb, command, ok, reason FROM audit {where} "
-                f"ORDER BY seq {'DESC' if newest_first else 'ASC'} LIMIT ? OFFSET ?", [*args, limit + 1, max(offset, 0)],
-            ).fetchall()
-        except sqlite3.OperationalError as exc:
-            if "no such table" in str(exc):
-                return AuditPage([], False)
-            raise
-        return AuditPage([AuditRecord(r[0], r[1], r[2], r[3], r[4], r[5], bool(r[6]), r[7]) for r in rows[:limit]],
-                         len(rows) > limit)
+        rows, more = page_rows(self.db, "audit", "seq, at_ns, user, station, verb, command, ok, reason", offset, limit,
+                               newest_first, "user" if user else "", user)
+        return AuditPage([AuditRecord(r[0], r[1], r[2], r[3], r[4], r[5], bool(r[6]), r[7]) for r in rows], more)
 
     def close(self) -> None:
         self.db.close()

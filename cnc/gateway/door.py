@@ -341,26 +341,10 @@ class Door:
             )
 
     def _audit(self, params: dict) -> Any:
-        path = audit_path(self.history_path)
-        if not path.exists():
-            return AuditPage([], False)
-        trail = AuditTrail(path, readonly=True)
-        try:
-            return trail.page(_int(params, "offset", 0), _int(params, "limit", 100), params.get("order", "newest") != "oldest",
-                              params.get("user", ""))
-        finally:
-            trail.close()
+        return _page_of(AuditTrail, audit_path(self.history_path), AuditPage, params, "user")
 
     def _jobs(self, params: dict) -> Any:
-        path = jobs_path(self.history_path)
-        if not path.exists():
-            return JobPage([], False)
-        jobs = JobHistory(path, readonly=True)
-        try:
-            return jobs.page(_int(params, "offset", 0), _int(params, "limit", 100), params.get("order", "newest") != "oldest",
-                             params.get("program", ""))
-        finally:
-            jobs.close()
+        return _page_of(JobHistory, jobs_path(self.history_path), JobPage, params, "program")
 
 
 def program_path(program: Any) -> ProgramPath:
@@ -385,6 +369,18 @@ def _as_sent(verb: str, payload: bytes) -> str:
             name = "?"
         return json.dumps({"name": name, "bytes": len(payload)})
     return payload.decode("utf-8", errors="replace")[:2000]
+
+
+def _page_of(store: type, path: Path, empty: type, params: dict, filter_by: str) -> Any:
+    """A page of a store (`offset`, `limit`, `order`, and its one filter), opened read-only for the query."""
+    if not path.exists():
+        return empty([], False)
+    opened = store(path, readonly=True)
+    try:
+        return opened.page(_int(params, "offset", 0), _int(params, "limit", 100), params.get("order", "newest") != "oldest",
+                           params.get(filter_by, ""))
+    finally:
+        opened.close()
 
 
 def _int(params: dict, key: str, default: int) -> int:
