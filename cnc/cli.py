@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import signal
 import sys
@@ -95,47 +96,20 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--plot", metavar="OUT.png", help="draw the XY contour and per-axis tracking (the paper's Figs. 10-12)")
     simulate.set_defaults(func=_cmd_simulate)
 
-    plc_sim = sub.add_parser("plc-sim", help="the simulated external PLC (transport system, pump) as a Modbus RTU server")
-    from plc_link import sim_cli
-
-    sim_cli.add_arguments(plc_sim)
-    plc_sim.set_defaults(func=sim_cli.run)
-
-    router_p = sub.add_parser("router", help="a Zenoh router for a shop network (controllers and HMIs connect to it)")
-    from . import router
-
-    router.add_arguments(router_p)
-    router_p.set_defaults(func=router.run)
-
-    users_p = sub.add_parser("users", help="the machine's accounts: add, remove, list (who may log in, in which role)")
-    from . import userscli
-
-    userscli.add_arguments(users_p)
-    users_p.set_defaults(func=userscli.run)
-
-    certs_p = sub.add_parser("certs", help="the machine's TLS certificates: its CA, the routers', the stations'")
-    from . import certscli
-
-    certscli.add_arguments(certs_p)
-    certs_p.set_defaults(func=certscli.run)
-
-    watch_p = sub.add_parser("watch", help="observe a running controller: live status, alarms and procedures (read-only)")
-    from . import watch
-
-    watch.add_arguments(watch_p)
-    watch_p.set_defaults(func=watch.run)
-
-    log_p = sub.add_parser("log", help="the data logger: list, start and stop log runs, export one to MATLAB or CSV")
-    from .logger import logcli
-
-    logcli.add_arguments(log_p)
-    log_p.set_defaults(func=logcli.run)
-
-    hmi_p = sub.add_parser("hmi", help="the operator screen (Qt): connects to a controller over Zenoh")
-    from hmi import app as hmi_app
-
-    hmi_app.add_arguments(hmi_p)
-    hmi_p.set_defaults(func=hmi_app.run)
+    # commands whose module brings its own options and runner: name, help, module (imported here, lazily)
+    for name, help_text, module_name in (
+        ("plc-sim", "the simulated external PLC (transport system, pump) as a Modbus RTU server", "plc_link.sim_cli"),
+        ("router", "a Zenoh router for a shop network (controllers and HMIs connect to it)", "cnc.router"),
+        ("users", "the machine's accounts: add, remove, list (who may log in, in which role)", "cnc.userscli"),
+        ("certs", "the machine's TLS certificates: its CA, the routers', the stations'", "cnc.certscli"),
+        ("watch", "observe a running controller: live status, alarms and procedures (read-only)", "cnc.watch"),
+        ("log", "the data logger: list, start and stop log runs, export one to MATLAB or CSV", "cnc.logger.logcli"),
+        ("hmi", "the operator screen (Qt): connects to a controller over Zenoh", "hmi.app"),
+    ):
+        module = importlib.import_module(module_name)
+        command = sub.add_parser(name, help=help_text)
+        module.add_arguments(command)
+        command.set_defaults(func=module.run)
 
     demo = sub.add_parser("demo", help="run the simulated machine end to end and exit 0 when it behaved")
     _machine_arg(demo)
