@@ -376,6 +376,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, metavar="N", help="stop after N seconds (default: until SIGINT/SIGTERM)")
 
 
+def session_for(args: argparse.Namespace, endpoints: list[str]) -> zenoh.Session:
+    """The session the connection options describe (`--credentials`, `--tls`), retrying as
+    `open_session` does; WatchError when an option is wrong or no controller accepts it."""
+    return open_session(endpoints, credentials=_credentials(args.credentials), tls=_tls(args))
+
+
 def _tls(args: argparse.Namespace) -> TlsFiles | None:
     """The station's TLS files from `--tls` and `--tls-name`, or None."""
     if not args.tls:
@@ -431,7 +437,7 @@ def run(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        session = open_session(endpoints, credentials=_credentials(args.credentials), tls=_tls(args))
+        session = session_for(args, endpoints)
         try:
             watcher = Watcher(session, keys, output, with_position=args.json)
             try:

@@ -22,7 +22,7 @@ import msgspec
 from ..bus.keys import Keys
 from ..bus.messages import LogRunData, LogSetting, LogStart, LogState, LogStop, Reply, decode, encode
 from ..config import ConfigError
-from ..watch import WatchError, _credentials, _tls, add_connection_arguments, address, open_session
+from ..watch import WatchError, add_connection_arguments, address, session_for
 
 ANSWER_TIMEOUT_S = 10.0
 
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"waterjet log: {exc}", file=sys.stderr)
         return 2
     try:
-        session = open_session(endpoints, credentials=_credentials(args.credentials), tls=_tls(args))
+        session = session_for(args, endpoints)
     except WatchError as exc:
         print(f"waterjet log: {exc}", file=sys.stderr)
         return 1
