@@ -389,3 +389,11 @@ def test_waterjet_certs_makes_a_ca_router_and_station_certificates_with_private_
     assert "controller.pem: controller (cnc1.shop, 10.0.0.5)" in listed and "panel.pem: panel" in listed
     for key in ("ca.key", "controller.key", "panel.key"):
         assert stat.S_IMODE((tmp_path / "m.tls" / key).stat().st_mode) == 0o600
+
+
+def test_a_tool_on_the_controllers_host_reaches_it_on_loopback_tcp_beside_a_tls_endpoint(tmp_path):
+    from cnc.bus.session import connect_endpoints
+
+    listen = ["tls/0.0.0.0:7448", "tcp/0.0.0.0:7447"]
+    assert connect_endpoints(listen) == ["tcp/127.0.0.1:7447"], "no station certificate needed on this host"
+    assert connect_endpoints(["tls/0.0.0.0:7448"]) == ["tls/127.0.0.1:7448"]

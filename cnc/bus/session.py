@@ -61,11 +61,12 @@ def zenoh_config(
 
 
 def connect_endpoints(listen: list[str]) -> list[str]:
-    """Where local clients connect to reach a router listening on `listen` (wildcards -> loopback)."""
-    out = []
-    for ep in listen:
-        out.append(ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]"))
-    return out
+    """Where a client on this host connects to reach a router listening on `listen` (wildcards ->
+    loopback). Where it listens on plain TCP as well as TLS, the TCP endpoints only: on this
+    host's loopback they need no station certificate, and the local station's login applies there."""
+    local = [ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]") for ep in listen]
+    tcp = [ep for ep in local if ep.startswith("tcp/")]
+    return tcp or local
 
 
 def local_login_path(port: int) -> Path:
