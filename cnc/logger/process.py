@@ -288,7 +288,11 @@ class Logger:
     # -- live ---------------------------------------------------------------------------------
 
     def publish_live(self) -> None:
-        """The watch values, and the run's samples since the last message (thinned to `live_points`)."""
+        """The watch values, and the run's samples since the last message (thinned to `live_points`).
+        Nothing goes out before the first trace record: an empty message would blank the screen's
+        watch values instead of saying anything."""
+        if self.last_record is None:
+            return
         samples = {}
         run = self.run_obj
         if run is not None:
