@@ -19,16 +19,14 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
+from .bus.service import CommandRefused
+
 _CONTROL = re.compile(rb"[\x00-\x08\x0b\x0e-\x1f\x7f]")  # tab, LF, FF, CR are text; the rest is not
 
 _KINDS = {
     stat.S_IFDIR: "a directory", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
     stat.S_IFIFO: "a named pipe", stat.S_IFSOCK: "a socket", stat.S_IFLNK: "a symbolic link",
 }
-
-
-class ProgramRefused(Exception):
-    """The program cannot be loaded; the message names it and says why (never its contents)."""
 
 
 @dataclass(frozen=True)
@@ -40,9 +38,9 @@ class ProgramDirectory:
 
     def resolve(self, name: str) -> Path:
         """The file `name` (a plain name, or a path inside the directory) stands for, after links.
-        ProgramRefused when it lies outside the directory or does not exist."""
+        CommandRefused when it lies outside the directory or does not exist."""
         if not name or "\0" in name:
-            raise ProgramRefused(f"program name {name!r} is empty or not a file name")
+            raise CommandRefused(f"program name {name!r} is empty or not a file name")
         root = self.root.resolve()
         candidate = Path(name) if Path(name).is_absolute() else root / name
         lexical = Path(os.path.normpath(candidate))
@@ -51,9 +49,9 @@ class ProgramDirectory:
         try:
             path = candidate.resolve(strict=True)
         except FileNotFoundError:
-            raise ProgramRefused(f"{name}: no such program in {root}") from None
+            raise CommandRefused(f"{name}: no such program in {root}") from None
         except (OSError, RuntimeError) as exc:  # a loop of links, a component that is not a directory
-            raise ProgramRefused(f"{name}: cannot be resolved in {root}: {exc}") from None
+            raise CommandRefused(f"{name}: cannot be resolved in {root}: {exc}") from None
         if not path.is_relative_to(root):  # a link out of it
             raise _outside(name, root)
         return path
@@ -70,27 +68,27 @@ class ProgramDirectory:
         return sorted(p.name for p in self.root.iterdir() if not p.name.startswith(".") and p.is_file())
 
 
-def _outside(name: str, root: Path) -> ProgramRefused:
-    return ProgramRefused(f"{name}: outside the program directory {root}: load programs from there "
+def _outside(name: str, root: Path) -> CommandRefused:
+    return CommandRefused(f"{name}: outside the program directory {root}: load programs from there "
                           "(upload them, or copy them into it)")
 
 
 def read_program(path: str | Path, max_bytes: int, shown_as: str | None = None) -> bytes:
     """The bytes of the program file `path`: a regular file of at most `max_bytes`, text.
-    ProgramRefused names the file (as `shown_as`) and what is wrong with it, never its contents."""
+    CommandRefused names the file (as `shown_as`) and what is wrong with it, never its contents."""
     shown = shown_as or str(path)
     try:
         # O_NONBLOCK: a named pipe swapped in after a check must not hang the reader
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError as exc:
-        raise ProgramRefused(f"{shown}: cannot read the program: {exc.strerror}") from None
+        raise CommandRefused(f"{shown}: cannot read the program: {exc.strerror}") from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             kind = _KINDS.get(stat.S_IFMT(st.st_mode), "not a regular file")
-            raise ProgramRefused(f"{shown}: is {kind}, not a program file")
+            raise CommandRefused(f"{shown}: is {kind}, not a program file")
         if st.st_size > max_bytes:
-            raise ProgramRefused(f"{shown}: the program is {st.st_size} bytes; this machine accepts at most {max_bytes}")
+            raise CommandRefused(f"{shown}: the program is {st.st_size} bytes; this machine accepts at most {max_bytes}")
         chunks, size = [], 0
         while size <= max_bytes:
             chunk = os.read(fd, min(1 << 20, max_bytes + 1 - size))
@@ -99,7 +97,7 @@ def read_program(path: str | Path, max_bytes: int, shown_as: str | None = None) 
             chunks.append(chunk)
             size += len(chunk)
         if size > max_bytes:  # it grew while being read
-            raise ProgramRefused(f"{shown}: the program is more than {max_bytes} bytes; this machine accepts at most {max_bytes}")
+            raise CommandRefused(f"{shown}: the program is more than {max_bytes} bytes; this machine accepts at most {max_bytes}")
     finally:
         os.close(fd)
     data = b"".join(chunks)
@@ -108,7 +106,7 @@ def read_program(path: str | Path, max_bytes: int, shown_as: str | None = None) 
 
 
 def check_text(data: bytes, shown: str) -> None:
-    """ProgramRefused unless `data` is UTF-8 text without control characters; says where, not what."""
+    """CommandRefused unless `data` is UTF-8 text without control characters; says where, not what."""
     bad = _CONTROL.search(data)
     if bad is None:
         try:
@@ -119,4 +117,4 @@ def check_text(data: bytes, shown: str) -> None:
     else:
         at, why = bad.start(), f"not text: control character 0x{data[bad.start()]:02x}"
     line = data.count(b"\n", 0, at) + 1
-    raise ProgramRefused(f"{shown}: line {line}: {why} (a binary file?); it is not loaded")
+    raise CommandRefused(f"{shown}: line {line}: {why} (a binary file?); it is not loaded")

@@ -140,3 +140,20 @@ def test_the_screen_and_the_gateway_compare_states_by_their_enums_never_by_spell
                         spelled += [(path.name, node.lineno, e.value) for e in elements
                                     if isinstance(e, ast.Constant) and isinstance(e.value, str) and e.value in names]
     assert spelled == []
+
+
+def test_every_door_of_the_controller_serves_through_the_one_command_service_with_one_refusal_type():
+    """Queryables are declared, and queries answered, only by cnc.bus.service (a station's answer to
+    the gateway's ping aside: that is the station's, not a door of the controller); no module
+    declares a refusal exception of its own."""
+    allowed = {REPO / "cnc/bus/service.py", REPO / "cnc/bus/operator.py"}
+    serving, refusals = [], []
+    for package in ("cnc", "plc_link"):
+        for path in (REPO / package).rglob("*.py"):
+            tree = ast.parse(path.read_text(), str(path))
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Attribute) and node.attr in ("declare_queryable", "reply_err") and path not in allowed:
+                    serving.append((path.name, node.lineno, node.attr))
+                if isinstance(node, ast.ClassDef) and "Refus" in node.name and node.name != "CommandRefused":
+                    refusals.append((path.name, node.name))
+    assert serving == [] and refusals == []

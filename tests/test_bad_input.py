@@ -30,7 +30,7 @@ from cnc.config import ConfigError, MachineConfig, load_machine
 from cnc.data.layout import PlannerState
 from cnc.logic.states import MachineState
 from cnc.machine_dialect import dialect_for
-from cnc.planner.preflight import PreflightRefusal, preflight
+from cnc.planner.preflight import PreflightError, preflight
 from cnc.runtime.supervisor import Supervisor
 from gcode.errors import GCodeError
 from gcode.interp import Interpreter
@@ -142,7 +142,7 @@ def test_waterjet_check_refuses_every_broken_program_naming_file_line_and_column
 def test_a_program_beyond_travel_is_valid_g_code_but_the_preflight_refuses_it_naming_the_line(name, shipped):
     e, data = BEYOND_TRAVEL[name], (CORPUS / "programs" / name).read_bytes()
     program = Interpreter(dialect_for(shipped), name).run(data)
-    with pytest.raises(PreflightRefusal) as refused:
+    with pytest.raises(PreflightError) as refused:
         preflight(program.segments, shipped, {"x": True, "y": True}, name)
     assert str(refused.value) == f"{name}:{e['line']}: {e['error']}" and refused.value.line == e["line"]
     out = io.StringIO()
@@ -422,7 +422,7 @@ def test_malformed_parameter_changes_are_refused_naming_what_and_nothing_changes
     attachment, name = bench.op.attachment, "axis.x.kp_1_s"
     value = _param(bench, name)
     for what, payload, expected in [
-        ("random bytes", b"\xfe" + random.Random(1).randbytes(63), "malformed request: JSON is malformed"),
+        ("random bytes", b"\xfe" + random.Random(1).randbytes(63), "malformed command: JSON is malformed"),
         ("JSON array", b"[1]", "Expected `object`, got `array`"),
         ("missing value", _json({}), "missing required field `value`"),
         ("value as text", _json({"value": "stiff"}), "Expected `float`, got `str` - at `$.value`"),

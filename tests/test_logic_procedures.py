@@ -8,7 +8,8 @@ import pytest
 
 from cnc.config import MachineConfig, load_machine
 from cnc.logic.conditions import ConditionError
-from cnc.logic.procedures import ProcedureRefused, ProcedureRunner
+from cnc.bus.service import CommandRefused
+from cnc.logic.procedures import ProcedureRunner
 from cnc.logic.signals import SignalReader
 
 from .conftest import MACHINE_FILE
@@ -236,30 +237,30 @@ def test_starting_again_forgets_that_the_last_run_completed(runner):
 
 
 def test_unknown_procedure_is_refused_listing_the_known_ones(runner):
-    with pytest.raises(ProcedureRefused, match=r"unknown procedure 'transprt'; known: transport, startup, pump_warmup"):
+    with pytest.raises(CommandRefused, match=r"unknown procedure 'transprt'; known: transport, startup, pump_warmup"):
         runner.start("transprt")
     assert runner.state().seq == 0
 
 
 def test_start_while_another_runs_is_refused(runner):
     runner.start("transport")
-    with pytest.raises(ProcedureRefused, match=r"cannot start procedure 'startup': procedure 'transport' .* is running"):
+    with pytest.raises(CommandRefused, match=r"cannot start procedure 'startup': procedure 'transport' .* is running"):
         runner.start("startup")
-    with pytest.raises(ProcedureRefused, match=r"procedure 'transport' \(TRANSPORT PHASE\) is already running"):
+    with pytest.raises(CommandRefused, match=r"procedure 'transport' \(TRANSPORT PHASE\) is already running"):
         runner.start("transport")
     assert runner.state().id == "transport" and runner.state().seq == 1
 
 
 def test_confirm_on_a_condition_step_is_refused(runner):
     runner.start("transport")
-    with pytest.raises(ProcedureRefused, match=r"step 1 \(Emergency stop released\) .* completes by its condition 'din.estop_ok'"):
+    with pytest.raises(CommandRefused, match=r"step 1 \(Emergency stop released\) .* completes by its condition 'din.estop_ok'"):
         runner.confirm()
     assert runner.state().step == 0 and runner.state().seq == 1
 
 
 def test_end_while_running_is_refused(runner):
     runner.start("transport")
-    with pytest.raises(ProcedureRefused, match="cannot end procedure 'transport' while it runs; stop it first"):
+    with pytest.raises(CommandRefused, match="cannot end procedure 'transport' while it runs; stop it first"):
         runner.end()
     assert runner.running
 
@@ -267,7 +268,7 @@ def test_end_while_running_is_refused(runner):
 def test_commands_with_no_procedure_are_refused(runner):
     for command, reason in ((runner.confirm, "nothing to confirm"), (runner.stop, "nothing to stop"),
                             (runner.end, "no procedure window to end")):
-        with pytest.raises(ProcedureRefused, match=reason):
+        with pytest.raises(CommandRefused, match=reason):
             command()
     assert runner.state().seq == 0
 

@@ -8,7 +8,8 @@ import threading
 
 import pytest
 
-from cnc.programs import ProgramDirectory, ProgramRefused, read_program
+from cnc.bus.service import CommandRefused
+from cnc.programs import ProgramDirectory, read_program
 
 PART = "G21 G90\nG0 X10 Y10\nM3\nG1 X20 F600\nM5\nM2\n"
 SECRET = "controller:s3cret-password\n"
@@ -24,7 +25,7 @@ def programs(tmp_path) -> ProgramDirectory:
 
 
 def refusal(programs: ProgramDirectory, name: str) -> str:
-    with pytest.raises(ProgramRefused) as err:
+    with pytest.raises(CommandRefused) as err:
         programs.read(name)
     assert "s3cret" not in str(err.value), "a refusal never echoes the file"
     return str(err.value)
@@ -60,7 +61,7 @@ def test_devices_pipes_and_directories_are_refused_at_once(programs):
     assert "is a named pipe" in refusal(programs, "pipe.ngc")
     (programs.root / "zero.ngc").symlink_to("/dev/zero")
     assert "outside the program directory" in refusal(programs, "zero.ngc")
-    with pytest.raises(ProgramRefused, match="is a character device"):
+    with pytest.raises(CommandRefused, match="is a character device"):
         read_program("/dev/zero", 4096)
     (programs.root / "sub").mkdir()
     assert "is a directory" in refusal(programs, "sub")

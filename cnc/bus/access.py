@@ -57,7 +57,7 @@ from ..config import ConfigError, MachineConfig, beside, read_credentials, users
 from .certs import CertError, TlsFiles, files_for
 from .keys import Keys
 from .session import LOCAL_USER, local_login_path, zenoh_config
-from .users import ROLES, Account, UsersError, read_users, role_at_least
+from .users import Account, UsersError, read_users, role_at_least
 
 TABLE = "zenoh.access"
 CONTROLLER_USER = "controller"
@@ -79,10 +79,6 @@ ALIVE_KEYS = ("alive/**", "hmi/**")  # liveliness of controller processes and st
 # The file Zenoh reads the user/password dictionary from is a private copy (Zenoh's format
 # allows no comments or blank lines); `cnc.bus.session.open_router` removes it once read.
 DICTIONARY_PREFIX = "waterjet-usrpwd-"
-
-
-class AccessRefused(Exception):
-    """The sender's role does not allow this; the message says who, what and the role needed."""
 
 
 def run_dir() -> Path:
@@ -181,15 +177,6 @@ class Roles:
     def role(self, user: str) -> str | None:
         """The role of `user` on this machine; None: no such account."""
         return self.of.get(user)
-
-    def require(self, user: str, needed: str, what: str) -> str:
-        """`user`'s role when it includes `needed`; AccessRefused saying so otherwise."""
-        role = self.role(user)
-        if role is None:
-            raise AccessRefused(f"{what}: user {user!r} has no account on this machine")
-        if not role_at_least(role, needed):
-            raise AccessRefused(f"{what}: user {user!r} is an {role}; this needs an {needed}")
-        return role
 
 
 def role_of(cfg: MachineConfig, user: str) -> str | None:

@@ -576,6 +576,24 @@ PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
 }
 MOTION_COMMANDS = (Start, Resume, Jog, JogRefresh, GoTo, Home)  # carried out only with the commander's Stamp
 REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset")  # never queued behind slow work
+# Verbs whose handlers command motion or the jet: a bug met while serving one brings the machine to
+# its safe state (cnc.bus.service). A stop is among them: a stop that failed must still stop.
+MOTION_VERBS = frozenset({
+    "start", "resume", "jog", "jog_refresh", "goto", "home", "drives", "pump", "jet_test", "override",
+    "stop", "hold", "jog_stop", "reset", "procedure_start", "procedure_confirm", "procedure_stop",
+})
+
+
+class InternalError(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A bug a controller process met while serving a request (STYLE.md's third tier), told to the
+    control logic (`internal/logic/bug`), which raises the internal-error alarm and, with `motion`,
+    first brings the machine to its safe state."""
+
+    process: str
+    what: str  # the request that failed ("jog", "param axis.x.kp_1_s", ...)
+    detail: str  # the exception, as repr
+    motion: bool = False
+    version: int = SCHEMA_VERSION
 
 
 # -- commands to the control logic (the machine's commander; answered with a Reply) ---------

@@ -211,6 +211,7 @@ def sim_layout(n: int) -> BlockLayout:
             F("friction_scale", "d", n),
             F("planner_stall", "I"),  # the planner pushes no setpoints (a planner starved of CPU)
             F("limit_switch_mask", "I"),  # bits 2i, 2i+1: axis i's min, max limit switch forced active (a tripped switch)
+            F("inject_bug", "s", 96),  # "<process>/<verb>,...": those handlers raise (cnc.bus.service, fault injection)
         ],
     )
 

@@ -3,16 +3,18 @@ the read-only queries (alarm history with filters, job history, the loaded progr
 
 Commands arrive as queries on `<root>/u/<user>/cmd/<verb>`, which the router lets only `<user>`
 send (`cnc.bus.access`), with the station's name (and its Zenoh session) in the query's
-attachment (`{"station": "...", "session": "..."}`). Each is decoded into its typed message (a
-malformed payload is refused, never a crash), checked against the user's role and the command
-lock (held by one user's station), and forwarded to the control logic, whose answer (ok, or refused with the reason) is the reply. A
+attachment (`{"station": "...", "session": "..."}`). The gateway's command service
+(`cnc.bus.service`) decodes each into its typed message (a malformed payload is refused, never a
+crash), checks it against the user's role and the command lock (held by one user's station), and
+forwards it to the control logic, whose answer (ok, or refused with the reason) is the reply. A
 load names a program in the machine's program directory (`cnc.programs`: nothing outside it,
 no devices or pipes, size checked first, text only).
 Uploaded programs are checked (size, text encoding), interpreted with the machine's dialect
-(errors with line and column), stored, then loaded. Commands and queries are served by worker
-threads, so that a long program load never delays a history query, and no Zenoh callback thread
-ever waits. The realtime commands (stop, hold, jog stop, a jog's refresh, reset) and the loss of
-the lock holder's station have a lane of their own: they never queue behind a slow command.
+(errors with line and column), stored, then loaded. Commands and queries are served by the
+service's worker threads, one per lane, so that a long program load never delays a history query,
+and no Zenoh callback thread ever waits. The realtime commands (stop, hold, jog stop, a jog's
+refresh, reset) and the loss of the lock holder's station have a lane of their own: they never
+queue behind a slow command. Every command is in the audit trail with its answer.
 """
 
 from __future__ import annotations
@@ -21,180 +23,129 @@ import hashlib
 import json
 import logging
 import os
-import queue
 import re
 import threading
 import time
 from pathlib import Path
 from typing import Any, Callable
 
-import msgspec
 import zenoh
 
 from ..alarms import AlarmHistory, AlarmLevel, HistoryError
 from .audit import AuditTrail, AuditWriter, audit_path
-from ..bus.access import AccessRefused, Roles
+from ..bus.access import Roles
 from ..bus.keys import Keys
 from ..bus.messages import (
-    LOGIC_COMMANDS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue, ProcedureInfo,
-    ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SchemaVersionError,
-    UploadProgram, decode, encode,
+    LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue,
+    ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, UploadProgram, encode,
 )
+from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..bus.states import MachineState
 from ..config import MachineConfig
 from .jobs import JobHistory, jobs_path
-from .lock import LockRefused, OperatorLock, Token
+from .lock import OperatorLock, Token
 from ..logic.client import LogicClient
 from ..machine_dialect import dialect_for
-from ..programs import ProgramDirectory, ProgramRefused
+from ..programs import ProgramDirectory
 from ..runtime.rt import collector_paused
 
 log = logging.getLogger(__name__)
 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}\Z")
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")  # tab, LF, FF, CR are text; the rest is not
-_QUERY_KEYS = ("history", "jobs", "audit", "program", "lock", "procedures")
-
-
-def session_of(query: Any) -> str:
-    """The id of the Zenoh session the query says it comes from (attachment "session"); "" when absent.
-    Only a session of the same user could claim another's: the key already says who sent it."""
-    return _attached(query, "session")
-
-
-def station_of(query: Any) -> str:
-    """The sending station's id, from the query's attachment (JSON {"station": ...}); "" when absent."""
-    return _attached(query, "station")
-
-
-def _attached(query: Any, field: str) -> str:
-    att = query.attachment
-    if att is None:
-        return ""
-    try:
-        value = json.loads(att.to_bytes()).get(field, "")
-    except (ValueError, AttributeError):
-        return ""
-    return value if isinstance(value, str) else ""
 
 
 class Door:
-    """Command and query queryables of the gateway; `close()` undeclares them and stops the workers."""
+    """Command and query routes of the gateway, on its command service (`service`, which the
+    parameter door shares); `close()` undeclares them and stops the workers."""
 
     def __init__(
         self, config: MachineConfig, session: zenoh.Session, keys: Keys, history_path: str, program_dir: str,
         machine_state: Callable[[], str], motion: Callable[[], dict], logic_timeout_s: float = 60.0,
+        inject: Callable[[], str] | None = None,
     ) -> None:
+        """`inject`: handlers to fail on purpose (`cnc.data.injection`, the simulated board only)."""
         self.config, self.session, self.keys = config, session, keys
         self.history_path = history_path
         self.program_dir = Path(program_dir)
         self.programs = ProgramDirectory(self.program_dir, config.gcode.max_program_bytes)
         self.machine_state, self.motion = machine_state, motion
         self.lock = OperatorLock()
-        self.roles = Roles.load(config)
         self.audit = AuditWriter(audit_path(history_path))
         self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
         self.uploaded: dict[str, tuple[str, str, Any]] = {}  # program hash -> (name, text, interpreted Program)
-        self.commands: queue.Queue = queue.Queue()
-        self.realtime: queue.Queue = queue.Queue()  # stop, hold, jog stop and refresh, reset, a lost operator
-        self.queries: queue.Queue = queue.Queue()
-        # uploads have their own worker: interpreting a big (or endlessly looping) program takes
-        # seconds, and a hold or a stop must not wait behind it
-        self.uploads: queue.Queue = queue.Queue()
-        verbs = [*LOGIC_COMMANDS, "lock"]
-        self.declared = [
-            session.declare_queryable(
-                keys.cmd_any(verb), lambda q, v=verb, lane=(self.realtime if verb in REALTIME_VERBS else self.commands):
-                lane.put((v, q)))
-            for verb in verbs
+        # one worker per lane: a stop never waits behind a load, an upload (interpreting a big, or
+        # endlessly looping, program takes seconds) or a history query
+        self.service = CommandService(session, keys, "gateway", report_to_logic(session, keys, "gateway"), threaded=True,
+                                      roles=Roles.load(config), lock=self.lock, audit=self._audit_record,
+                                      inject=inject)
+        commands = [
+            Route(verb, keys.cmd_any(verb), self._forward, LOGIC_COMMANDS[verb], role="operator", lock=True,
+                  motion=verb in MOTION_VERBS, lane="realtime" if verb in REALTIME_VERBS else "cmd", audit=True)
+            for verb in LOGIC_COMMANDS
         ]
-        self.declared.append(session.declare_queryable(keys.cmd_any("program"), lambda q: self.uploads.put(("program", q))))
-        self.declared += [
-            session.declare_queryable(keys.alarms_history, lambda q: self.queries.put(("history", q))),
-            session.declare_queryable(keys.jobs_history, lambda q: self.queries.put(("jobs", q))),
-            session.declare_queryable(keys.audit_history, lambda q: self.queries.put(("audit", q))),
-            session.declare_queryable(keys.program, lambda q: self.queries.put(("program", q))),
-            session.declare_queryable(keys.lock, lambda q: self.queries.put(("lock", q))),
-            session.declare_queryable(keys.procedures, lambda q: self.queries.put(("procedures", q))),
+        reads = [
+            Route(what, key, self._read(answer), read=True, lane="query") for what, key, answer in (
+                ("history", keys.alarms_history, self._history), ("jobs", keys.jobs_history, self._jobs),
+                ("audit", keys.audit_history, self._audit), ("program", keys.program, self._program),
+                ("lock", keys.lock, lambda _params: self.lock.state()), ("procedures", keys.procedures, self._procedures))
         ]
+        self.service.serve(
+            *commands,
+            Route("lock", keys.cmd_any("lock"), self._lock, LockRequest, role="operator", lane="cmd", audit=True),
+            Route("program", keys.cmd_any("program"), self._upload, UploadProgram, role="operator", lock=True,
+                  lane="upload", audit=True),
+            *reads,
+        )
         self.lock_pub = session.declare_publisher(keys.lock, encoding=zenoh.Encoding.APPLICATION_JSON)
         self.stations = session.liveliness().declare_subscriber(keys.stations, self._on_station, history=True)
-        self.workers = [threading.Thread(target=self._serve, args=(q, h), name=f"door-{n}", daemon=True)
-                        for n, q, h in (("cmd", self.commands, self._command), ("upload", self.uploads, self._command),
-                                        ("realtime", self.realtime, self._command), ("query", self.queries, self._query))]
         self._closing = threading.Event()
-        self.workers.append(threading.Thread(target=self._ping_holder, name="door-ping", daemon=True))
-        for w in self.workers:
-            w.start()
+        self.pinger = threading.Thread(target=self._ping_holder, name="door-ping", daemon=True)
+        self.pinger.start()
 
     def close(self) -> None:
         self._closing.set()
         self.stations.undeclare()
-        for q in self.declared:
-            q.undeclare()
+        self.service.close()
         self.lock_pub.undeclare()
-        for q in (self.commands, self.uploads, self.realtime, self.queries):
-            q.put(None)
-        for w in self.workers:
-            w.join(2.0)
+        self.pinger.join(2.0)
         self.audit.close()
 
-    # -- workers ----------------------------------------------------------------------------
-    def _serve(self, items: queue.Queue, handle: Callable[[str, Any], None]) -> None:
-        while (item := items.get()) is not None:
-            what, query = item
+    # -- commands ---------------------------------------------------------------------------
+    def _forward(self, request: Request) -> Reply:
+        """An operator's command to the control logic (a load by name, from the program directory only)."""
+        command = request.message
+        if isinstance(command, LoadProgram):
+            path, _ = self.programs.read(command.path)
+            command = LoadProgram(str(path))
+        return self.logic.request(command, self._limit_for(command))
+
+    def _audit_record(self, request: Request, reply: Reply) -> None:
+        """Every command with its answer, refusals included; a read only when it carried a change
+        (a parameter sent to the read-only keys)."""
+        if request.read and not request.payload:
+            return
+        self.audit.record(request.caller.user, request.caller.station, request.what, _as_sent(request.verb, request.payload),
+                          reply.ok, reply.reason)
+
+    @staticmethod
+    def _read(answer: Callable[[dict], Any]) -> Callable[[Request], Any]:
+        """A read route's handler: the selector's parameters in, the data out; a parameter it
+        cannot use is refused (the asker gets a Zenoh error saying which)."""
+        def handler(request: Request) -> Any:
             try:
-                handle(what, query)
-            except Exception as exc:  # a bug: the door stays open, the station learns what happened
-                log.exception("gateway: %s failed", what)
-                _reply(query, Reply(False, f"{what}: internal error in the gateway: {exc!r}"))
-
-    def _command(self, verb: str, query: Any) -> None:
-        if verb == "lost-operator":  # an internal item: the lock holder's station disappeared
-            self._operator_lost(query)
-            return
-        user, station = self.keys.user_of(str(query.key_expr)), station_of(query)
-        payload = query.payload.to_bytes() if query.payload is not None else b"{}"
-        try:
-            self.roles.require(user, "operator", verb)
-            if verb == "lock":
-                reply = self._lock(user, station, session_of(query), decode(payload, LockRequest))
-            else:
-                self.lock.require(user, station)
-                if verb == "program":
-                    reply = self._upload(decode(payload, UploadProgram))
-                else:
-                    command = decode(payload, LOGIC_COMMANDS[verb])
-                    if isinstance(command, LoadProgram):  # by name, from the program directory only
-                        path, _ = self.programs.read(command.path)
-                        command = LoadProgram(str(path))
-                    reply = self.logic.request(command, self._limit_for(command))
-        except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
-            reply = Reply(False, f"{verb}: malformed command: {exc}")
-        except (LockRefused, ProgramRefused) as exc:
-            reply = Reply(False, f"{verb}: {exc}")
-        except AccessRefused as exc:
-            reply = Reply(False, str(exc))
-        _reply(query, reply)
-        self.audit.record(user, station, verb, _as_sent(verb, payload), reply.ok, reply.reason)
-
-    def _query(self, what: str, query: Any) -> None:
-        params = dict(query.selector.parameters)
-        try:
-            answer = {"history": self._history, "jobs": self._jobs, "audit": self._audit, "program": self._program,
-                      "lock": lambda p: self.lock.state(), "procedures": self._procedures}[what](params)
-        except (ValueError, KeyError, HistoryError) as exc:
-            query.reply_err(zenoh.ZBytes(f"{what}: {exc}".encode()))
-            query.drop()
-            return
-        _reply(query, answer)
+                return answer(request.params)
+            except (ValueError, KeyError, HistoryError) as exc:
+                raise CommandRefused(str(exc)) from None
+        return handler
 
     # -- the lock ---------------------------------------------------------------------------
-    def _lock(self, user: str, station: str, session: str, msg: LockRequest) -> Reply:
+    def _lock(self, request: Request) -> Reply:
+        user, station, msg = request.caller.user, request.caller.station, request.message
         if msg.take and not self.lock.announced(user, station):
             self._tokens_now(user, station)  # a token declared just now: the subscriber has not seen it yet
         if msg.take:
-            self.lock.take(user, station, session)
+            self.lock.take(user, station, request.caller.session)
         else:
             self.lock.release(user, station)
         self._publish_lock()
@@ -203,7 +154,7 @@ class Door:
     def _tokens_now(self, user: str, station: str) -> None:
         try:
             OperatorLock.check_station(station)
-        except LockRefused:
+        except CommandRefused:
             return
         for reply in self.session.liveliness().get(self.keys.station(station, user) + "/**", timeout=1.0):
             token = Token.parse(str(reply.ok.key_expr), self.keys.root) if reply.ok is not None else None
@@ -217,7 +168,7 @@ class Door:
         if sample.kind == zenoh.SampleKind.PUT:
             self.lock.token_alive(token)
         elif self.lock.token_lost(token):
-            self.realtime.put(("lost-operator", token.who))
+            self.service.post("realtime", lambda who=token.who: self._operator_lost(who))
         self._publish_lock()
 
     def _ping_holder(self) -> None:
@@ -239,7 +190,7 @@ class Door:
                 answered = time.monotonic()
             elif time.monotonic() - answered > lost_after and self.lock.token_lost(holder):
                 log.warning("gateway: station %r has not answered for %.1f s: lost", holder.who, time.monotonic() - answered)
-                self.realtime.put(("lost-operator", holder.who))
+                self.service.post("realtime", lambda who=holder.who: self._operator_lost(who))
                 self._publish_lock()
 
     def _operator_lost(self, station: str) -> None:
@@ -259,7 +210,8 @@ class Door:
         self.lock_pub.put(encode(self.lock.state()))
 
     # -- programs ---------------------------------------------------------------------------
-    def _upload(self, msg: UploadProgram) -> Reply:
+    def _upload(self, request: Request) -> Reply:
+        msg = request.message
         if not _NAME.match(msg.name):
             return Reply(False, f"program: name {msg.name!r} must be a plain file name (letters, digits, . _ -)")
         data = msg.text.encode("utf-8")
@@ -393,7 +345,3 @@ def _int(params: dict, key: str, default: int) -> int:
 def _opt_int(params: dict, key: str) -> int | None:
     return _int(params, key, 0) if key in params else None
 
-
-def _reply(query: Any, message: msgspec.Struct) -> None:
-    query.reply(query.key_expr, encode(message), encoding=zenoh.Encoding.APPLICATION_JSON)
-    query.drop()

@@ -16,12 +16,9 @@ import time
 from dataclasses import dataclass, field
 
 from ..bus.messages import LockState
+from ..bus.service import CommandRefused
 
 _STATION = re.compile(r"[A-Za-z0-9_-]{1,64}\Z")
-
-
-class LockRefused(Exception):
-    """The station may not do this; the message says why."""
 
 
 @dataclass(frozen=True)
@@ -56,7 +53,7 @@ class OperatorLock:
     @staticmethod
     def check_station(station: str) -> str:
         if not _STATION.match(station or ""):
-            raise LockRefused(f"station id {station!r} must be 1-64 letters, digits, '-' or '_' (query attachment 'station')")
+            raise CommandRefused(f"station id {station!r} must be 1-64 letters, digits, '-' or '_' (query attachment 'station')")
         return station
 
     def take(self, user: str, station: str, session: str = "") -> None:
@@ -66,7 +63,7 @@ class OperatorLock:
             self.check_station(station)
             token = self._token_of(user, station, session)
             if self.holder is not None and (self.holder.user, self.holder.station) != (user, station):
-                raise LockRefused(f"station {self.holder.station!r} holds the command lock (user {self.holder.user!r}): "
+                raise CommandRefused(f"station {self.holder.station!r} holds the command lock (user {self.holder.user!r}): "
                                   "it must release it first")
             if self.holder != token:
                 self.holder, self.since_ns = token, time.time_ns()
@@ -75,7 +72,7 @@ class OperatorLock:
     def release(self, user: str, station: str) -> None:
         with self._mutex:
             if self.holder is None or (self.holder.user, self.holder.station) != (user, station):
-                raise LockRefused(f"station {station!r} (user {user!r}) does not hold the command lock" +
+                raise CommandRefused(f"station {station!r} (user {user!r}) does not hold the command lock" +
                                   (f" ({self.holder.who!r} does)" if self.holder else ""))
             self.holder, self.since_ns = None, time.time_ns()
             self.seq += 1
@@ -84,11 +81,11 @@ class OperatorLock:
         """Refuse a command from anyone but the holder."""
         with self._mutex:
             if not station:
-                raise LockRefused("read-only: the query carries no station id (attachment 'station')")
+                raise CommandRefused("read-only: the query carries no station id (attachment 'station')")
             if self.holder is None or (self.holder.user, self.holder.station) != (user, station):
                 who = (f"station {self.holder.station!r} holds the command lock (user {self.holder.user!r})" if self.holder
                        else "nobody holds the command lock")
-                raise LockRefused(f"read-only: {who}; take it first (cmd/lock)")
+                raise CommandRefused(f"read-only: {who}; take it first (cmd/lock)")
 
     def holds(self, user: str, station: str) -> bool:
         with self._mutex:
@@ -125,10 +122,10 @@ class OperatorLock:
         if session:
             mine = [t for t in mine if t.session == session]
         if not mine:
-            raise LockRefused(f"station {station!r} (user {user!r}) has no liveliness token"
+            raise CommandRefused(f"station {station!r} (user {user!r}) has no liveliness token"
                               + (f" from session {session}" if session else "")
                               + ": declare it before taking the lock")
         if len(mine) > 1:
-            raise LockRefused(f"station {station!r} (user {user!r}) is announced by {len(mine)} sessions: "
+            raise CommandRefused(f"station {station!r} (user {user!r}) is announced by {len(mine)} sessions: "
                               "say which (query attachment 'session')")
         return mine[0]

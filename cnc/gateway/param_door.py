@@ -8,30 +8,23 @@ range, changeable in the current state, and the machine file's cross-checks must
 values in force (fifo_high_ms above fifo_low_ms, ...); else the reply refuses, saying why. The
 new value goes into the `params` block, of which this door is the only writer; the reply waits
 until the owning process has applied it and says at which tick. A save writes the values in
-force into the machine file. Queries are served by a worker thread: a change waits for the
-servo's next tick, and no Zenoh callback thread may wait.
+force into the machine file. The routes are on the gateway's command service, on a lane of
+their own: a change waits for the servo's next tick, and no Zenoh callback thread may wait.
 """
 from __future__ import annotations
 
 import logging
-import queue
-import threading
 import time
-from typing import Any
 
-import msgspec
 import zenoh
 
 from .. import params
-from .audit import AuditWriter
-from ..bus.access import AccessRefused, Roles
 from ..bus.keys import Keys
-from ..bus.messages import ParamInfo, ParamList, Reply, SaveParams, SchemaVersionError, SetParam, decode, encode
+from ..bus.messages import ParamInfo, ParamList, Reply, SaveParams, SetParam
+from ..bus.service import CommandRefused, CommandService, Request, Route
 from ..config import ConfigError, MachineConfig, cross_check, load_machine
 from ..data.dataserver import SharedArea
-from .door import station_of
 from ..data.layout import PlannerState
-from .lock import LockRefused, OperatorLock
 
 log = logging.getLogger(__name__)
 
@@ -39,35 +32,33 @@ APPLY_TIMEOUT_S = 2.0  # how long a change waits for its process to apply it
 
 
 class ParamDoor:
-    """`param/**` and `params` queryables; `lock` is the gateway's command lock (None: no lock, any station)."""
+    """The parameter routes, on `service` (the gateway's: its roles, command lock and audit trail)."""
 
     def __init__(self, config: MachineConfig, session: zenoh.Session, keys: Keys, area: SharedArea,
-                 lock: OperatorLock | None, audit: AuditWriter | None = None) -> None:
-        """`audit`: where changes and saves are recorded (the gateway's trail; None: not recorded)."""
-        self.config, self.session, self.keys, self.lock, self.audit = config, session, keys, lock, audit
-        self.roles = Roles.load(config)
+                 service: CommandService) -> None:
+        self.config, self.session, self.keys = config, session, keys
         self.specs = params.registry(config)
         self.out = area.writer("params")
         self.out.load_current()
         if self.out.get("change") == 0:  # first start: the machine file's values (a restarted gateway keeps the block's)
             self._write(params.values_of(config, self.specs), 0)
         self.servo, self.motion = area.reader("servo"), area.reader("motion")
-        self.queries: queue.Queue = queue.Queue()
-        root = len(keys.param(""))
-        self.declared = [  # reads on the public keys; changes and saves on the sender's own keys
-            session.declare_queryable(keys.param("**"), lambda q: self.queries.put((str(q.key_expr)[root:], q, ""))),
-            session.declare_queryable(keys.params, lambda q: self.queries.put(("", q, ""))),
-            session.declare_queryable(keys.user_param("*", "**"), lambda q: self.queries.put(self._users(q))),
-            session.declare_queryable(keys.user_params("*"), lambda q: self.queries.put(("", q, keys.user_of(str(q.key_expr))))),
-        ]
-        self.worker = threading.Thread(target=self._serve, name="param-door", daemon=True)
-        self.worker.start()
+        name_of = self.name_of
+        service.serve(  # reads on the public keys; changes and saves on the sender's own keys
+            Route("param", keys.param("**"), self._read_one, read=True, lane="param", audit=True,
+                  what=lambda key: f"param {name_of(key)}"),
+            Route("params", keys.params, self._read_all, read=True, lane="param", audit=True, what=lambda _key: "params"),
+            Route("set_param", keys.user_param("*", "**"), self._change, SetParam, role="engineer", lock=True,
+                  lane="param", audit=True, what=lambda key: f"param {name_of(key)}"),
+            Route("save_params", keys.user_params("*"), lambda _request: self.save(), SaveParams, role="engineer",
+                  lock=True, lane="param", audit=True, what=lambda _key: "save params"),
+        )
 
-    def close(self) -> None:
-        for q in self.declared:
-            q.undeclare()
-        self.queries.put(None)
-        self.worker.join(APPLY_TIMEOUT_S + 1.0)
+    def name_of(self, key: str) -> str:
+        """The parameter a key names: `param/<name>` or `u/<user>/param/<name>`."""
+        if key.startswith(self.keys.param("")):
+            return key[len(self.keys.param("")):]
+        return key[len(self.keys.user_param(self.keys.user_of(key), "")):]
 
     # -- the block --------------------------------------------------------------------------------
 
@@ -81,70 +72,33 @@ class ParamDoor:
         self.out.set("change", seq)
         self.out.publish()
 
-    # -- serving ----------------------------------------------------------------------------------
+    # -- the routes -------------------------------------------------------------------------------
 
-    def _serve(self) -> None:
-        while (item := self.queries.get()) is not None:
-            name, query, user = item
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            station = station_of(query)  # read before the query is answered and dropped
-            try:
-                answer = self._answer(name, query, user)
-            except Exception as exc:  # a bug: the door stays open, the station learns what happened
-                log.exception("params: %r failed", name)
-                answer = Reply(False, f"param {name}: internal error in the gateway: {exc!r}")
-            if "*" in name:  # a reply must name one key: the list is at `params`
-                query.reply_err(zenoh.ZBytes(f"param/{name}: ask {self.keys.params} for every parameter".encode()))
-            elif isinstance(answer, str):  # a read that cannot be answered: the asker expects no Reply
-                query.reply_err(zenoh.ZBytes(answer.encode()))
-            else:
-                query.reply(query.key_expr, encode(answer), encoding=zenoh.Encoding.APPLICATION_JSON)
-            query.drop()
-            if self.audit is not None and payload and isinstance(answer, Reply):  # a change or a save, not a read
-                self.audit.record(user, station, f"param {name}" if name else "save params",
-                                  payload.decode("utf-8", errors="replace")[:2000], answer.ok, answer.reason)
-
-    def _users(self, query: Any) -> tuple[str, Any, str]:
-        key = str(query.key_expr)
-        user = self.keys.user_of(key)
-        return key[len(self.keys.user_param(user, "")):], query, user
-
-    def _answer(self, name: str, query: Any, user: str) -> msgspec.Struct | str:
-        """The answer to a query; a text when a read must be answered with an error instead.
-        `user`: who sent a change or a save (its own key); "" on the public, read-only keys."""
-        payload = query.payload.to_bytes() if query.payload is not None else b""
+    def _read_one(self, request: Request) -> ParamInfo | Reply:
+        name = self.name_of(request.key)
+        if request.payload:
+            return self._read_only(f"change {name}")
+        if "*" in name:  # a reply must name one key: the list is at `params`
+            raise CommandRefused(f"ask {self.keys.params} for every parameter")
         try:
-            if payload and not user:
-                what = "save the control parameters" if name == "" else f"change {name}"
-                return Reply(False, f"cannot {what} here: {self.keys.param('')}** and {self.keys.params} are read-only; "
-                                    f"an engineer sends it on u/<user>/ (OperatorStation.set_param, save_params)")
-            if name == "":
-                if payload:
-                    self._require(user, query, "save the control parameters")
-                    decode(payload, SaveParams)
-                    return self.save()
-                return self.list()
-            if not payload:
-                try:
-                    return self.info(params.find(self.specs, name), self.file_values())
-                except params.ParamError as exc:
-                    return str(exc)
-            spec = params.find(self.specs, name)
-            self._require(user, query, f"change {name}")
-            return self.set(spec, decode(payload, SetParam).value)
-        except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
-            return Reply(False, f"param {name}: malformed request: {exc}")
-        except (params.ParamError, LockRefused, AccessRefused) as exc:
-            return Reply(False, str(exc))
+            return self.info(params.find(self.specs, name), self.file_values())
+        except params.ParamError as exc:
+            raise CommandRefused(str(exc)) from None
 
-    def _require(self, user: str, query: Any, what: str) -> None:
-        """An engineer's station holding the command lock (the lock only where the gateway has one)."""
-        self.roles.require(user, "engineer", f"cannot {what}")
-        if self.lock is not None:
-            try:
-                self.lock.require(user, station_of(query))
-            except LockRefused as exc:
-                raise LockRefused(f"cannot {what}: {exc}") from None
+    def _read_all(self, request: Request) -> ParamList | Reply:
+        return self._read_only("save the control parameters") if request.payload else self.list()
+
+    def _read_only(self, what: str) -> Reply:
+        """A change or a save sent to the public, read-only keys: refused, saying where it goes."""
+        return Reply(False, f"cannot {what} here: {self.keys.param('')}** and {self.keys.params} are read-only; "
+                            f"an engineer sends it on u/<user>/ (OperatorStation.set_param, save_params)")
+
+    def _change(self, request: Request) -> Reply:
+        name = self.name_of(request.key)
+        try:
+            return self.set(params.find(self.specs, name), request.message.value)
+        except params.ParamError as exc:
+            raise CommandRefused(str(exc)) from None
 
     # -- what the door does -------------------------------------------------------------------------
 

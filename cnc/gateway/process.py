@@ -23,6 +23,7 @@ from ..bus.messages import AxisStatus, Position, ProgramProgress, Status, encode
 from .door import Door
 from ..config import MachineConfig
 from ..data.dataserver import SharedArea
+from ..data.injection import injected_bugs
 from ..data.fifo import SetpointFifo
 from ..hw.board import AxisIn, DigitalIn, DigitalOut
 from ..alarms import AlarmLevel
@@ -39,7 +40,7 @@ class Gateway:
 
     def __init__(
         self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, session: zenoh.Session, clock: str,
-        history_path: str = "", program_dir: str = "",
+        history_path: str, program_dir: str = "",
     ):
         self.config, self.area, self.fifo = config, area, fifo
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
@@ -62,14 +63,12 @@ class Gateway:
         self.period_s = 1.0 / config.gateway.status_rate_hz
         self.position_period_s = 1.0 / config.gateway.position_rate_hz
         self.position_seq = 0
-        self.door = None
-        if history_path:
-            self.door = Door(
-                config, session, self.keys, history_path, program_dir or str(Path(history_path).parent / "programs"),
-                machine_state=lambda: MachineState(self.logic.read_dict()["state"]).name, motion=self.motion.read_dict,
-            )
-        self.param_door = ParamDoor(config, session, self.keys, area, self.door.lock if self.door is not None else None,
-                                    self.door.audit if self.door is not None else None)
+        self.door = Door(
+            config, session, self.keys, history_path, program_dir or str(Path(history_path).parent / "programs"),
+            machine_state=lambda: MachineState(self.logic.read_dict()["state"]).name, motion=self.motion.read_dict,
+            inject=injected_bugs(area, config),
+        )
+        self.param_door = ParamDoor(config, session, self.keys, area, self.door.service)
         # last: declarations travel in order, so whoever sees this token can reach every door above
         self.token = session.liveliness().declare_token(self.keys.alive("gateway"))
         self.seq = 0
@@ -152,8 +151,6 @@ class Gateway:
         )
 
     def _stations(self) -> dict:
-        if self.door is None:
-            return {}
         lock = self.door.lock.state()
         return {"operator": lock.holder, "stations": lock.stations, "network_alive": bool(lock.holder) and lock.holder in lock.stations}
 
@@ -203,9 +200,7 @@ class Gateway:
                 time.sleep(delay)
 
     def close(self) -> None:
-        self.param_door.close()
-        if self.door is not None:
-            self.door.close()
+        self.door.close()
         self.publisher.undeclare()
         self.position_pub.undeclare()
         self.token.undeclare()

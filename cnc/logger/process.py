@@ -29,11 +29,12 @@ import zenoh
 
 from ..bus.keys import Keys
 from ..bus.messages import (
-    LogColumn, LogLive, LogRunData, LogRunSummary, LogSamples, LogStart, LogState, LogStop, Reply,
-    SchemaVersionError, decode, encode,
+    LogColumn, LogLive, LogRunData, LogRunSummary, LogSamples, LogStart, LogState, LogStop, Reply, decode, encode,
 )
+from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..config import MachineConfig
 from ..data.dataserver import SharedArea
+from ..data.injection import injected_bugs
 from ..data.layout import Proc
 from .logrun import LogRun, LogSettingError
 from .logvars import BlockSampler, log_variables, trace_columns
@@ -63,8 +64,16 @@ class Logger:
         hb = area.blocks["heartbeat"].array[0]
         self.beat = hb["beat"]
         hb["pid"][Proc.LOGGER] = os.getpid()
-        self.queryables = {what: session.declare_queryable(self.keys.log(what)) for what in ("state", "start", "stop")}
-        self.queryables["runs"] = session.declare_queryable(self.keys.log("runs/**"))
+        self.service = CommandService(session, self.keys, "logger", report_to_logic(session, self.keys, "logger"),
+                                      inject=injected_bugs(area, config))
+        self.service.serve(
+            Route("state", self.keys.log("state"), lambda _request: self.state(), read=True, what=lambda _key: "log state"),
+            Route("start", self.keys.log("start"), lambda request: self.start_run(request.message), LogStart,
+                  what=lambda _key: "log start"),
+            Route("stop", self.keys.log("stop"), lambda _request: self.stop_run("stopped on request"), LogStop,
+                  what=lambda _key: "log stop", bare=True),
+            Route("runs", self.keys.log("runs/**"), self._run_data, read=True, what=lambda key: key),
+        )
         self.live_pub = session.declare_publisher(self.keys.log("live"), encoding=zenoh.Encoding.APPLICATION_JSON,
                                                   congestion_control=zenoh.CongestionControl.DROP)
         self.token = session.liveliness().declare_token(self.keys.alive("logger"))
@@ -134,42 +143,20 @@ class Logger:
             self.stop_run("the logger stopped")
         if self._writer is not None:
             self._writer.join()
-        for q in self.queryables.values():
-            q.undeclare()
+        self.service.close()
         self.live_pub.undeclare()
         self.token.undeclare()
 
     # -- queries ------------------------------------------------------------------------------
 
     def handle_queries(self) -> None:
-        for what, queryable in self.queryables.items():
-            while (query := queryable.try_recv()) is not None:
-                try:
-                    answer = self._answer(what, query)
-                except Exception as exc:  # a bug: the logger goes on, the asker learns what happened
-                    log.exception("logger: %s failed", what)
-                    answer = Reply(False, f"log {what}: internal error in the logger: {exc!r}")
-                if answer is None:
-                    query.reply_err(zenoh.ZBytes(f"{query.key_expr}: no such log run".encode()))
-                else:
-                    query.reply(query.key_expr, encode(answer), encoding=zenoh.Encoding.APPLICATION_JSON)
-                query.drop()
+        self.service.poll()
 
-    def _answer(self, what: str, query) -> msgspec.Struct | None:  # noqa: ANN001 - a zenoh.Query
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        try:
-            if what == "state":
-                return self.state()
-            if what == "start":
-                return self.start_run(decode(payload or b"{}", LogStart))
-            if what == "stop":
-                if payload:  # a stop says nothing more than its key: no payload is a stop too
-                    decode(payload, LogStop)
-                return self.stop_run("stopped on request")
-        except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
-            return Reply(False, f"log {what}: malformed request: {exc}")
-        tail = str(query.key_expr).rsplit("/", 1)[-1]
-        return self.runs.get(int(tail)) if tail.isdigit() else None
+    def _run_data(self, request: Request) -> LogRunData:
+        tail = request.key.rsplit("/", 1)[-1]
+        if not tail.isdigit() or int(tail) not in self.runs:
+            raise CommandRefused("no such log run")
+        return self.runs[int(tail)]
 
     def state(self) -> LogState:
         summaries = [self._summary(data) for data in self.runs.values()]
@@ -186,7 +173,7 @@ class Logger:
         try:
             run = LogRun(msg.variables, self.variables.names, self.period_s, tick0, self.cfg.max_samples)
         except LogSettingError as exc:
-            return Reply(False, f"log start: {exc}")
+            raise CommandRefused(str(exc)) from None
         params = self._params()
         self.run_obj, self.seen = run, {s.name: 0 for s in msg.variables}
         self.run_info = {"run": self.next_run, "title": msg.title, "started_ns": time.time_ns(), "tick0": tick0,

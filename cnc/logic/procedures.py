@@ -17,15 +17,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping
 
 from cnc.bus.messages import ProcedureState, ProcedureStep
+from cnc.bus.service import CommandRefused
 from cnc.config import ProcedureConfig, ProcedureStepConfig
 from cnc.logic.conditions import Condition, ConditionError, compile_condition
 
 PENDING, AWAITED, DONE, TIMED_OUT = "pending", "awaited", "done", "timed_out"  # ProcedureStep.state
 IDLE, RUNNING, STOPPED = "idle", "running", "stopped"  # ProcedureState.state, with DONE, TIMED_OUT
-
-
-class ProcedureRefused(Exception):
-    """An operator or cycle command on procedures that may not be carried out now; the message says why."""
 
 
 class _Step:
@@ -129,8 +126,8 @@ class ProcedureRunner:
             assert self._proc is not None
             running = f"procedure {self._proc.id!r} ({self._proc.title})"
             if self._proc.id == procedure_id:
-                raise ProcedureRefused(f"{running} is already running")
-            raise ProcedureRefused(f"cannot start procedure {procedure_id!r}: {running} is running; stop it first")
+                raise CommandRefused(f"{running} is already running")
+            raise CommandRefused(f"cannot start procedure {procedure_id!r}: {running} is running; stop it first")
         self._proc = self._procedures[procedure_id]
         self._by_cycle = by_cycle
         self._step_states = [PENDING] * len(self._steps[procedure_id])
@@ -166,11 +163,11 @@ class ProcedureRunner:
     def confirm(self) -> None:
         """The operator confirms the awaited step; only for steps with `action = "confirm"`."""
         if not self.running:
-            raise ProcedureRefused("nothing to confirm: no procedure is running")
+            raise CommandRefused("nothing to confirm: no procedure is running")
         assert self._proc is not None
         step = self._steps[self._proc.id][self._awaited]
         if step.condition is not None:
-            raise ProcedureRefused(
+            raise CommandRefused(
                 f"step {self._awaited + 1} ({step.config.text}) of {self._proc.id!r} completes by its condition "
                 f"{step.condition.text!r}, not by confirmation"
             )
@@ -180,7 +177,7 @@ class ProcedureRunner:
     def stop(self) -> None:
         """The operator stops the procedure: the window shows it stopped, alarm procedure_stop is raised."""
         if not self.running:
-            raise ProcedureRefused("nothing to stop: no procedure is running")
+            raise CommandRefused("nothing to stop: no procedure is running")
         assert self._proc is not None
         at = self._where_awaited()
         if self._step_states[self._awaited] == AWAITED:
@@ -194,9 +191,9 @@ class ProcedureRunner:
         """Close the window after the procedure is done or stopped; the window goes idle."""
         if self.running:
             assert self._proc is not None
-            raise ProcedureRefused(f"cannot end procedure {self._proc.id!r} while it runs; stop it first")
+            raise CommandRefused(f"cannot end procedure {self._proc.id!r} while it runs; stop it first")
         if self._proc is None:
-            raise ProcedureRefused("no procedure window to end")
+            raise CommandRefused("no procedure window to end")
         self._proc = None
         self._status = IDLE
         self._step_states = []
@@ -208,7 +205,7 @@ class ProcedureRunner:
     def _known(self, procedure_id: str) -> None:
         if procedure_id not in self._procedures:
             known = ", ".join(self._procedures) or "(none configured)"
-            raise ProcedureRefused(f"unknown procedure {procedure_id!r}; known: {known}")
+            raise CommandRefused(f"unknown procedure {procedure_id!r}; known: {known}")
 
     def _await(self, index: int, now_s: float | None) -> None:
         self._awaited = index

@@ -41,11 +41,13 @@ from ..alarms import AlarmBook, AlarmHistory, AlarmLevel, Catalogue
 from ..alarms.recorder import Recorder
 from ..bus.keys import Keys
 from ..bus.messages import (
-    LOGIC_COMMANDS, MOTION_COMMANDS, AlarmEvent, GoTo, Hold, Home, Jog, JogRefresh, JogStop, LoadProgram, Override,
-    Reply, Resume, SchemaVersionError, Stamp, Stop, decode, encode,
+    LOGIC_COMMANDS, MOTION_COMMANDS, MOTION_VERBS, AlarmEvent, GoTo, Hold, Home, InternalError, Jog, JogRefresh, JogStop,
+    LoadProgram, Override, Reply, Resume, Stamp, Stop, encode,
 )
+from ..bus.service import DEFERRED, CommandRefused, CommandService, Request, Route
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
 from ..data.dataserver import SharedArea
+from ..data.injection import injected_bugs
 from ..hw.board import AxisIn, DigitalOut
 from ..interlock import StopCause
 from ..gateway.jobs import JobHistory, jobs_path
@@ -53,7 +55,7 @@ from ..data.layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, R
 from ..safety import fault_alarm
 from .cycle import AutoCycle
 from .pressure import PlcView, PressureWatch
-from .procedures import ProcedureRefused, ProcedureRunner
+from .procedures import ProcedureRunner
 from .requests import PlannerLink
 from .signals import PlcOutputs, SignalReader, Snapshot
 from .states import CyclePhase, MachineState, Mode
@@ -65,12 +67,6 @@ _MANUAL_MOTION = (PlannerState.JOGGING, PlannerState.MOVING)
 _MOVING = (PlannerState.RUNNING, PlannerState.HOLDING, PlannerState.STOPPING, PlannerState.HOMING,
            PlannerState.JOGGING, PlannerState.MOVING)
 PLC_RESET_PULSE_S = 0.5  # how long the PLC's reset coil stays on: several link cycles
-DEFERRED = "deferred"  # a command handler's answer: the reply follows when the planner has answered
-
-
-class Refused(Exception):
-    """A command the current mode or state does not allow; the message says why."""
-
 
 class Logic:
     """The soft-PLC's state and work; `run()` is its loop, `scan()` one pass."""
@@ -119,8 +115,16 @@ class Logic:
         )
         self.planner = PlannerLink(session, self.keys)
         self.cycle = AutoCycle(self)
-        self.queryables = {verb: session.declare_queryable(self.keys.logic(verb)) for verb in LOGIC_COMMANDS}
-        self.q_active = session.declare_queryable(self.keys.alarms_active)
+        # answered from the recorder's thread, after what a command raised is stored: whoever got an
+        # answer finds its entries in the history, and the scan still never waits for the disk
+        self.service = CommandService(session, self.keys, "logic", self._on_bug, send=self.recorder.submit,
+                                      inject=injected_bugs(area, config))
+        self.service.serve(
+            *(Route(verb, self.keys.logic(verb), self._command(verb), kind, motion=verb in MOTION_VERBS)
+              for verb, kind in LOGIC_COMMANDS.items()),
+            Route("alarms", self.keys.alarms_active, lambda _request: self.book.active(), read=True),
+            Route("bug", self.keys.logic("bug"), self._bug_reported, InternalError, motion=True),
+        )
         self.jobs = JobHistory(jobs_path(history_path))
         self.run_seen = (-1, -1)  # (run_seq, run_result) of the last run recorded or seen starting
         self.run_started_ns = 0
@@ -135,6 +139,7 @@ class Logic:
         self.last_error_seq = -1
         self.message = ""
         self.last_scan_ns = 0
+        self.now = 0.0  # the scan's clock, for the command handlers
         self.snap: Snapshot | None = None
         # ids of the interlock and prompt alarms whose cause is present: raised on the rising edge,
         # cleared on the falling one (a restarted logic picks up what the history says is active)
@@ -180,8 +185,8 @@ class Logic:
         now = self.clock()
         snap = self.snap = self.reader.snapshot()
         self.planner.poll()
-        self._serve_commands(snap, now)
-        self._serve_queries()
+        self.now = now
+        self.service.poll()
         signals = self.reader.signals(snap, self.state.name, self.mode.name)
         self._interlocks(snap, signals)
         self._losses(snap)
@@ -200,8 +205,7 @@ class Logic:
         self._record(self.scan_hist, self.last_scan_ns)
 
     def close(self) -> None:
-        for q in (*self.queryables.values(), self.q_active):
-            q.undeclare()
+        self.service.close()
         self.jobs.close()
         self.recorder.close()  # what is queued is stored and published first
         self.alarm_pub.undeclare()
@@ -210,26 +214,34 @@ class Logic:
         self.history.close()
 
     # -- commands ---------------------------------------------------------------------------
-    def _serve_commands(self, snap: Snapshot, now: float) -> None:
-        for verb, queryable in self.queryables.items():
-            while (query := queryable.try_recv()) is not None:
-                reply = self._answer(verb, query, snap, now)
-                if reply is not None:  # None: answered later, when the planner has answered
-                    self._reply(query, reply)
+    def _command(self, verb: str) -> Callable[[Request], Any]:
+        """The handler of `verb`: `_cmd_<verb>` on the scan's snapshot; a refusal is noted too."""
+        method = getattr(self, f"_cmd_{verb}")
 
-    def _answer(self, verb: str, query, snap: Snapshot, now: float) -> Reply | None:
-        try:
-            msg = decode(query.payload.to_bytes() if query.payload is not None else b"{}", LOGIC_COMMANDS[verb])
-        except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
-            return Reply(False, f"{verb}: malformed command: {exc}")
-        try:
-            result = getattr(self, f"_cmd_{verb}")(msg, snap, now, query)
-        except Refused as exc:
-            self._note(f"{verb} refused: {exc}")
-            return Reply(False, f"{verb}: {exc}")
-        if result == DEFERRED:
-            return None
-        return result if result is not None else Reply(True)
+        def handle(request: Request) -> Any:
+            try:
+                return method(request.message, self.snap, self.now, request)
+            except CommandRefused as exc:
+                self._note(f"{verb} refused: {exc}")
+                raise
+        return handle
+
+    def _on_bug(self, request: Request, exc: BaseException) -> None:
+        """A bug in one of the logic's handlers: the safe state first when it commands motion, then the alarm."""
+        detail = f"control logic: {request.what}: {exc!r}"
+        if request.motion:
+            self.fault("internal_error", detail)
+        else:
+            self._latch("internal_error", detail, "logic")
+
+    def _bug_reported(self, request: Request) -> None:
+        """Another process met a bug serving a request (`cnc.bus.service.report_to_logic`)."""
+        m: InternalError = request.message
+        detail = f"{m.process}: {m.what}: {m.detail}"
+        if m.motion:
+            self.fault("internal_error", detail)
+        else:
+            self._latch("internal_error", detail, m.process)
 
     def _stamp(self, command):
         """A motion command as the commander sends it: with its token and the current epoch."""
@@ -242,64 +254,65 @@ class Logic:
         self.command.set("epoch", self.command.get("epoch") + 1)
         self.command.publish()
 
-    def _forward(self, command, query, then: Callable[[Reply], None] | None = None, timeout_s: float | None = None) -> str:
-        """Ask the planner; the operator's query is answered with the planner's reply."""
+    def _forward(self, command, request: Request, then: Callable[[Reply], None] | None = None,
+                 timeout_s: float | None = None) -> object:
+        """Ask the planner; the operator's request is answered with the planner's reply."""
         command = self._stamp(command)
         def on_reply(reply: Reply) -> None:
             if then is not None:
                 then(reply)
             if not reply.ok:
                 self._note(reply.reason)
-            self._reply(query, reply)
+            request.answer(reply)
         self.planner.send(command, on_reply, timeout_s)
         return DEFERRED
 
     def _require_mode(self, mode: Mode, what: str) -> None:
         if self.mode != mode:
             self._tell("wrong_mode", f"{what} needs {mode.name} mode (the machine is in {self.mode.name})", "logic")
-            raise Refused(f"wrong operation mode: {what} needs {mode.name} (mode is {self.mode.name})")
+            raise CommandRefused(f"wrong operation mode: {what} needs {mode.name} (mode is {self.mode.name})")
 
     def _require_no_blocking(self, what: str) -> None:
         if self.book.blocking():
             alarms = ", ".join(f"{a.code} {a.text}" for a in self.book.active().alarms if _stops(a.level))
-            raise Refused(f"cannot {what} while alarms wait for reset: {alarms}")
+            raise CommandRefused(f"cannot {what} while alarms wait for reset: {alarms}")
 
     def _require_still(self, what: str) -> None:
         if self.state in (MachineState.RUNNING, MachineState.HOLD, MachineState.HOMING, MachineState.JOGGING):
-            raise Refused(f"cannot {what} while {self.state.name}")
+            raise CommandRefused(f"cannot {what} while {self.state.name}")
 
-    def _cmd_mode(self, msg, snap, now, query) -> None:
+    def _cmd_mode(self, msg, snap, now, request) -> None:
         try:
             mode = Mode[msg.mode.upper()]
         except KeyError:
-            raise Refused(f"mode {msg.mode!r} is not one of: {', '.join(m.name for m in Mode)}") from None
+            raise CommandRefused(f"mode {msg.mode!r} is not one of: {', '.join(m.name for m in Mode)}") from None
         if mode != self.mode:
             self._require_still("change the operation mode")
             if self.jet_test:
-                raise Refused("cannot change the operation mode during a jet test")
+                raise CommandRefused("cannot change the operation mode during a jet test")
             self.mode = mode
 
-    def _cmd_start(self, msg, snap, now, query) -> None:
+    def _cmd_start(self, msg, snap, now, request) -> None:
         self._require_mode(Mode.AUTO, "cycle start")
         if msg.cycles < 0:
-            raise Refused(f"cycles {msg.cycles} must be 0 (until stopped) or more")
+            raise CommandRefused(f"cycles {msg.cycles} must be 0 (until stopped) or more")
         self._require_no_blocking("start")
         if self.state not in (MachineState.READY, MachineState.STOPPED):
-            raise Refused(f"cannot start while {self.state.name}" + (
+            raise CommandRefused(f"cannot start while {self.state.name}" + (
                 ": switch the drives on and home the machine" if self.state == MachineState.IDLE else ""))
         if not snap.motion["program_name"]:
-            raise Refused("no program is loaded")
+            raise CommandRefused("no program is loaded")
         if self.procedures.running:
-            raise Refused(f"a procedure is running ({self.procedures.state().title}): end it first")
+            raise CommandRefused(f"a procedure is running ({self.procedures.state().title}): end it first")
         signals = self.reader.signals(snap, self.state.name, self.mode.name)
         broken = [b for b in ("front", "rear") if signals.get(f"plc.barrier_{b}_ok") is False]
         if broken:  # the cycle arms the barriers: it would stop at once
-            raise Refused(f"the {' and '.join(broken)} light barrier{'s are' if len(broken) > 1 else ' is'} interrupted")
+            raise CommandRefused(f"the {' and '.join(broken)} light barrier{'s are' if len(broken) > 1 else ' is'} interrupted")
         self.jet_test = False
         self.inhibit_release = True
         self.cycle.start(msg.cycles, now)
 
-    def _cmd_hold(self, msg, snap, now, query) -> str | None:
+    def _cmd_hold(self, msg, snap, now, request) -> str | None:
         """Hold is always passed on: a program holds on its path; a jog, go-to or homing stops."""
         if msg.why and "operator_lost" in self.book.catalogue:
             self._tell("operator_lost", msg.why[:200], "gateway")
@@ -308,18 +321,18 @@ class Logic:
             return None
         if snap.motion["state"] in (*_MANUAL_MOTION, PlannerState.HOMING):
             self._stop_epoch()
-        return self._forward(Hold(why=msg.why), query)
+        return self._forward(Hold(why=msg.why), request)
 
-    def _cmd_resume(self, msg, snap, now, query) -> str | None:
+    def _cmd_resume(self, msg, snap, now, request) -> str | None:
         self._require_no_blocking("resume")
         if self.cycle.held:
             self.cycle.resume(now)
             return None
         if self.cycle.active and snap.motion["state"] in (PlannerState.PAUSED, PlannerState.HELD, PlannerState.HOLDING):
-            return self._forward(Resume(), query)  # a program stop (M0/M1) or a feed hold at override 0 %
-        raise Refused(f"nothing to resume ({self.state.name})")
+            return self._forward(Resume(), request)  # a program stop (M0/M1) or a feed hold at override 0 %
+        raise CommandRefused(f"nothing to resume ({self.state.name})")
 
-    def _cmd_stop(self, msg, snap, now, query) -> str | None:
+    def _cmd_stop(self, msg, snap, now, request) -> str | None:
         """Stop is always passed on (the planner says whether anything moved); motion asked for
         before it is void."""
         self._stop_epoch()
@@ -327,13 +340,13 @@ class Logic:
             self.cycle.stop()
             self.planner.send(Stop())  # whatever the planner runs; the cycle's own stop is the answer
             return None
-        return self._forward(Stop(), query)
+        return self._forward(Stop(), request)
 
-    def _cmd_reset(self, msg, snap, now, query) -> Reply:
+    def _cmd_reset(self, msg, snap, now, request) -> Reply:
         """Reset: servo and watchdog faults that tripped before it, the PLC's faults, then every
         alarm whose cause has gone. Nothing, while the axes still run out a stop."""
         if snap.servo["state"] == ServoState.STOPPING or snap.hw["braking"]:
-            raise Refused("the axes are still stopping: reset once they stand still")
+            raise CommandRefused("the axes are still stopping: reset once they stand still")
         # the reset covers the trips this scan has seen, and no later one
         self.command.set("reset_tick", snap.hw["tick"])
         self.command.set("reset_trip_seq", snap.servo["trip_seq"])
@@ -350,7 +363,7 @@ class Logic:
             return Reply(True, "reset; still present: " + ", ".join(f"{a.code} {a.text}" for a in still))
         return Reply(True)
 
-    def _cmd_drives(self, msg, snap, now, query) -> None:
+    def _cmd_drives(self, msg, snap, now, request) -> None:
         if msg.on:
             self._require_no_blocking("switch the drives on")
         else:
@@ -359,92 +372,89 @@ class Logic:
         self.jet_test = False
         self.drives_wanted = msg.on
 
-    def _cmd_home(self, msg: Home, snap, now, query) -> str:
+    def _cmd_home(self, msg: Home, snap, now, request) -> str:
         self._require_mode(Mode.MANUAL, "homing")
         self._require_no_blocking("home")
         self.jet_test = False
-        return self._forward(msg, query)
+        return self._forward(msg, request)
 
-    def _cmd_jog(self, msg: Jog, snap, now, query) -> str:
+    def _cmd_jog(self, msg: Jog, snap, now, request) -> str:
         self._require_mode(Mode.MANUAL, "jog")
         self._require_no_blocking("jog")
         self.jet_test = False
-        return self._forward(msg, query)
+        return self._forward(msg, request)
 
-    def _cmd_jog_stop(self, msg: JogStop, snap, now, query) -> str:
+    def _cmd_jog_stop(self, msg: JogStop, snap, now, request) -> str:
         self._stop_epoch()
-        return self._forward(msg, query)
+        return self._forward(msg, request)
 
-    def _cmd_jog_refresh(self, msg: JogRefresh, snap, now, query) -> str:
-        return self._forward(msg, query)
+    def _cmd_jog_refresh(self, msg: JogRefresh, snap, now, request) -> str:
+        return self._forward(msg, request)
 
-    def _cmd_goto(self, msg: GoTo, snap, now, query) -> str:
+    def _cmd_goto(self, msg: GoTo, snap, now, request) -> str:
         self._require_mode(Mode.MANUAL, "go to position")
         self._require_no_blocking("move")
         self.jet_test = False
-        return self._forward(msg, query)
+        return self._forward(msg, request)
 
-    def _cmd_load(self, msg: LoadProgram, snap, now, query) -> str:
+    def _cmd_load(self, msg: LoadProgram, snap, now, request) -> str:
         if self.cycle.phase == CyclePhase.CUTTING:
-            raise Refused("cannot load a program while cutting: it is taken between cycles")
-        return self._forward(msg, query, timeout_s=self.config.planner.load_timeout_s)
+            raise CommandRefused("cannot load a program while cutting: it is taken between cycles")
+        return self._forward(msg, request, timeout_s=self.config.planner.load_timeout_s)
 
-    def _cmd_override(self, msg: Override, snap, now, query) -> str:
-        return self._forward(msg, query)
+    def _cmd_override(self, msg: Override, snap, now, request) -> str:
+        return self._forward(msg, request)
 
-    def _cmd_pump(self, msg, snap, now, query) -> None:
+    def _cmd_pump(self, msg, snap, now, request) -> None:
         self._require_mode(Mode.MANUAL, "pump on/off")
         if msg.on:
             self._require_no_blocking("start the pump")
             bar = self.config.pump.cut_pressure_bar if msg.pressure_bar is None else msg.pressure_bar
             if not 0.0 <= bar <= self.config.pump.cut_pressure_bar:
-                raise Refused(f"pressure_bar {bar:g} is out of range: 0 to {self.config.pump.cut_pressure_bar:g} bar")
+                raise CommandRefused(f"pressure_bar {bar:g} is out of range: 0 to {self.config.pump.cut_pressure_bar:g} bar")
             if not self.outputs.has("pump_on"):
-                raise Refused("this machine's PLC map has no pump_on output")
+                raise CommandRefused("this machine's PLC map has no pump_on output")
             self._set_pump(True, bar)
         else:
             if self.jet_test:
-                raise Refused("close the jet (jet test off) before stopping the pump")
+                raise CommandRefused("close the jet (jet test off) before stopping the pump")
             self._set_pump(False, 0.0)
 
-    def _cmd_jet_test(self, msg, snap, now, query) -> None:
+    def _cmd_jet_test(self, msg, snap, now, request) -> None:
         if not msg.on:
             self.jet_test = False
             return
         self._require_mode(Mode.MANUAL, "jet test")
         self._require_no_blocking("open the jet")
         if snap.servo["state"] != ServoState.HOLDING or snap.motion["state"] != PlannerState.IDLE:
-            raise Refused("the jet test needs the drives on and the axes at rest")
+            raise CommandRefused("the jet test needs the drives on and the axes at rest")
         if snap.servo["stop_causes"]:
-            raise Refused(f"the jet stays closed while {_causes_text(snap.servo['stop_causes'])}")
+            raise CommandRefused(f"the jet stays closed while {_causes_text(snap.servo['stop_causes'])}")
         need = self.config.pump.pierce_pressure_bar - self.config.pump.tolerance_bar
         pressure = self.reader.plc_value(snap, "pump_pressure")
         if pressure < need:
-            raise Refused(f"the pump is at {pressure:.0f} bar; the jet test needs at least {need:.0f} bar")
+            raise CommandRefused(f"the pump is at {pressure:.0f} bar; the jet test needs at least {need:.0f} bar")
         self.jet_test = True
 
-    def _cmd_acknowledge(self, msg, snap, now, query) -> None:
+    def _cmd_acknowledge(self, msg, snap, now, request) -> None:
         if msg.code is not None and not any(a.code == msg.code for a in self.book.active().alarms):
-            raise Refused(f"alarm {msg.code} is not active")
+            raise CommandRefused(f"alarm {msg.code} is not active")
         self.book.acknowledge(msg.code)
 
-    def _cmd_procedure_start(self, msg, snap, now, query) -> None:
+    def _cmd_procedure_start(self, msg, snap, now, request) -> None:
         self._procedure_call(lambda: self.procedures.start(msg.id))
 
-    def _cmd_procedure_confirm(self, msg, snap, now, query) -> None:
+    def _cmd_procedure_confirm(self, msg, snap, now, request) -> None:
         self._procedure_call(self.procedures.confirm)
 
-    def _cmd_procedure_stop(self, msg, snap, now, query) -> None:
+    def _cmd_procedure_stop(self, msg, snap, now, request) -> None:
         self._procedure_call(self.procedures.stop)
 
-    def _cmd_procedure_end(self, msg, snap, now, query) -> None:
+    def _cmd_procedure_end(self, msg, snap, now, request) -> None:
         self._procedure_call(self.procedures.end)
 
     def _procedure_call(self, call: Callable[[], Any]) -> None:
-        try:
-            call()
-        except ProcedureRefused as exc:
-            raise Refused(str(exc)) from None
+        call()  # a refusal (CommandRefused) goes to the asker as it is
         self._publish_procedure()
 
     # -- what the cycle needs (CycleHost) ---------------------------------------------------
@@ -484,7 +494,7 @@ class Logic:
             if self.procedures.running:
                 self.procedures.stop()
             self.procedures.start(procedure_id, by_cycle=True)
-        except ProcedureRefused as exc:
+        except CommandRefused as exc:
             return str(exc)
         self._publish_procedure()
         return ""
@@ -762,10 +772,6 @@ class Logic:
     def _procedure_alarm(self, alarm_id: str, detail: str) -> None:
         self._latch(alarm_id, detail, "procedure")
 
-    def _serve_queries(self) -> None:
-        while (query := self.q_active.try_recv()) is not None:
-            self._reply(query, self.book.active())
-
     def _record_jobs(self, snap: Snapshot) -> None:
         """Each program run into the job history when it ends (the planner's run counters say when)."""
         m = snap.motion
@@ -782,11 +788,6 @@ class Logic:
             ticks = max(0, m["run_end_tick"] - m["run_start_tick"])
             self.jobs.append(m["program_name"], m["program_hash"], self.run_started_ns or time.time_ns(), time.time_ns(),
                              RunResult(m["run_result"]).name, ticks * self.config.timing.period_s)
-
-    def _reply(self, query, message: msgspec.Struct) -> None:
-        """Answered from the recorder's thread, after what the command raised is stored: whoever got
-        an answer finds its entries in the history, and the scan still never waits for the disk."""
-        self.recorder.submit(lambda: _send_reply(query, message))
 
     def _note(self, text: str) -> None:
         self.message = text
@@ -828,7 +829,3 @@ _CAUSE_TEXT = {
 def _causes_text(causes: int) -> str:
     return ", ".join(text for cause, text in _CAUSE_TEXT.items() if causes & cause)
 
-
-def _send_reply(query, message: msgspec.Struct) -> None:
-    query.reply(query.key_expr, encode(message), encoding=zenoh.Encoding.APPLICATION_JSON)
-    query.drop()

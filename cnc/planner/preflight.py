@@ -20,7 +20,7 @@ from ..config import MachineConfig
 AXES = ("x", "y", "z")
 
 
-class PreflightRefusal(ValueError):
+class PreflightError(ValueError):
     """The program may not start; the message says why, with line and axis."""
 
     def __init__(self, message: str, line: int | None = None, axis: str | None = None) -> None:
@@ -29,10 +29,10 @@ class PreflightRefusal(ValueError):
 
 
 def preflight(segments: np.ndarray, config: MachineConfig, homed: dict[str, bool], program: str = "program") -> None:
-    """Raise PreflightRefusal unless every axis is homed and every segment stays within travel."""
+    """Raise PreflightError unless every axis is homed and every segment stays within travel."""
     missing = [a.upper() for a in config.axis_names if not homed.get(a, False)]
     if missing:
-        raise PreflightRefusal(
+        raise PreflightError(
             f"{program} cannot start: axis {', '.join(missing)} not homed (home the machine first)",
             axis=missing[0].lower(),
         )
@@ -45,7 +45,7 @@ def preflight(segments: np.ndarray, config: MachineConfig, homed: dict[str, bool
             used = (np.abs(lo[:, i]) > 0) | (np.abs(hi[:, i]) > 0)
             if used.any():
                 k = int(np.flatnonzero(used)[0])
-                raise PreflightRefusal(
+                raise PreflightError(
                     f"{program}:{int(segments['line'][k])}: moves along {axis.upper()}, an axis this machine does not have",
                     line=int(segments["line"][k]), axis=axis,
                 )
@@ -59,7 +59,7 @@ def preflight(segments: np.ndarray, config: MachineConfig, homed: dict[str, bool
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             value = lo[k, i] if below[k] else hi[k, i]
-            raise PreflightRefusal(
+            raise PreflightError(
                 f"{program}:{int(segments['line'][k])}: {axis.upper()} reaches {value:.3f} mm, outside the travel "
                 f"{a.travel_min_mm:g} to {a.travel_max_mm:g} mm",
                 line=int(segments["line"][k]), axis=axis,

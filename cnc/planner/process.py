@@ -42,7 +42,6 @@ import threading
 import time
 from pathlib import Path
 
-import msgspec
 import numpy as np
 import zenoh
 
@@ -52,24 +51,26 @@ from gcode.program import Program
 
 from ..bus.keys import Keys
 from ..bus.messages import (
-    MOTION_COMMANDS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Override, Reply, SchemaVersionError, decode,
-    encode,
+    MOTION_COMMANDS, MOTION_VERBS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Override, Reply,
 )
+from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..config import MachineConfig
 from ..data.dataserver import SharedArea
+from ..data.injection import injected_bugs
 from ..data.fifo import SetpointFifo
 from ..homing import Homing, HomingError, Push, Reference, Unhome
 from ..data.layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
 from ..params import registry, with_values
-from ..programs import ProgramRefused, read_program
+from ..programs import read_program
 from ..runtime.rt import collector_paused, leave_realtime
-from .preflight import PreflightRefusal, preflight
+from .preflight import PreflightError, preflight
 from .runner import ProgramRunner, RunState
 from .sections import move_steps, program_steps
 
 log = logging.getLogger(__name__)
 
+REALTIME = ("stop", "hold", "jog_stop", "jog_refresh")  # also served while a program is being prepared
 PLAN_AHEAD_S = 0.5  # motion planned this far ahead of the setpoints made, by the worker thread
 RELEASE_SLICE = 25  # sections of a replaced program freed a tick while idle: 1-2 ms of the interpreter
 
@@ -77,10 +78,6 @@ _RUN_STATES = {
     RunState.RUNNING: PlannerState.RUNNING, RunState.HOLDING: PlannerState.HOLDING, RunState.HELD: PlannerState.HELD,
     RunState.PAUSED: PlannerState.PAUSED, RunState.STOPPING: PlannerState.STOPPING,
 }
-
-
-class Refused(Exception):
-    """A command that may not be carried out now; the message says why."""
 
 
 class LoadedProgram:
@@ -115,7 +112,13 @@ class Planner:
         self.beat = hb["beat"]
         hb["pid"][Proc.PLANNER] = os.getpid()
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
-        self.queryables = {verb: session.declare_queryable(self.keys.planner(verb)) for verb in PLANNER_COMMANDS}
+        self.report_bug = report_to_logic(session, self.keys, "planner")
+        self.service = CommandService(session, self.keys, "planner", self._on_bug, inject=injected_bugs(area, config))
+        self.service.serve(*(
+            Route(verb, self.keys.planner(verb), self._command(verb), kind, motion=verb in MOTION_VERBS,
+                  lane="realtime" if verb in REALTIME else "main")
+            for verb, kind in PLANNER_COMMANDS.items()
+        ))
         self.token = session.liveliness().declare_token(self.keys.alive("planner"))
         self.loaded: LoadedProgram | None = None
         self.to_free: list[list] = []  # sections of replaced programs, freed a slice a tick while idle
@@ -209,44 +212,48 @@ class Planner:
     def close(self) -> None:
         self._stop_worker.set()
         self.worker.join(2.0)
-        for q in self.queryables.values():
-            q.undeclare()
+        self.service.close()
         self.token.undeclare()
 
     # -- commands ---------------------------------------------------------------------------
     def handle_commands(self) -> None:
-        for verb, queryable in self.queryables.items():
-            while (query := queryable.try_recv()) is not None:
-                reply = self._answer(verb, query)
-                query.reply(query.key_expr, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
-                query.drop()
+        self.service.poll()
 
-    def _answer(self, verb: str, query) -> Reply:
-        kind = PLANNER_COMMANDS[verb]
-        try:
-            msg = decode(query.payload.to_bytes() if query.payload is not None else b"{}", kind)
-        except (msgspec.ValidationError, msgspec.DecodeError, SchemaVersionError) as exc:
-            return Reply(False, f"{verb}: malformed command: {exc}")
-        try:
+    def _command(self, verb: str):
+        """The handler of `verb`: a motion command only with the commander's current stamp, then
+        `_cmd_<verb>`. While a start is being prepared, a stop or hold cancels it (and says so)."""
+        method = getattr(self, f"_cmd_{verb}")
+
+        def handle(request: Request) -> Reply | None:
+            msg = request.message
+            if verb in ("stop", "hold") and self.preparing_start:
+                self.start_cancelled = f"cancelled by a {verb} while it was being prepared"
+                return Reply(True, f"the start was {self.start_cancelled}")
             if isinstance(msg, MOTION_COMMANDS):
                 self._check_stamp(msg)
-            reply = getattr(self, f"_cmd_{verb}")(msg)
-        except Refused as exc:
-            return Reply(False, f"{verb}: {exc}")
-        except Exception as exc:  # a bug: the planner stays up, the motion stops, the reason is reported
-            log.exception("planner: %s failed", verb)
-            self._fail(f"{verb} failed: {exc!r}")
-            return Reply(False, f"{verb}: internal error: {exc!r}")
-        return reply if isinstance(reply, Reply) else Reply(True)
+            return method(msg)
+        return handle
+
+    def _on_bug(self, request: Request, exc: BaseException) -> None:
+        """A bug in a handler: when the command moves the machine, what runs stops on its path (as a
+        stop does; abandoned, when even that fails), and the logic is told, which brings the machine
+        to its safe state (jet off first) and raises the internal-error alarm."""
+        if request.motion and (self.runner is not None or self.homing is not None):
+            try:
+                self._cmd_stop(None)
+            except Exception:
+                log.exception("planner: the stop after a bug in %s failed too", request.what)
+                self._fail(f"{request.what}: internal error: {exc!r}", report=False)
+        self.report_bug(request, exc)
 
     def _check_stamp(self, msg) -> None:
         """Only the current commander's motion commands of its current epoch move the machine."""
         cmd = self.command_r.read_dict()
         stamp = msg.stamp
         if stamp is None or stamp.token != cmd["token"]:
-            raise Refused("not from the machine's commander (motion commands come from the control logic)")
+            raise CommandRefused("not from the machine's commander (motion commands come from the control logic)")
         if stamp.epoch != cmd["epoch"]:
-            raise Refused(f"issued before the last stop (epoch {stamp.epoch}, now {cmd['epoch']}): not carried out")
+            raise CommandRefused(f"issued before the last stop (epoch {stamp.epoch}, now {cmd['epoch']}): not carried out")
 
     def _state(self) -> PlannerState:
         return PlannerState(self.out.get("state"))
@@ -254,27 +261,25 @@ class Planner:
     def _require_idle(self, what: str) -> None:
         state = self._state()
         if state != PlannerState.IDLE:
-            raise Refused(f"cannot {what} while {state.name}")
+            raise CommandRefused(f"cannot {what} while {state.name}")
 
     def _require_servo(self, what: str, moving_ok: bool = False) -> dict:
         s = self.servo_r.read_dict()
         if s["state"] in (ServoState.FAULT, ServoState.STOPPING):
-            raise Refused(f"cannot {what}: the servo is tripped ({ServoFault(s['fault']).name}); reset first")
+            raise CommandRefused(f"cannot {what}: the servo is tripped ({ServoFault(s['fault']).name}); reset first")
         if s["state"] == ServoState.TRACKING and moving_ok:
             return s
         if s["state"] == ServoState.TRACKING:
-            raise Refused(f"cannot {what}: the axes are still moving")
+            raise CommandRefused(f"cannot {what}: the axes are still moving")
         if s["state"] != ServoState.HOLDING:
-            raise Refused(f"cannot {what}: the drives are not enabled")
+            raise CommandRefused(f"cannot {what}: the drives are not enabled")
         return s
 
     def _cmd_load(self, msg: LoadProgram) -> None:
         self._require_idle("load a program")
         path = msg.path
-        try:  # bounded, without blocking, regular text files only: the path comes from a command
-            data = read_program(path, self.config.gcode.max_program_bytes)
-        except ProgramRefused as exc:
-            raise Refused(str(exc)) from None
+        # bounded, without blocking, regular text files only: the path comes from a command
+        data = read_program(path, self.config.gcode.max_program_bytes)
         servo = self.servo_r.read_dict()
         start = tuple(servo["commanded_mm"])
         # on a homed machine a move beyond the travel is refused now (before it is planned), not
@@ -333,8 +338,8 @@ class Planner:
                     if check_travel:
                         preflight(program.segments, self.config, dict.fromkeys(self.config.axis_names, True), Path(path).name)
                     outcome.append(LoadedProgram(path, data, program, self.config, start))
-            except PreflightRefusal as exc:
-                outcome.append(Refused(str(exc)))
+            except PreflightError as exc:
+                outcome.append(CommandRefused(str(exc)))
             except BaseException as exc:  # raised again below, on the loop's thread
                 outcome.append(exc)
 
@@ -351,15 +356,7 @@ class Planner:
     def _serve_realtime(self) -> None:
         """While a program is prepared (seconds, for a large one): stop, hold and a jog's refresh are
         answered now. Nothing moves meanwhile; a stop or hold cancels the start being prepared."""
-        for verb in ("stop", "hold", "jog_stop", "jog_refresh"):
-            while (query := self.queryables[verb].try_recv()) is not None:
-                if verb in ("stop", "hold") and self.preparing_start:
-                    self.start_cancelled = f"cancelled by a {verb} while it was being prepared"
-                    reply = Reply(True, f"the start was {self.start_cancelled}")
-                else:
-                    reply = self._answer(verb, query)
-                query.reply(query.key_expr, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
-                query.drop()
+        self.service.poll(("realtime",))
 
     preparing_start = False
 
@@ -371,11 +368,11 @@ class Planner:
         try:
             return Interpreter(dialect, path).run(data)
         except GCodeError as exc:
-            raise Refused(exc.render()) from None
+            raise CommandRefused(exc.render()) from None
 
     def _cmd_start(self, msg) -> None:
         if self.loaded is None:
-            raise Refused("no program is loaded")
+            raise CommandRefused("no program is loaded")
         self._require_idle("start")
         servo = self._require_servo("start")
         start = tuple(servo["commanded_mm"])
@@ -387,14 +384,14 @@ class Planner:
             finally:
                 self.preparing_start = False
             if self.start_cancelled:
-                raise Refused(f"the start was {self.start_cancelled}")
+                raise CommandRefused(f"the start was {self.start_cancelled}")
             self._check_stamp(msg)  # a stop may have come while it was prepared
             servo = self._require_servo("start")
         homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
         try:
             preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
-        except PreflightRefusal as exc:
-            raise Refused(str(exc)) from None
+        except PreflightError as exc:
+            raise CommandRefused(str(exc)) from None
         runner = ProgramRunner(None, self.config, steps=self.loaded.steps)
         runner.step_ticks = self.loaded.step_ticks
         self._begin(runner, PlannerState.RUNNING)
@@ -410,16 +407,16 @@ class Planner:
             self.runner.stop()
             return Reply(True, f"{self.runner_kind.name.lower()} stopped")
         if self.runner is None or self.runner.state != RunState.RUNNING:
-            raise Refused(f"nothing to hold ({self._state().name})")
+            raise CommandRefused(f"nothing to hold ({self._state().name})")
         self.runner.hold()
         self._publish_state()
         return Reply(True)
 
     def _cmd_resume(self, _msg) -> None:
         if self.runner is None or self.runner.state not in (RunState.HOLDING, RunState.HELD, RunState.PAUSED):
-            raise Refused(f"nothing to resume ({self._state().name})")
+            raise CommandRefused(f"nothing to resume ({self._state().name})")
         if self.override <= 0.0 and self.runner_kind == PlannerState.RUNNING:
-            raise Refused("the feed override is 0 %: raise it before resuming")
+            raise CommandRefused("the feed override is 0 %: raise it before resuming")
         # the hold's last setpoints may still be running out: what resume adds follows them
         self._require_servo("resume", moving_ok=True)
         self.runner.resume()
@@ -431,14 +428,14 @@ class Planner:
             self._abort_homing("stopped by the operator")
             return Reply(True)
         if self.runner is None:
-            raise Refused("nothing to stop: nothing moves")
+            raise CommandRefused("nothing to stop: nothing moves")
         self.runner.stop()
         self._publish_state()
         return Reply(True)
 
     def _cmd_override(self, msg: Override) -> None:
         if not (math.isfinite(msg.percent) and 0.0 <= msg.percent <= 200.0):
-            raise Refused(f"override {msg.percent:g} % is out of range: 0 to 200 %")
+            raise CommandRefused(f"override {msg.percent:g} % is out of range: 0 to 200 %")
         self.override = msg.percent / 100.0
         if self.runner is not None and self.runner_kind == PlannerState.RUNNING:
             held = self.runner.state
@@ -452,29 +449,29 @@ class Planner:
     def _cmd_jog(self, msg: Jog) -> None:
         axis = msg.axis.lower()
         if axis not in self.config.axis:
-            raise Refused(f"no axis {msg.axis!r} on this machine (axes: {', '.join(self.config.axis_names)})")
+            raise CommandRefused(f"no axis {msg.axis!r} on this machine (axes: {', '.join(self.config.axis_names)})")
         self._require_idle("jog")
         servo = self._require_servo("jog")
         a = self.config.axis[axis]
         i = self.config.axis_names.index(axis)
         speed = abs(msg.velocity_mm_s) or self.config.planner.jog_velocity_mm_s
         if not math.isfinite(speed) or speed > a.max_velocity_mm_s:
-            raise Refused(f"jog speed {speed:g} mm/s is out of range: up to {a.max_velocity_mm_s:g} mm/s for {axis.upper()}")
+            raise CommandRefused(f"jog speed {speed:g} mm/s is out of range: up to {a.max_velocity_mm_s:g} mm/s for {axis.upper()}")
         here = list(servo["commanded_mm"])
         homed = bool(servo["homed_mask"] >> i & 1)
         travel = f"the travel {a.travel_min_mm:g} to {a.travel_max_mm:g} mm"
         if msg.distance_mm is not None:
             if not math.isfinite(msg.distance_mm) or msg.distance_mm == 0.0:
-                raise Refused(f"jog distance {msg.distance_mm!r} must be a non-zero number of mm")
+                raise CommandRefused(f"jog distance {msg.distance_mm!r} must be a non-zero number of mm")
             target = here[i] + msg.distance_mm
             if homed and _beyond(a, target) > max(a.soft_limit_tolerance_mm, _beyond(a, here[i])):
-                raise Refused(f"{axis.upper()} would reach {target:.3f} mm, outside {travel}")
+                raise CommandRefused(f"{axis.upper()} would reach {target:.3f} mm, outside {travel}")
         else:
             direction = math.copysign(1.0, msg.velocity_mm_s) if msg.velocity_mm_s else 1.0
             if homed:
                 target = a.travel_max_mm if direction > 0 else a.travel_min_mm
                 if (target - here[i]) * direction <= 0.0:
-                    raise Refused(f"{axis.upper()} is at {here[i]:.3f} mm, at or beyond the end of {travel} that way: "
+                    raise CommandRefused(f"{axis.upper()} is at {here[i]:.3f} mm, at or beyond the end of {travel} that way: "
                                   f"jog {'negative' if direction > 0 else 'positive'}")
             else:  # no soft limits before homing: the hard limit switch is what stops it
                 target = here[i] + direction * 2.0 * (a.travel_max_mm - a.travel_min_mm)
@@ -486,12 +483,12 @@ class Planner:
 
     def _cmd_jog_stop(self, _msg) -> None:
         if self.runner is None or self.runner_kind != PlannerState.JOGGING:
-            raise Refused(f"not jogging ({self._state().name})")
+            raise CommandRefused(f"not jogging ({self._state().name})")
         self.runner.stop()
 
     def _cmd_jog_refresh(self, _msg: JogRefresh) -> None:
         if not (self.runner is not None and self.runner_kind == PlannerState.JOGGING and self.jog_continuous):
-            raise Refused(f"no continuous jog to refresh ({self._state().name})")
+            raise CommandRefused(f"no continuous jog to refresh ({self._state().name})")
         self._refreshed()
 
     def _refreshed(self) -> None:
@@ -517,17 +514,17 @@ class Planner:
         for name, value in msg.position_mm.items():
             axis = name.lower()
             if axis not in self.config.axis:
-                raise Refused(f"no axis {name!r} on this machine (axes: {', '.join(self.config.axis_names)})")
+                raise CommandRefused(f"no axis {name!r} on this machine (axes: {', '.join(self.config.axis_names)})")
             i = self.config.axis_names.index(axis)
             a = self.config.axis[axis]
             if not servo["homed_mask"] >> i & 1:
-                raise Refused(f"axis {axis.upper()} is not homed: home it before moving to a position")
+                raise CommandRefused(f"axis {axis.upper()} is not homed: home it before moving to a position")
             if not math.isfinite(value) or not a.travel_min_mm <= value <= a.travel_max_mm:
-                raise Refused(f"{axis.upper()}{value:g} is outside the travel {a.travel_min_mm:g} to {a.travel_max_mm:g} mm")
+                raise CommandRefused(f"{axis.upper()}{value:g} is outside the travel {a.travel_min_mm:g} to {a.travel_max_mm:g} mm")
             end[i] = float(value)
         feed = math.inf if msg.feed_mm_s is None else msg.feed_mm_s
         if not feed > 0.0:
-            raise Refused(f"feed {msg.feed_mm_s!r} mm/s must be positive")
+            raise CommandRefused(f"feed {msg.feed_mm_s!r} mm/s must be positive")
         self._manual(here, end, feed, PlannerState.MOVING)
 
     def _cmd_home(self, msg: Home) -> None:
@@ -536,7 +533,7 @@ class Planner:
         axes = [a.lower() for a in msg.axes] or list(self.config.axis_names)
         for a in axes:
             if a not in self.config.axis:
-                raise Refused(f"no axis {a!r} on this machine (axes: {', '.join(self.config.axis_names)})")
+                raise CommandRefused(f"no axis {a!r} on this machine (axes: {', '.join(self.config.axis_names)})")
         self.homing_obj = Homing(self.config, self.hw_r.read_dict, self.servo_r.read_dict)
         self.homing = self.homing_obj.steps(axes)
         self.waiting_for = None

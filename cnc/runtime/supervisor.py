@@ -554,7 +554,8 @@ class Supervisor:
 
     def set_sim(self, **values: Any) -> None:
         """Change the simulated environment: estop_pressed, doors_open, mains_off, drive_fault_mask, friction_scale,
-        planner_stall (the planner produces nothing: the FIFO runs dry)."""
+        planner_stall (the planner produces nothing: the FIFO runs dry), limit_switch_mask, inject_bug
+        ("<process>/<verb>,...": those request handlers raise, `cnc.data.injection`)."""
         for key, value in values.items():
             if key not in self.sim.layout.index:
                 raise ValueError(f"unknown simulated input {key!r} (known: {', '.join(self.sim.layout.index)})")

@@ -43,7 +43,7 @@ from ..hw.board import DigitalOut
 from ..data.layout import PlannerState, RunResult, ServoState
 from ..logic.states import CyclePhase, MachineState
 from ..runtime.supervisor import Supervisor, SupervisorError
-from .operator import Refused, ask, logic_block, press_button_when_asked, reset_until_clear
+from .operator import ScriptError, ask, logic_block, press_button_when_asked, reset_until_clear
 
 POSITION_TOLERANCE_MM = 0.005
 
@@ -189,7 +189,7 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
                   f"events over Zenoh", flush=True)
             if counter.value == 0:
                 errors.append("no status message reached the subscriber")
-        except (SupervisorError, Refused, TimeoutError) as exc:
+        except (SupervisorError, ScriptError, TimeoutError) as exc:
             errors.append(str(exc))
         finally:
             stop.set()

@@ -30,12 +30,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from plc_link.sim_model import PlantTimes
 
 from ..alarms import AlarmHistory
 from ..brake import stop_distance_bound_mm
-from ..bus.messages import CycleStart, Override, Resume, Stop
+from ..bus.keys import Keys
+from ..bus.messages import CycleStart, Hold, Override, Resume, Stop
+from ..bus.operator import OperatorStation
+from ..bus.session import open_client
 from ..data.layout import ServoFault, ServoState
 from ..hw.board import DigitalOut
 from ..logic.states import CyclePhase, MachineState
@@ -127,6 +131,46 @@ def _override(percent: float) -> Callable[[Supervisor], None]:
     return lambda sup: sup.logic.request(Override(percent))
 
 
+def _bug(where: str, command) -> Callable[[Supervisor], None]:  # noqa: ANN001 - a command message
+    """A bug in the handler `where` ("<process>/<verb>"), met by `command` sent as the commander's
+    own station would: the reply must say internal error (else the injection missed)."""
+    def inject(sup: Supervisor) -> None:
+        sup.set_sim(inject_bug=where)
+        if where.startswith("gateway/"):
+            reply = _station(sup).request(command)
+        else:
+            reply = sup.logic.request(command)
+        if reply.ok or "internal error" not in reply.reason:
+            raise RuntimeError(f"the bug injected into {where} was not met: {reply}")
+    return inject
+
+
+_STATIONS: dict[int, tuple[Any, OperatorStation]] = {}  # per controller: a station holding the lock
+
+
+def _station(sup: Supervisor) -> OperatorStation:
+    """An operator station on the controller's network endpoint, holding the command lock (kept
+    until the bug is cleared: its loss would be one more event in the middle of the stop)."""
+    if id(sup) not in _STATIONS:
+        port = sup.config.zenoh.listen[0].rsplit(":", 1)[1]
+        session = open_client([f"tcp/127.0.0.1:{port}"])
+        station = OperatorStation(session, Keys(sup.config.zenoh.key_prefix, sup.config.machine.name), "fault-injection")
+        _STATIONS[id(sup)] = (session, station)
+    station = _STATIONS[id(sup)][1]
+    reply = station.take_lock()
+    if not reply.ok:
+        raise RuntimeError(f"fault injection: the command lock: {reply.reason}")
+    return station
+
+
+def _bug_cleared(sup: Supervisor) -> None:
+    sup.set_sim(inject_bug="")
+    if id(sup) in _STATIONS:
+        session, station = _STATIONS.pop(id(sup))
+        station.close()
+        session.close()
+
+
 def catalogue() -> list[Fault]:
     """Every fault of the issue, in the order the tests inject them (the hardware server last:
     the controller cannot run without it). Those the controller learns of in wall time (through the
@@ -156,6 +200,13 @@ def catalogue() -> list[Fault]:
         Fault("FIFO starved (planner stalled)", sim(planner_stall=1), sim(planner_stall=0), "fifo_underrun", 50.0,
               ServoFault.UNDERRUN),
         Fault("override 0 %", _override(0.0), _nothing, "feed_hold", 500.0, hold=True),
+        # a bug in a request handler that commands motion (cnc.bus.service): the process's safe state, the
+        # internal-error alarm, the door goes on serving; in each process that serves such requests
+        Fault("bug in the gateway's override", _bug("gateway/override", Override(100.0)), _bug_cleared, "internal_error",
+              500.0),
+        Fault("bug in the logic's hold", _bug("logic/hold", Hold()), _bug_cleared, "internal_error", 500.0),
+        Fault("bug in the planner's override", _bug("planner/override", Override(100.0)), _bug_cleared, "internal_error",
+              500.0),
         Fault("kill -9 gateway", _kill("gateway"), _nothing, "process_lost", 500.0, process="gateway"),
         Fault("kill -9 logger", _kill("logger"), _nothing, "process_lost", 50.0, process="logger"),
         Fault("kill -9 plc_link", _kill("plc_link"), _nothing, "process_lost", 50.0, process="plc_link"),

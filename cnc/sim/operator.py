@@ -21,7 +21,7 @@ from ..logic.states import MachineState, Mode
 from ..runtime.supervisor import Supervisor
 
 
-class Refused(RuntimeError):
+class ScriptError(RuntimeError):
     """The controller refused a command the script needed; the message says which and why."""
 
 
@@ -33,11 +33,11 @@ def logic_block(sup: Supervisor) -> dict:
 def ask(sup: Supervisor, msg: msgspec.Struct, what: str, retry_s: float = 20.0) -> None:
     """Send `msg` to the control logic until it is accepted within `retry_s` (a restarted logic
     may not answer yet, a cause that has just gone may still be seen by the next scan), else
-    TimeoutError with the last reason; with `retry_s` 0, once: Refused with its reason."""
+    TimeoutError with the last reason; with `retry_s` 0, once: ScriptError with its reason."""
     if retry_s <= 0.0:
         reply = sup.logic.request(msg)
         if not reply.ok:
-            raise Refused(f"{what} refused: {reply.reason}")
+            raise ScriptError(f"{what} refused: {reply.reason}")
         return
     reasons: list[str] = []
 
@@ -56,10 +56,10 @@ def ask(sup: Supervisor, msg: msgspec.Struct, what: str, retry_s: float = 20.0) 
 
 
 def ask_planner(sup: Supervisor, msg: msgspec.Struct, what: str) -> None:
-    """Send `msg` to the planner itself (a controller without the control logic); Refused unless accepted."""
+    """Send `msg` to the planner itself (a controller without the control logic); ScriptError unless accepted."""
     reply = sup.planner.request(msg)
     if not reply.ok:
-        raise Refused(f"{what} refused: {reply.reason}")
+        raise ScriptError(f"{what} refused: {reply.reason}")
 
 
 def press_button_when_asked(sup: Supervisor, until: Callable[[], bool], timeout_s: float, what: str) -> None:

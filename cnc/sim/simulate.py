@@ -39,7 +39,7 @@ from ..machine_dialect import dialect_for
 from ..planner.measure import ProgrammedPath, peaks
 from ..planner.path import elements_from_program, sample
 from ..runtime.supervisor import MOTION_ONLY, Supervisor, SupervisorError
-from .operator import Refused, ask_planner as _ask_planner
+from .operator import ScriptError, ask_planner as _ask_planner
 
 CHUNK_TICKS = 20_000  # ticks per step of the clock: well within the trace ring
 SETTLE_S = 0.2  # recorded after the last setpoint: the table comes to rest
@@ -61,7 +61,7 @@ class SimulationResult:
 
 
 def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
-    """Home, load, run; return the figures. Raises Refused with the planner's reason on refusal.
+    """Home, load, run; return the figures. Raises ScriptError with the planner's reason on refusal.
     `config` should listen on a port of its own (see `run_cli`)."""
     dt = config.timing.period_s
     with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
@@ -188,7 +188,7 @@ def run_cli(program: str, machine: str, json_out: str | None, plot_out: str | No
     config = load_machine(machine, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"]})
     try:
         result = simulate(program, config)
-    except (SimulationError, Refused, SupervisorError, TimeoutError) as exc:
+    except (SimulationError, ScriptError, SupervisorError, TimeoutError) as exc:
         print(f"waterjet simulate: {exc}", file=err)
         return 1
     report(result, out)
