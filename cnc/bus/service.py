@@ -244,7 +244,7 @@ class CommandService:
             self.on_bug(request, exc)
         except Exception:
             log.exception("%s: could not even report the bug in %s", self.process, request.what)
-        safe = "; the machine was brought to its safe state" if request.motion else ""
+        safe = "; the machine is brought to its safe state" if request.motion else ""
         return _Declined(f"{request.what}: internal error in the {self.process}: {exc!r}{safe} "
                         "(alarm internal_error; the controller log has the stack)")
 
