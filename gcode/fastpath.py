@@ -1,8 +1,8 @@
 """Fast path: runs of plain motion lines interpreted in bulk with numpy.
 
 Most of a CAM program is lines like `G1 X12.5 Y7.25` or `X13 Y8 F1200`: one motion code
-(G0-G3) at most, then X/Y/Z/I/J/R/F words with plain numbers, no comments, parameters or
-expressions. Outside subroutines and inverse-time feed, such a run is interpreted as arrays: the words are cut out of the text by two regular expressions,
+(G0-G3) at most, then X/Y/Z/I/J/R/F words with plain numbers, no parameters or expressions, and
+no comments but whole-line ones that do nothing (a part's name). Outside subroutines and inverse-time feed, such a run is interpreted as arrays: the words are cut out of the text by two regular expressions,
 modal values (motion code, feed, coordinates) are carried forward with an index trick,
 offsets and units applied, arc centres and radius checks computed for all arcs at once.
 With kerf compensation on, the moves computed in bulk then pass one by one through the
@@ -34,37 +34,87 @@ if TYPE_CHECKING:
 
 # A character outside these ends a plain run; the run's structure is then checked in bulk.
 _NOT_PLAIN = re.compile(r"[^ \t\n0-9.+\-nNgGxXyYzZfFiIjJrRmMpPdD]")
+# A line that is only a comment, and not one that does something (MSG, DEBUG, PRINT, LOG...,
+# a word and a comma): a CAM post writes one per part; it stays inside a bulk run as a blank line.
+_QUIET_COMMENT = re.compile(r"[ \t]*\((?![ \t]*[A-Za-z]+[ \t]*,)[^()\n]*\)[ \t]*")
+_QUIET_COMMENT_LINES = re.compile(r"(?m)^[ \t]*\((?![ \t]*[A-Za-z]+[ \t]*,)[^()\n]*\)[ \t]*$")
 _LETTERS_TO_SPACES = str.maketrans({c: " " for c in "ngxyzfijrmpd\n\t"})
 _KERF_CODES = (40.0, 41.0, 42.0, 41.1, 42.1)
 MIN_RUN = 8  # shorter runs are not worth the set-up: the general path takes them
 MAX_RUN = 20_000  # bounded arrays per run: memory stays flat, the set-up is still negligible
+WINDOW0 = 64  # lines a run looks at after a line the general path took; doubled while runs fill it
 _TWO_PI = 2.0 * math.pi
 
 
 class FastPath:
-    """Bulk interpretation of plain-motion runs for one `Interpreter`."""
+    """Bulk interpretation of plain-motion runs for one `Interpreter`.
+
+    The work is linear in the program whatever its shape: a run looks at a window of lines no
+    larger than twice what the previous run took (at least WINDOW0, at most MAX_RUN), so a line
+    that needs the general path costs that line and a bounded window, never a pass over the
+    rest of the program (converting up to MAX_RUN lines again after every such line made a nest
+    whose parts each have one quadratic: 600 parts 12 s)."""
 
     def __init__(self, interp: "Interpreter", lines: "SourceLines") -> None:
         self.ip = interp
         self.text = lines.text
         self.starts = lines.starts
         self.skip_until = 0  # lines before this index were judged not worth a bulk run
+        self.window = WINDOW0
+        self.converted = 0  # characters converted in bulk: the fast path's work, for the linearity tests
+        self.taken = 0  # lines interpreted in bulk (the rest went through the general path)
+        self.failed_at: int | None = None  # set by _bulk: the first line of its run the general path must take
+        self.cut_short = False  # set by _bulk: the run ended at a kerf stretch still open at the window's end
 
     def run(self, pc: int, end: int) -> int:
         """Interpret lines pc.. in bulk if they start a long enough plain run; return how many were taken."""
         ip = self.ip
         if pc < self.skip_until or ip.inverse_time or ip.frames or ip.rotated:
             return 0
-        stop = min(end, pc + MAX_RUN)
-        m = _NOT_PLAIN.search(self.text, int(self.starts[pc]), int(self.starts[stop]))
-        run_end = stop if m is None else int(np.searchsorted(self.starts, m.start(), side="right")) - 1
-        if run_end - pc < MIN_RUN:
+        window, shrinking = self.window, False
+        while True:
+            stop = min(end, pc + window)
+            run_end, quiet = self._plain_until(pc, stop)
+            if run_end - pc < MIN_RUN:
+                return 0
+            chunk = self.text[self.starts[pc] : self.starts[run_end]]
+            if quiet:  # whole-line comments that do nothing: blank lines to the bulk path
+                chunk = _QUIET_COMMENT_LINES.sub("", chunk)
+            if not chunk.isascii():
+                self.skip_until = run_end
+                return 0
+            self.failed_at, self.cut_short = None, False
+            self.converted += len(chunk)
+            taken = self._bulk(pc, run_end - pc, chunk.lower())
+            if taken:
+                self.window = min(MAX_RUN, max(WINDOW0, 2 * taken))
+                self.taken += taken
+                return taken
+            if self.cut_short and run_end == stop < end and window < MAX_RUN and not shrinking:
+                window = min(MAX_RUN, 2 * window)  # a contour longer than the window: look further
+                continue
+            self.window = WINDOW0
+            if self.failed_at is not None:  # the general path takes the lines up to that one
+                self.skip_until = pc + self.failed_at + 1
+            elif run_end - pc >= 2 * MIN_RUN:  # a line somewhere breaks the plain form: the first half
+                window, shrinking = (run_end - pc) // 2, True
+                continue
+            else:
+                self.skip_until = pc + 1
             return 0
-        chunk = self.text[self.starts[pc] : self.starts[run_end]]
-        taken = self._bulk(pc, run_end - pc, chunk.lower()) if chunk.isascii() else 0
-        if not taken:
-            self.skip_until = pc + 1 if chunk.isascii() else run_end
-        return taken
+
+    def _plain_until(self, pc: int, stop: int) -> tuple[int, bool]:
+        """The first line in pc..stop that is not plain (stop when none), and whether plain
+        lines before it include quiet whole-line comments."""
+        text, starts = self.text, self.starts
+        pos, end_pos, quiet = int(starts[pc]), int(starts[stop]), False
+        while (m := _NOT_PLAIN.search(text, pos, end_pos)) is not None:
+            line = int(np.searchsorted(starts, m.start(), side="right")) - 1
+            line_end = int(starts[line + 1]) - 1  # its newline
+            if text[m.start()] != "(" or not _QUIET_COMMENT.fullmatch(text, int(starts[line]), line_end):
+                return line, quiet
+            quiet, pos = True, line_end + 1
+        return stop, quiet
 
     # -----------------------------------------------------------------------------------
     def _bulk(self, first: int, nl: int, low: str) -> int:
@@ -149,6 +199,7 @@ class FastPath:
         if limit >= MIN_RUN and not np.isnan(kc[:limit]).all():
             limit, stretches = self._stretches(limit, kc, dw, has_axis, motion, mc, is_dwell)
         if limit < MIN_RUN:
+            self.failed_at = limit
             return 0
         # end points in machine mm
         units = ip.units
@@ -176,6 +227,7 @@ class FastPath:
             if bad is not None:
                 limit = int(idx[bad])
                 if limit < MIN_RUN:
+                    self.failed_at = limit
                     return 0
                 keep_seg = idx < limit
                 idx, kind, cw, starts, e, center = idx[keep_seg], kind[keep_seg], cw[keep_seg], starts[keep_seg], e[keep_seg], center[keep_seg]
@@ -184,6 +236,7 @@ class FastPath:
         if stretches is not None and len(idx):
             comp, limit = self._compensate(stretches, limit, idx, kind, starts, e, center, cw)
             if comp is None:
+                self.failed_at = limit
                 return 0
             keep_seg = idx < limit
             fmm = fmm[keep_seg][comp.source]
@@ -238,6 +291,7 @@ class FastPath:
                 return L, out  # no or negative kerf: the per-move path knows what that means
             open_ = (L, side, diameter / 2.0)
         if open_ is not None:
+            self.cut_short = limit == len(kc)  # open at the window's end: a longer window may close it
             return open_[0], out
         return limit, out
 

@@ -11,6 +11,7 @@ repeat) moves a program counter over the lines; the first error stops interpreta
 
 from __future__ import annotations
 
+import bisect
 import math
 import re
 import time
@@ -197,6 +198,11 @@ class Interpreter:
             self._olines[i] = ow
             self._by_label.setdefault(ow.label, []).append((i, ow.keyword))
         self._do_end: dict[int, int] = {}  # `while` closing a `do` -> that `do`
+        self._do_close: dict[int, int] = {}  # and back: `do` -> its closing `while`
+        # the lines of each label's O-words, sorted: a search from a line starts by bisection, so
+        # a label used once per part (o100 if ... in a nest) costs no pass over all its uses
+        self._label_lines = {label: [i for i, _ in entries] for label, entries in self._by_label.items()}
+        self.oword_steps = 0  # O-word entries looked at by the searches (the linearity tests count them)
         for label, entries in self._by_label.items():
             loops: list[tuple[str, int]] = []
             for i, kw in entries:
@@ -205,6 +211,7 @@ class Interpreter:
                 elif kw == "while":
                     if loops and loops[-1][0] == "do":
                         self._do_end[i] = loops.pop()[1]
+                        self._do_close[self._do_end[i]] = i
                     else:
                         loops.append(("while", i))
                 elif kw in ("endwhile", "endrepeat") and loops:
@@ -227,8 +234,11 @@ class Interpreter:
 
     def _find(self, label: str, after: int, keywords: tuple[str, ...], what: str) -> tuple[int, str]:
         """The first O-word of `label` after line index `after` whose keyword is in `keywords`."""
-        for i, kw in self._by_label.get(label, ()):
-            if i > after and kw in keywords:
+        entries = self._by_label.get(label, ())
+        for k in range(bisect.bisect_right(self._label_lines.get(label, ()), after), len(entries)):
+            i, kw = entries[k]
+            self.oword_steps += 1
+            if kw in keywords:
                 return i, kw
         raise GCodeError(f"o<{label}>: no matching {what}", code="o-word", line=after + 1, column=1)
 
@@ -307,19 +317,23 @@ class Interpreter:
             cur, cond_ow = nxt, self._olines[nxt]
 
     def _find_back(self, label: str, pc: int, keyword: str) -> int:
-        cands = [i for i, kw in self._by_label.get(label, ()) if i < pc and kw == keyword]
-        if not cands:
-            raise GCodeError(f"o<{label}> end{keyword} without {keyword}", code="o-word", line=pc + 1, column=1)
-        return cands[-1]
+        entries = self._by_label.get(label, ())
+        for k in range(bisect.bisect_left(self._label_lines.get(label, ()), pc) - 1, -1, -1):
+            self.oword_steps += 1
+            if entries[k][1] == keyword:
+                return entries[k][0]
+        raise GCodeError(f"o<{label}> end{keyword} without {keyword}", code="o-word", line=pc + 1, column=1)
 
     def _repeats(self) -> dict:
         return self.frames[-1].repeat if self.frames else self._main_repeats
 
     def _break_continue(self, label: str, pc: int, kw: str) -> int:
-        starts = [(i, k) for i, k in self._by_label.get(label, ()) if i < pc and k in ("while", "do", "repeat") and i not in self._do_end]
-        if not starts:
+        entries = self._by_label.get(label, ())
+        start, skw = next(((entries[k][0], entries[k][1])
+                           for k in range(bisect.bisect_left(self._label_lines.get(label, ()), pc) - 1, -1, -1)
+                           if entries[k][1] in ("while", "do", "repeat") and entries[k][0] not in self._do_end), (-1, ""))
+        if start < 0:
             raise GCodeError(f"o<{label}> {kw} outside a loop o<{label}>", code="o-word", line=pc + 1, column=1)
-        start, skw = starts[-1]
         if skw == "repeat":
             end = self._find(label, pc, ("endrepeat",), "endrepeat")[0]
             if kw == "break":
@@ -327,7 +341,7 @@ class Interpreter:
                 return end + 1
             return end  # endrepeat decides about the next round
         if skw == "do":
-            end = next((w for w, d in self._do_end.items() if d == start), None)
+            end = self._do_close.get(start)
             if end is None:
                 raise GCodeError(f"o<{label}> do without its closing while", code="o-word", line=start + 1, column=1)
             return end + 1 if kw == "break" else end

@@ -1,0 +1,66 @@
+"""CAM nests as a waterjet post writes them: per part a rapid, jet on, a pierce dwell, a G41/G42
+lead-in, the contour in lines and arcs, a G40 lead-out, jet off; optionally each part a call of an
+O-word subroutine, and inch parts among metric ones. Deterministic for a seed; used by the
+interpretation tests (N against 2N parts) and `bench/gcode_speed.py`.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+
+SHEET_X, SHEET_Y = 1500.0, 1100.0  # the parts' origins stay on a 1600 x 1200 sheet
+
+
+def cam_nest(parts: int, seed: int = 7, subroutines: bool = False, inch_every: int = 0, comments: bool = False) -> str:
+    """A nest of `parts` parts (about 30 lines each). `subroutines`: each part's contour is an
+    O-word subroutine called with its origin (#1, #2); `inch_every`: every n-th part is written in
+    inches (G20, then G21 again); `comments`: a comment line before each part (a comment ends a
+    bulk run of the fast path, so without them the runs are long)."""
+    rng = random.Random(seed)
+    out = ["%", f"(cam nest: {parts} parts, seed {seed})", "G21 G90 G17 G64 P0.05", "T1 M6", "F3000"]
+    if subroutines:
+        out += _subroutine()
+    per_row = int(SHEET_X // 55.0)
+    for p in range(parts):
+        col, row = p % per_row, (p // per_row) % int(SHEET_Y // 45.0)
+        ox, oy = 40.0 + col * 55.0, 40.0 + row * 45.0
+        inch = inch_every > 0 and p % inch_every == inch_every - 1
+        if comments:
+            out.append(f"(part {p + 1})")
+        if subroutines:
+            out += [f"G0 X{ox:.3f} Y{oy - 3:.3f}", "M3", "G4 P0.3", f"O100 CALL [{ox:.3f}] [{oy:.3f}] [{rng.uniform(8, 18):.3f}]",
+                    "M5"]
+            continue
+        s = 1 / 25.4 if inch else 1.0
+        fmt = (lambda v: f"{v * s:.5f}") if inch else (lambda v: f"{v:.3f}")  # noqa: E731
+        if inch:
+            out.append("G20")
+        side = "G41" if rng.random() < 0.7 else "G42"
+        out += [f"G0 X{fmt(ox)} Y{fmt(oy - 3)}", "M3", "G4 P0.3", f"{side} D1 G1 X{fmt(ox)} Y{fmt(oy)} F{2400 * s:.1f}"]
+        w, h, r = rng.uniform(20, 45), rng.uniform(15, 35), rng.uniform(2, 5)
+        steps = rng.randint(4, 10)
+        for k in range(1, steps + 1):
+            out.append(f"G1 X{fmt(ox + (w - r) * k / steps)} Y{fmt(oy)}")
+        out.append(f"G3 X{fmt(ox + w)} Y{fmt(oy + r)} I0 J{fmt(r)}")
+        out.append(f"G1 X{fmt(ox + w)} Y{fmt(oy + h - r)}")
+        out.append(f"G3 X{fmt(ox + w - r)} Y{fmt(oy + h)} R{fmt(r)}")
+        for k in range(1, steps + 1):
+            out.append(f"G1 X{fmt(ox + w - r - (w - 2 * r) * k / steps)} Y{fmt(oy + h)}")
+        out.append(f"G3 X{fmt(ox)} Y{fmt(oy + h - r)} I0 J{fmt(-r)}")
+        out.append(f"G1 X{fmt(ox)} Y{fmt(oy)}")
+        out += [f"G40 G1 X{fmt(ox - 2)} Y{fmt(oy - 2)}", "M5"]
+        if inch:
+            out.append("G21")
+    out += ["G0 X0 Y0", "M2", "%"]
+    return "\n".join(out) + "\n"
+
+
+def _subroutine() -> list[str]:
+    """O100: a round part of radius #3 at (#1, #2), lead-in with G41, 24 chords and two arcs."""
+    body = ["O100 SUB", "G41 D1 G1 X[#1 + #3] Y#2 F2400"]
+    for k in range(1, 23):
+        a = 2 * math.pi * k / 24
+        body.append(f"G1 X[#1 + #3 * COS[{math.degrees(a):.4f}]] Y[#2 + #3 * SIN[{math.degrees(a):.4f}]]")
+    body += ["G3 X[#1 + #3] Y#2 R#3", "G40 G1 X[#1 + #3 + 2] Y[#2 - 2]", "O100 ENDSUB"]
+    return body
