@@ -470,8 +470,10 @@ class Interpreter:
         fm = g(5)
         if fm is not None:
             self.inverse_time = fm == 930
-        if g(6) is not None:  # F on a G20/G21 line is in the new units (as LinuxCNC reads it)
-            self.units = INCH_MM if g(6) == 200 else 1.0
+        # LinuxCNC's order of execution within a block (its documentation, "G-code Order of
+        # Execution"): comment, feed mode, F, S, T, M6, the M codes, dwell, plane, units, cutter
+        # compensation, coordinate system, path mode, distance modes, G10/G28/G92, motion, stop.
+        # So F on a G20/G21 line is still in the old units: `G20 F60` is 60 mm/min after G21.
         if "f" in w:
             if w["f"] < 0:
                 raise self._err(f"negative feed rate F{w['f']:g}", "feed", "f")
@@ -501,6 +503,8 @@ class Interpreter:
             self._outputs(m(5), w, b.line)
         if g(0) == 40:
             self._dwell(w, b.line)
+        if g(6) is not None:
+            self.units = INCH_MM if g(6) == 200 else 1.0
         if g(7) is not None:
             self._kerf(g(7), w, b)
         if g(12) is not None:
