@@ -18,6 +18,9 @@ from cnc.runtime.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor
 from cnc.sim.operator import logic_block, press_button_when_asked  # noqa: F401 - the scripted operator, for the tests
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")  # Qt tests render without a display
+# A test waits on events; its limits only say when to give up. Four times the written limits: a
+# busy two-core host (a CI runner) never misses one, and a wait that succeeds returns as soon as it does.
+Supervisor.wait_margin = 4.0
 
 REPO = Path(__file__).resolve().parent.parent
 MACHINE_FILE = REPO / "machines" / "waterjet.toml"

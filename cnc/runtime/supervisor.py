@@ -578,15 +578,21 @@ class Supervisor:
         arr = self.area.blocks[which].array[0]
         return {"count": int(arr["count"]), "max_ns": int(arr["max_ns"]), "hist": arr["hist"].copy()}
 
+    # Every wait_until's limit is multiplied by this: the tests set it higher (tests/conftest.py),
+    # so that a busy two-core host never misses a limit; a wait that succeeds returns at once anyway.
+    wait_margin = 1.0
+
     def wait_until(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
-        """Poll (and keep supervising) until `predicate()`; raise TimeoutError naming `what`."""
-        deadline = time.monotonic() + timeout_s
+        """Poll (and keep supervising) until `predicate()`; raise TimeoutError naming `what` after
+        `timeout_s` x `wait_margin`."""
+        limit_s = timeout_s * self.wait_margin
+        deadline = time.monotonic() + limit_s
         while not predicate():
             self.poll()
             if self.failed:
                 raise SupervisorError(self.failed)
             if time.monotonic() > deadline:
-                raise TimeoutError(f"timed out after {timeout_s:g} s waiting for {what}")
+                raise TimeoutError(f"timed out after {limit_s:g} s waiting for {what}")
             time.sleep(0.002)
 
     def _wait_ticks(self, n: int, timeout_s: float) -> None:
