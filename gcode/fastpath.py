@@ -27,6 +27,7 @@ from .canon import ARC, DWELL, LINE, RAPID, Move
 from . import kerf_bulk
 from .dialect import AUX_BITS
 from .lexer import MAX_WORD_VALUE
+from .modal import INCH_MM
 
 if TYPE_CHECKING:
     from .interp import Interpreter
@@ -154,6 +155,7 @@ class FastPath:
         # kerf G codes are a group of their own: one line may carry G41 and G1
         letters = letters.copy()
         letters[(letters == ord("g")) & np.isin(values, _KERF_CODES)] = ord("k")
+        letters[(letters == ord("g")) & ((values == 20.0) | (values == 21.0))] = ord("u")  # units, a group too
         limit = nl  # lines [0, limit) are taken; lowered at the first line that needs the general path
         limit = _first(np.bincount(line_of[~(np.abs(values) <= MAX_WORD_VALUE)], minlength=nl) > 0, limit)  # refused there
 
@@ -171,10 +173,14 @@ class FastPath:
             return out
 
         g, f, mc, pw = column("g"), column("f"), column("m"), column("p")
-        kc, dw = column("k"), column("d")
+        kc, dw, uc = column("k"), column("d"), column("u")
+        # mm per program unit after each line's G20/G21 (the motion on that line uses it), and
+        # before it: F is set before the units change (LinuxCNC's order of execution)
+        units = _ffill(np.where(uc == 20.0, INCH_MM, np.where(uc == 21.0, 1.0, np.nan)), ip.units)
+        units_before = np.concatenate(([ip.units], units[:-1]))
         limit = _first(~np.isnan(dw) & ~np.isin(kc, (41.0, 42.0, 41.1, 42.1)), limit)  # D only with G41/G42
-        if not ip.kerf.idle:
-            limit = _first(~np.isnan(kc), limit)  # the per-move compensator is mid-contour: leave it alone
+        if not ip.kerf.idle:  # the per-move compensator is mid-contour: leave it alone
+            limit = _first(~np.isnan(kc) | ~np.isnan(uc), limit)
         is_dwell = g == 4.0
         limit = _first(~np.isnan(g) & ~np.isin(g, (0.0, 1.0, 2.0, 3.0, 4.0)), limit)  # other G codes
         limit = _first(~np.isnan(mc) & ~np.isin(mc, list(ip.d.mcodes)), limit)  # only the machine's jet/aux M codes
@@ -189,7 +195,7 @@ class FastPath:
         if "z" not in ip.d.axes:
             limit = _first(~np.isnan(ax[2]), limit)
         motion = _ffill(np.where(is_dwell, np.nan, g), ip.motion / 10.0)
-        feed = _ffill(f * ip.units, ip.feed_mm)  # mm/min
+        feed = _ffill(f * units_before, ip.feed_mm)  # mm/min
         is_arc = has_axis & (motion >= 2.0)
         # words without a motion to use them, arcs without a centre, mixed forms, zero feed
         limit = _first((has_ij | has_r) & ~is_arc, limit)
@@ -197,21 +203,19 @@ class FastPath:
         limit = _first(has_axis & (motion >= 1.0) & (feed <= 0.0), limit)
         stretches = None
         if limit >= MIN_RUN and not np.isnan(kc[:limit]).all():
-            limit, stretches = self._stretches(limit, kc, dw, has_axis, motion, mc, is_dwell)
+            limit, stretches = self._stretches(limit, kc, dw, has_axis, motion, mc, is_dwell, uc, units)
         if limit < MIN_RUN:
             self.failed_at = limit
             return 0
         # end points in machine mm
-        units = ip.units
         ends = np.empty((nl, 3))
         for i in range(3):
-            col = ax[i]
+            col = ax[i] * units
             if ip.absolute:
                 off = ip._offset(i)
-                work0 = (ip.pos[i] - off) / units
-                ends[:, i] = _ffill(col, work0) * units + off
+                ends[:, i] = _ffill(col, ip.pos[i] - off) + off
             else:
-                ends[:, i] = ip.pos[i] + np.cumsum(np.nan_to_num(col)) * units
+                ends[:, i] = ip.pos[i] + np.cumsum(np.nan_to_num(col))
         idx = np.flatnonzero(has_axis[:limit])
         starts = np.empty((len(idx), 3))
         if len(idx):
@@ -252,10 +256,11 @@ class FastPath:
         last = limit - 1
         ip.motion = int(round(motion[last] * 10))
         ip.feed_mm = float(feed[last])
+        ip.units = float(units[last])
         ip.pos = [float(v) for v in ends[last]]
         return limit
 
-    def _stretches(self, limit, kc, dw, has_axis, motion, mc, is_dwell) -> tuple[int, list]:
+    def _stretches(self, limit, kc, dw, has_axis, motion, mc, is_dwell, uc, units) -> tuple[int, list]:
         """Find the compensated stretches (G41/G42 entry line .. G40 exit line) that the bulk
         compensator can take; the run ends before the first one it cannot. Returns (limit, stretches)
         with stretches as (entry line, exit line, side, radius mm)."""
@@ -273,6 +278,8 @@ class FastPath:
                     return entry, out  # a bare G40 or an arc exit: the per-move compensator decides
                 if events[L + 1] != events[entry]:
                     return entry, out  # events inside the contour keep their place there
+                if not np.isnan(uc[entry + 1 : L + 1]).all():
+                    return entry, out  # units changed inside the contour: the per-move path decides
                 out.append((entry, L, side, radius))
                 open_ = None
                 continue
@@ -281,7 +288,7 @@ class FastPath:
             side = 1 if code in (41.0, 41.1) else -1
             d = dw_l[L]
             if code in (41.1, 42.1):
-                diameter = 0.0 if d != d else d * ip.units
+                diameter = 0.0 if d != d else d * units[L]
             else:
                 tool = ip.tool if d != d else d
                 if tool != int(tool) or tool < 0 or int(tool) not in ip.d.tool_diameters_mm:
@@ -422,15 +429,15 @@ class FastPath:
         li = idx[a]
         x0, y0, x1, y1 = starts[a, 0], starts[a, 1], e[a, 0], e[a, 1]
         r_form = ~np.isnan(wr[li])
-        i_ = np.nan_to_num(wi[li]) * units
-        j_ = np.nan_to_num(wj[li]) * units
+        i_ = np.nan_to_num(wi[li]) * units[li]
+        j_ = np.nan_to_num(wj[li]) * units[li]
         if ip.arc_absolute:
             cx, cy = i_ + ip._offset(0), j_ + ip._offset(1)
         else:
             cx, cy = x0 + i_, y0 + j_
         bad = np.zeros(len(a), dtype=bool)
         if r_form.any():
-            r = wr[li] * units
+            r = wr[li] * units[li]
             dx, dy = x1 - x0, y1 - y0
             chord = np.hypot(dx, dy)
             radius = np.abs(r)

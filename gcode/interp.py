@@ -28,11 +28,11 @@ from .errors import GCodeError
 from .fastpath import FastPath
 from .kerf import KerfCompensator
 from .lexer import MAX_WORD_VALUE, Block, OWord, column_of, lex_line
+from .modal import INCH_MM
 from .params import Parameters
 from .program import Attrs, Program, ProgramBuilder
 from .source import SourceLines, decode, split_lines
 
-INCH_MM = 25.4
 ARC_RADIUS_TOLERANCE_MM = 0.002 * INCH_MM / 1.0  # LinuxCNC accepts this much spiral (end radius - start radius)
 ARC_RADIUS_RELATIVE_TOLERANCE = 0.001
 _OLINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[nN][\d. \t]*)?[oO]")

@@ -7,6 +7,8 @@ an error, as are codes LinuxCNC knows but a 2D waterjet cannot do (named in the 
 
 from __future__ import annotations
 
+INCH_MM = 25.4  # mm per inch: G20 programs are converted with this
+
 # G modal groups (0 = non-modal)
 G_GROUP = {
     40: 0, 100: 0, 280: 0, 281: 0, 300: 0, 301: 0, 530: 0, 920: 0, 921: 0, 922: 0, 923: 0,

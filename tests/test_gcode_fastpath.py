@@ -228,3 +228,35 @@ def test_bulk_kerf_reports_a_gouge_as_the_per_move_compensator_does(seed):
     slow, fast = _both(_nest(seed, gouge_at=20 + seed * 7), NEST_DIALECT)
     assert isinstance(slow, GCodeError) and slow.code.startswith("kerf"), str(slow)
     assert isinstance(fast, GCodeError) and (str(slow), slow.code) == (str(fast), fast.code)
+
+
+def _same(slow, fast) -> None:
+    if isinstance(slow, GCodeError):
+        assert isinstance(fast, GCodeError) and (str(slow), slow.code) == (str(fast), fast.code)
+        return
+    assert not isinstance(fast, GCodeError), str(fast)
+    assert len(slow.segments) == len(fast.segments) > 0
+    for name in slow.segments.dtype.names:
+        a, b = slow.segments[name], fast.segments[name]
+        assert np.allclose(a, b, atol=1e-9, equal_nan=True) if a.dtype.kind == "f" else np.array_equal(a, b), name
+    assert slow.messages == fast.messages and slow.units_final == fast.units_final
+    assert (slow.stats.pierces, slow.stats.segments) == (fast.stats.pierces, fast.stats.segments)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_inch_and_metric_parts_in_one_bulk_run_equal_the_general_path(seed):
+    """G20/G21 inside a run: F on a G20 line in the units before it, axis words, I/J and R in the
+    units after it, absolute and incremental, kerf stretches in inches (G41 D and G41.1 D)."""
+    from bench.nests import cam_nest
+
+    text = cam_nest(30, seed=seed, inch_every=2 + seed % 2)
+    extra = "\n".join([
+        "G20 F60 G1 X1 Y1", "X1.5", "G21 F2 G1 X50", "G3 X60 Y35.4 R10", "G20 G2 X2.7622 Y1.5937 I0.2 J0.1",
+        "G91 G1 X0.1 Y0.1", "G21 X5 Y5", "G90 G20 G41.1 D0.03 G1 X3 Y3", "G1 X4", "G1 Y4", "G40 G1 X5 Y5",
+        "G21 G41 D1 G1 X100 Y100", "G1 X110", "G20", "G1 Y5", "G40 G1 X3 Y3", "G21",
+    ] * 3)
+    slow, fast = _both(text.replace("G0 X0 Y0\nM2", extra + "\nG0 X0 Y0\nM2"), NEST_DIALECT)
+    assert not isinstance(slow, GCodeError), str(slow)
+    _same(slow, fast)
+    assert sorted(set(np.round(slow.segments["feed"][~np.isnan(slow.segments["feed"])], 6))) [:2] == [2 * 25.4, 60.0], \
+        "G20 F60: 60 mm/min; G21 F2: 2 in/min"
