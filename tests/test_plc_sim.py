@@ -55,7 +55,8 @@ def u16(*values: int) -> bytes:
     return b"".join(v.to_bytes(2, "big") for v in values)
 
 
-def wait_for(cond, timeout_s: float = 3.0) -> bool:
+def wait_for(cond, timeout_s: float = 30.0) -> bool:
+    """Until `cond()`; the limit only says when to give up (a busy host never reaches it)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if cond():
@@ -126,7 +127,7 @@ def test_ignores_other_units_and_drops_bad_crc(line):
     fd, _, server = line
     assert transact(fd, bytes((2,)) + u16(0, 16), unit=7, wait_s=0.1) == b""
     os.write(fd, bytes((1, 2)) + u16(0, 16) + b"\x00\x00")  # wrong CRC
-    assert wait_for(lambda: server.stats.crc_errors == 1, 1.0)
+    assert wait_for(lambda: server.stats.crc_errors == 1)
     assert server.stats.other_unit == 1 and server.stats.responses == 0
     assert len(transact(fd, bytes((2,)) + u16(0, 16), expect=7)) == 7  # and still serves
 

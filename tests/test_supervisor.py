@@ -73,7 +73,7 @@ def test_killing_the_supervisor_ends_every_controller_process_and_the_plc_simula
         assert len(children) >= 7, children  # hardware, servo, gateway, planner, logic, PLC link, simulator...
         proc.kill()  # no chance to stop anything in order
         proc.wait(10)
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + 60.0
         while (alive := [p for p in children if os.path.exists(f"/proc/{p}") and _state(p) != "Z"]) \
                 and time.monotonic() < deadline:
             time.sleep(0.1)
@@ -133,7 +133,7 @@ def test_losing_the_hardware_server_is_fatal_and_leaves_the_servo_safe(virtual_c
     sup = virtual_controller
     enable_and_hold(sup)
     os.kill(sup.children["hardware"].process.pid, signal.SIGKILL)
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 60
     while sup.failed is None and time.monotonic() < deadline:
         sup.poll()
         time.sleep(0.01)
