@@ -82,17 +82,19 @@ def nesting_program(target_lines: int = 60_000, seed: int = 2) -> str:
 
 
 def _rounded_rect(x: float, y: float, w: float, h: float, r: float, rng: random.Random) -> list[str]:
-    lines = []
-    steps = rng.randint(4, 12)
-    for k in range(1, steps + 1):
-        lines.append(f"G1 X{x + (w - r) * k / steps:.3f} Y{y:.3f}")
-    lines.append(f"G3 X{x + w:.3f} Y{y + r:.3f} I0 J{r:.3f}")
-    lines.append(f"G1 X{x + w:.3f} Y{y + h - r:.3f}")
-    lines.append(f"G3 X{x + w - r:.3f} Y{y + h:.3f} I{-r:.3f} J0")
-    for k in range(1, steps + 1):
-        lines.append(f"G1 X{x + w - r - (w - 2 * r) * k / steps:.3f} Y{y + h:.3f}")
-    lines.append(f"G3 X{x:.3f} Y{y + h - r:.3f} I0 J{-r:.3f}")
-    lines.append(f"G1 X{x:.3f} Y{y:.3f}")
+    return rounded_rect(x, y, w, h, r, rng.randint(4, 12))
+
+
+def rounded_rect(x: float, y: float, w: float, h: float, r: float, steps: int,
+                 fmt=lambda v: f"{v:.3f}", top_r: bool = False) -> list[str]:
+    """A rounded rectangle from its lower-left corner (x, y), counter-clockwise: the long sides as
+    `steps` short lines, three corners as I/J arcs (the top right one an R arc with `top_r`)."""
+    top = f"R{fmt(r)}" if top_r else f"I{fmt(-r)} J0"
+    lines = [f"G1 X{fmt(x + (w - r) * k / steps)} Y{fmt(y)}" for k in range(1, steps + 1)]
+    lines += [f"G3 X{fmt(x + w)} Y{fmt(y + r)} I0 J{fmt(r)}", f"G1 X{fmt(x + w)} Y{fmt(y + h - r)}",
+              f"G3 X{fmt(x + w - r)} Y{fmt(y + h)} {top}"]
+    lines += [f"G1 X{fmt(x + w - r - (w - 2 * r) * k / steps)} Y{fmt(y + h)}" for k in range(1, steps + 1)]
+    lines += [f"G3 X{fmt(x)} Y{fmt(y + h - r)} I0 J{fmt(-r)}", f"G1 X{fmt(x)} Y{fmt(y)}"]
     return lines
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 import random
 
+from bench.gcode_speed import rounded_rect
+
 SHEET_X, SHEET_Y = 1500.0, 1100.0  # the parts' origins stay on a 1600 x 1200 sheet
 
 
@@ -39,16 +41,7 @@ def cam_nest(parts: int, seed: int = 7, subroutines: bool = False, inch_every: i
         side = "G41" if rng.random() < 0.7 else "G42"
         out += [f"G0 X{fmt(ox)} Y{fmt(oy - 3)}", "M3", "G4 P0.3", f"{side} D1 G1 X{fmt(ox)} Y{fmt(oy)} F{2400 * s:.1f}"]
         w, h, r = rng.uniform(20, 45), rng.uniform(15, 35), rng.uniform(2, 5)
-        steps = rng.randint(4, 10)
-        for k in range(1, steps + 1):
-            out.append(f"G1 X{fmt(ox + (w - r) * k / steps)} Y{fmt(oy)}")
-        out.append(f"G3 X{fmt(ox + w)} Y{fmt(oy + r)} I0 J{fmt(r)}")
-        out.append(f"G1 X{fmt(ox + w)} Y{fmt(oy + h - r)}")
-        out.append(f"G3 X{fmt(ox + w - r)} Y{fmt(oy + h)} R{fmt(r)}")
-        for k in range(1, steps + 1):
-            out.append(f"G1 X{fmt(ox + w - r - (w - 2 * r) * k / steps)} Y{fmt(oy + h)}")
-        out.append(f"G3 X{fmt(ox)} Y{fmt(oy + h - r)} I0 J{fmt(-r)}")
-        out.append(f"G1 X{fmt(ox)} Y{fmt(oy)}")
+        out += rounded_rect(ox, oy, w, h, r, rng.randint(4, 10), fmt, top_r=True)
         out += [f"G40 G1 X{fmt(ox - 2)} Y{fmt(oy - 2)}", "M5"]
         if inch:
             out.append("G21")
