@@ -371,8 +371,8 @@ def test_a_door_opened_while_the_start_is_planned_voids_it_and_a_reset_goes_on(p
     ready_in_auto(sup, tmp_path, program=nest(60))
     command(sup, SetMode("MANUAL"))
     command(sup, GoTo({"x": 45.0, "y": 45.0}))  # the head moves away: the start plans the program again
-    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING,
-                   30.0, "the go-to")
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING
+                   and logic(sup)["state"] == MachineState.READY, 30.0, "the go-to (and the logic's next scan seeing it)")
     command(sup, SetMode("AUTO"))
     runs = sup.motion()["run_seq"]
     command(sup, CycleStart(cycles=1))
