@@ -629,6 +629,7 @@ def _cycle_and_after(sup: Supervisor, operator: Operator, run: Run, preview: Pre
     operator.attempt("homing", operator.reset_and_home, run.notes)
     cut = cut_program(cut_seconds)
     operator.load("load_cut.ngc", cut)
+    sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 600.0, "the cut's cycle time to be planned")
     run.planned_cut_s, cut_hash = sup.motion()["planned_s"], sup.motion()["program_hash"]
     operator.ask("AUTO mode", SetMode("AUTO"))
     time.sleep(SETTLE_S)

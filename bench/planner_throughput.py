@@ -31,7 +31,8 @@ from gcode_speed import nesting_program
 from cnc.config import load_machine
 from cnc.machine_dialect import dialect_for
 from cnc.planner.runner import ProgramRunner
-from cnc.planner.sections import Section
+from cnc.planner.sections import Section, iter_steps
+from cnc.planner.steps import ProgramTiming
 from gcode.interp import interpret
 
 REPO = Path(__file__).resolve().parent.parent
@@ -42,10 +43,16 @@ def run_once(program, config, burst: int) -> dict:
     """Plan, then plan and interpolate, the whole program; wall seconds and motion seconds."""
     dt = config.timing.period_s
     t0 = time.perf_counter()
-    plan = ProgramRunner(program, config)
-    planned = plan.planned_ticks()
+    kinds: list[bool] = []  # per step: a section (motion) or a pause
+
+    def noted():
+        for step in iter_steps(program, config):
+            kinds.append(isinstance(step, Section))
+            yield step
+    timing = ProgramTiming(dt).compute(noted())
+    planned = timing.total_ticks
     t1 = time.perf_counter()
-    moving = sum(t for t, step in zip(plan.step_ticks, plan.steps) if isinstance(step, Section))
+    moving = sum(t for t, is_section in zip(timing.step_ticks, kinds) if is_section)
     runner = ProgramRunner(program, config)
     made = 0
     while not runner.finished:

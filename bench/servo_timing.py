@@ -298,6 +298,7 @@ class PlannerFeed:
             path = Path(tmp) / PROGRAM_NAME
             path.write_text(self.program.text)
             ask(sup, LoadProgram(str(path)))  # the planner keeps the text: the file may go
+        sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 600.0, "the cycle time to be planned")
         self.planned_s = sup.motion()["planned_s"]
         ask(sup, Start())
         supervise(sup, self, until=time.monotonic() + SETTLE_S)

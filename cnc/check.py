@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import IO
@@ -12,7 +13,8 @@ from gcode.program import Program
 
 from .config import MachineConfig
 from .machine_dialect import dialect_for
-from .planner.runner import ProgramRunner
+from .planner.sections import iter_steps
+from .planner.steps import ProgramTiming
 
 
 class ProgressBar:
@@ -40,9 +42,12 @@ class ProgressBar:
 
 
 def check_program(
-    path: str, config: MachineConfig, tool_table: str | None, segments_out: str | None, out: IO[str], err: IO[str]
+    path: str, config: MachineConfig, tool_table: str | None, segments_out: str | None, out: IO[str], err: IO[str],
+    json_out: str | None = None,
 ) -> int:
-    """Interpret `path`; print the summary (exit 0) or the error with its source line (exit 1)."""
+    """Interpret `path`; print the summary (exit 0) or the error with its source line (exit 1).
+    `json_out`: also write the figures as JSON ("-": to `out` instead of the summary), with the
+    wall times of interpretation and planning apart."""
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
@@ -52,6 +57,7 @@ def check_program(
         print(f"{path}: error: program is {len(data)} bytes; this machine accepts at most {config.gcode.max_program_bytes}", file=err)
         return 1
     bar = ProgressBar(err)
+    t0 = time.perf_counter()
     try:
         dialect = dialect_for(config, tool_table)
         program = Interpreter(dialect, path).run(data, progress=bar)
@@ -60,18 +66,49 @@ def check_program(
         print(exc.render(), file=err)
         return 1
     bar.close()
+    t1 = time.perf_counter()
     if segments_out:
         with open(segments_out, "w", encoding="utf-8") as f:
             program.write_segments_jsonl(f)
+    timing = program_timing(program, config)
+    t2 = time.perf_counter()
+    cycle_s = timing.total_ticks * config.timing.period_s
+    if json_out:
+        figures = json_figures(program, cycle_s, timing.total_mm, t1 - t0, t2 - t1)
+        text = json.dumps(figures, indent=2) + "\n"
+        if json_out == "-":
+            out.write(text)
+            return 0
+        Path(json_out).write_text(text, encoding="utf-8")
     print(summary(program, config), file=out)
-    print(f"  cycle time       {planned_cycle_time_s(program, config):.2f} s planned at 100 % override"
+    print(f"  cycle time       {cycle_s:.2f} s planned at 100 % override"
           f" (from X0 Y0; pauses at program stops not counted)", file=out)
+    print(f"  wall time        interpretation {t1 - t0:.2f} s, planning {t2 - t1:.2f} s "
+          f"({cycle_s / max(t2 - t1, 1e-9):.0f}x real time)", file=out)
     return 0
 
 
-def planned_cycle_time_s(program: Program, config: MachineConfig) -> float:
-    """The program's cycle time from the planner's profile (acceleration, jerk, corners, dwells, jet delays)."""
-    return ProgramRunner(program, config).planned_ticks() * config.timing.period_s
+def program_timing(program: Program, config: MachineConfig) -> ProgramTiming:
+    """The program's cycle time from the planner's profile (acceleration, jerk, corners, dwells, jet
+    delays), step by step as the planner streams it."""
+    timing = ProgramTiming(config.timing.period_s).compute(iter_steps(program, config))
+    if timing.failure is not None:
+        raise timing.failure
+    return timing
+
+
+def json_figures(program: Program, cycle_s: float, path_mm: float, interpret_s: float, plan_s: float) -> dict:
+    """`check --json`: the summary's figures, and the wall times of interpretation and planning."""
+    st = program.stats
+    return {
+        "program": program.name, "valid": True, "lines": st.lines, "segments": st.segments,
+        "cut_length_mm": st.cut_length_mm, "feed_length_mm": st.feed_length_mm, "rapid_length_mm": st.rapid_length_mm,
+        "pierces": st.pierces, "dwell_s": st.dwell_s, "messages": len(program.messages),
+        "bounds_min_mm": list(st.bounds_min), "bounds_max_mm": list(st.bounds_max),
+        "planned_cycle_time_s": cycle_s, "path_mm": path_mm,
+        "interpretation_wall_s": interpret_s, "planning_wall_s": plan_s,
+        "planning_speed_x_real_time": cycle_s / plan_s if plan_s > 0 else None,
+    }
 
 
 def summary(program: Program, config: MachineConfig) -> str:

@@ -59,7 +59,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from .check import check_program
 
     config = load_machine(args.machine)
-    return check_program(args.program, config, args.tool_table, args.segments, sys.stdout, sys.stderr)
+    return check_program(args.program, config, args.tool_table, args.segments, sys.stdout, sys.stderr, args.json)
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -85,6 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
     _machine_arg(check)
     check.add_argument("--tool-table", metavar="FILE.tbl", help="LinuxCNC-format tool table; overrides the machine's nozzle table")
     check.add_argument("--segments", metavar="OUT.jsonl", help="write every motion and dwell as one JSON object per line")
+    check.add_argument("--json", metavar="OUT", help="write the figures as JSON ('-': to stdout instead of the summary), "
+                       "with the wall times of interpretation and planning")
     check.set_defaults(func=_cmd_check)
 
     simulate = sub.add_parser(

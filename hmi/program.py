@@ -152,7 +152,11 @@ class ProgramPanel(QWidget):
     def _planned(self) -> str:
         st = self.model.status
         p = st.program if st is not None else None
-        return f", planned cycle time {duration(p.planned_s)}" if p is not None and p.planned_s > 0 else ""
+        if p is None or not p.name:
+            return ""
+        if p.planned_s < 0:
+            return ", cycle time being planned"
+        return f", planned cycle time {duration(p.planned_s)}" if p.planned_s > 0 else ""
 
     def _follow(self) -> None:
         """Highlight the block being cut (the status's line), scrolling it into view."""

@@ -24,7 +24,7 @@ from cnc.logic.states import CyclePhase, MachineState
 from cnc.runtime.supervisor import Supervisor
 
 from .conftest import logic, press_button_when_asked, reset_and_home
-from .test_stale_motion import nest
+from .test_stale_motion import slow_to_prepare
 
 
 PART = """(a part: pierce, a square with a rounded corner, jet off)
@@ -368,9 +368,9 @@ def test_a_door_opened_while_the_start_is_planned_voids_it_and_a_reset_goes_on(p
     """The cycle's start waits behind a long re-plan when a door opens: the logic's stop voids it
     (its epoch is past), nothing moves, and once the door is shut and reset the cycle runs."""
     sup = plc_controller
-    ready_in_auto(sup, tmp_path, program=nest(60))
+    ready_in_auto(sup, tmp_path, program=slow_to_prepare())
     command(sup, SetMode("MANUAL"))
-    command(sup, GoTo({"x": 45.0, "y": 45.0}))  # the head moves away: the start plans the program again
+    command(sup, GoTo({"x": 45.0, "y": 45.0}))  # the head moves away: the start interprets the program again
     sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING
                    and logic(sup)["state"] == MachineState.READY, 30.0, "the go-to (and the logic's next scan seeing it)")
     command(sup, SetMode("AUTO"))
@@ -409,7 +409,7 @@ def test_stop_is_answered_while_a_long_program_load_is_under_way(plc_controller,
     sup = plc_controller
     path = Path(program_dir(sup.config, sup.runtime.history_path)) / "big.ngc"  # stations load from there
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(nest(150))  # seconds of planning
+    path.write_text(slow_to_prepare())  # seconds of interpretation
     session = open_client([sup.config.zenoh.listen[0]])
     station = OperatorStation(session, Keys(sup.config.zenoh.key_prefix, sup.config.machine.name), "panel")
     try:

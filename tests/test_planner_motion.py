@@ -181,7 +181,7 @@ def test_an_override_of_zero_stops_along_the_path_and_raising_it_moves_on():
     seen = []
     program, runner, records, _ = run(text, chunk=10, actions={
         600: lambda r: r.set_override(0.0),
-        10**9: lambda r: (seen.append((r.idle, r.state, len(r.steps) and r.made)), r.set_override(1.0)),
+        10**9: lambda r: (seen.append((r.idle, r.state, r.made)), r.set_override(1.0)),
     })
     assert seen[0][0] and seen[0][1] == RunState.RUNNING, "stalled at 0 %, not held"
     stalled_at = seen[0][2]

@@ -3,7 +3,6 @@ stop and hold reach whatever the planner runs; a continuous jog is a dead-man's.
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 
@@ -19,16 +18,13 @@ from .conftest import enable_and_hold, home, machine_config, wait_planner_idle
 NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0}
 
 
-def nest(parts: int) -> str:
-    """A nest of small round parts, each pierced, cut as a 24-chord polygon: planning it takes a while."""
-    lines = ["G21 G90 G64 P0.05"]
-    for p in range(parts):
-        x0, y0 = 100 + (p % 25) * 50, 100 + (p // 25) * 50
-        lines += [f"G0 X{x0 + 15:.3f} Y{y0:.3f}", "M3"]
-        lines += [f"G1 X{x0 + 15 * math.cos(2 * math.pi * k / 24):.3f} Y{y0 + 15 * math.sin(2 * math.pi * k / 24):.3f} F6000"
-                  for k in range(1, 25)]
-        lines.append("M5")
-    return "\n".join([*lines, "G0 X60 Y60", "M2", ""])
+def slow_to_prepare(blocks: int = 100_000) -> str:
+    """A program whose interpretation takes seconds (`blocks` parameter assignments, each through
+    the general path: about 2 s per 100k) and whose first move is an R arc from wherever the head
+    stands, so that a start after the head moved must interpret it again (its shape is no pure
+    shift of the start: `planner/rebase.py`). Its motion is short."""
+    return "\n".join(["G21 G90 G64 P0.05", "G2 X200 Y200 R900 F6000", "#1 = 0", *(["#1 = [#1 + 1]"] * blocks),
+                      "M3", "G1 X220 Y200", "M5", "G0 X60 Y60", "M2", ""])
 
 
 @pytest.fixture(scope="module")
@@ -65,12 +61,12 @@ def test_only_the_commanders_token_moves_the_machine(homed):
 
 
 def test_a_start_waiting_behind_a_long_replan_is_cancelled_by_a_stop(homed, tmp_path):
-    """The head moved since the program was loaded: the start plans it again from where the head
-    is (seconds, for a large program). A stop that comes meanwhile is answered at once and the
-    start never runs."""
+    """The head moved since the program was loaded, and the program is no pure shift of its start:
+    the start interprets it again from where the head is (seconds, for this one). A stop that comes
+    meanwhile is answered at once and the start never runs."""
     sup = homed
-    path = tmp_path / "nest.ngc"
-    path.write_text(nest(80))
+    path = tmp_path / "slow.ngc"
+    path.write_text(slow_to_prepare())
     assert sup.planner.request(LoadProgram(str(path))).ok
     assert sup.planner.request(GoTo({"x": 45.0, "y": 45.0})).ok  # the head moves away: the start must plan again
     wait_planner_idle(sup)
@@ -78,7 +74,7 @@ def test_a_start_waiting_behind_a_long_replan_is_cancelled_by_a_stop(homed, tmp_
     answers: dict[str, object] = {}
     starter = threading.Thread(target=lambda: answers.update(start=sup.planner.request(Start())))
     starter.start()
-    time.sleep(0.2)  # the planner is in the start's planning (it takes seconds)
+    time.sleep(0.2)  # the planner is in the start's interpretation (it takes seconds)
     t0 = time.monotonic()
     answers["stop"] = sup.planner.request(Stop())
     stop_s = time.monotonic() - t0

@@ -34,7 +34,7 @@ from cnc.homing import Homing, HomingError, Push, Reference, Unhome
 from cnc.data.layout import ClockKind, LinkState, Proc, ServoState, controller_layouts
 from cnc.machine_dialect import dialect_for
 from cnc.planner.runner import ProgramRunner
-from cnc.planner.sections import move_steps, program_steps
+from cnc.planner.sections import move_steps
 from cnc.servo import Servo
 from gcode.interp import Interpreter
 
@@ -279,7 +279,7 @@ class Rig:
         here = self.servo_block()["commanded_mm"]
         dialect = dataclasses.replace(dialect_for(self.config), start_position_mm=(*here, 0.0)[:3])
         program = Interpreter(dialect, "rig.ngc").run(text.encode())
-        runner = ProgramRunner(None, self.config, steps=program_steps(program, self.config))
+        runner = ProgramRunner(program, self.config)  # streamed: its steps made as the run reaches them
         self.feeder = Feeder(self, runner)
         return runner
 

@@ -50,8 +50,8 @@ class ProgramProgress(msgspec.Struct, frozen=True):
     done_mm: float
     remaining_mm: float
     progress: float  # 0..1 of the path
-    eta_s: float  # time left from the planned profile (-1 at 0 % override)
-    planned_s: float  # cycle time at 100 % override
+    eta_s: float  # time left from the planned profile (-1 at 0 % override or while the program is being planned)
+    planned_s: float  # cycle time at 100 % override (-1 while it is being planned)
     run: int  # runs started since the controller came up
     result: str  # RunResult name of the last run
 
@@ -175,7 +175,7 @@ class ProgramInfo(msgspec.Struct, frozen=True):
     hash: str
     bytes: int
     lines: int
-    planned_s: float
+    planned_s: float  # -1 while it is being planned
     text: str = ""
     path: ProgramPath | None = None
     version: int = SCHEMA_VERSION

@@ -178,7 +178,7 @@ def motion_layout(n: int) -> BlockLayout:
             F("program_name", "s", 128),
             F("program_hash", "s", 64),  # sha256 of the program text, hex
             F("program_lines", "Q"),
-            F("planned_s", "d"),  # cycle time of the loaded program at 100 % override
+            F("planned_s", "d"),  # cycle time of the loaded program at 100 % override (-1 while it is being planned)
             F("total_mm", "d"),  # path length of the loaded program
             F("run_seq", "Q"),  # +1 at every start
             F("run_result", "I"),  # RunResult of the last run
@@ -187,7 +187,7 @@ def motion_layout(n: int) -> BlockLayout:
             F("segment", "q"),  # program segment the servo is on (-1 when none)
             F("line", "q"),  # its source line
             F("done_mm", "d"),  # path done by the servo
-            F("eta_s", "d"),  # time left, from the planned profile
+            F("eta_s", "d"),  # time left, from the planned profile (-1 while unknown)
             F("override", "d"),  # feed override ratio in force (0..2)
             F("fifo_min_fill", "q"),  # lowest FIFO fill seen at a refill during the run (-1: none yet)
             F("records_pushed", "Q"),

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
@@ -84,29 +85,27 @@ class Element:
 
 def elements_from_program(segments: np.ndarray) -> list[Element]:
     """The program's segments as path elements (feeds in mm/s)."""
-    out = []
-    for i, s in enumerate(segments):
-        kind = int(s["kind"])
-        feed = float(s["feed"])
-        out.append(
-            Element(
-                kind=kind,
-                start=tuple(float(v) for v in s["start"]),
-                end=tuple(float(v) for v in s["end"]),
-                center=(float(s["center"][0]), float(s["center"][1])) if kind == ARC else None,
-                cw=bool(s["cw"]),
-                turns=int(s["turns"]),
-                feed_mm_s=math.inf if kind == RAPID or not math.isfinite(feed) else feed / 60.0,
-                tolerance_mm=float(s["tolerance"]),
-                jet=bool(s["jet"]),
-                aux=int(s["aux"]),
-                outputs=int(s["outputs"]),
-                segment=i,
-                line=int(s["line"]),
-                dwell_s=float(s["dwell"]),
+    return list(iter_elements(segments))
+
+
+ELEMENT_CHUNK = 4096  # segments converted to Python values at a time: cheap per segment, bounded memory
+
+
+def iter_elements(segments: np.ndarray, first: int = 0) -> Iterator[Element]:
+    """The segments from `first` on as path elements, made as they are asked for (a million-segment
+    program is never held as a million elements); zero-length moves are left out."""
+    for lo in range(first, len(segments), ELEMENT_CHUNK):
+        chunk = segments[lo:lo + ELEMENT_CHUNK]
+        columns = [chunk[name].tolist() for name in ("kind", "start", "end", "center", "cw", "turns", "feed", "tolerance",
+                                                     "jet", "aux", "outputs", "line", "dwell")]
+        for k, (kind, start, end, center, cw, turns, feed, tol, jet, aux, outputs, line, dwell) in enumerate(zip(*columns)):
+            e = Element(
+                kind=kind, start=tuple(start), end=tuple(end), center=tuple(center) if kind == ARC else None, cw=cw,
+                turns=turns, feed_mm_s=math.inf if kind == RAPID or not math.isfinite(feed) else feed / 60.0,
+                tolerance_mm=tol, jet=jet, aux=aux, outputs=outputs, segment=lo + k, line=line, dwell_s=dwell,
             )
-        )
-    return [e for e in out if e.kind == DWELL or e.length_mm > 0.0]
+            if kind == DWELL or e.length_mm > 0.0:
+                yield e
 
 
 def blend_corners(elements: list[Element], stop_before: frozenset[int] = frozenset()) -> list[Element]:

@@ -12,7 +12,6 @@ import math
 
 import numpy as np
 
-from gcode.arcs import arc_bounds, sweep
 from gcode.canon import ARC, DWELL
 
 from ..config import MachineConfig
@@ -67,16 +66,40 @@ def preflight(segments: np.ndarray, config: MachineConfig, homed: dict[str, bool
 
 
 def _segment_bounds(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-segment (min, max) XYZ, arcs' extreme points included."""
+    """Per-segment (min, max) XYZ, arcs' extreme points included (all arcs at once: a million-line
+    program is checked again at every start)."""
     start, end = segments["start"], segments["end"]
     lo, hi = np.minimum(start, end), np.maximum(start, end)
     dwell = segments["kind"] == DWELL
     lo[dwell], hi[dwell] = start[dwell], start[dwell]
-    for k in np.flatnonzero(segments["kind"] == ARC):
-        (x0, y0, _), (x1, y1, _) = start[k], end[k]
-        cx, cy = segments["center"][k]
-        r = math.hypot(x0 - cx, y0 - cy)
-        swept = sweep(x0, y0, x1, y1, cx, cy, bool(segments["cw"][k]), int(segments["turns"][k]))
-        bx0, by0, bx1, by1 = arc_bounds(x0, y0, cx, cy, r, math.atan2(y0 - cy, x0 - cx), swept)
-        lo[k, 0], lo[k, 1], hi[k, 0], hi[k, 1] = bx0, by0, bx1, by1
+    arcs = np.flatnonzero(segments["kind"] == ARC)
+    if len(arcs):
+        lo[arcs, :2], hi[arcs, :2] = _arc_bounds(segments[arcs])
     return lo, hi
+
+
+def _arc_bounds(arcs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) XY of each arc: its ends and the quadrant points (0, 90, 180, 270 degrees) its
+    sweep passes (`gcode.arcs.arc_bounds`, for many arcs)."""
+    x0, y0 = arcs["start"][:, 0], arcs["start"][:, 1]
+    x1, y1 = arcs["end"][:, 0], arcs["end"][:, 1]
+    cx, cy = arcs["center"][:, 0], arcs["center"][:, 1]
+    r = np.hypot(x0 - cx, y0 - cy)
+    a0, a1 = np.arctan2(y0 - cy, x0 - cx), np.arctan2(y1 - cy, x1 - cx)
+    cw, turns = arcs["cw"], arcs["turns"]
+    d = np.where(cw, a0 - a1, a1 - a0)
+    d = np.where(d <= 1e-12, d + 2.0 * math.pi, d) + 2.0 * math.pi * turns
+    swept = np.where(cw, -d, d)
+    a_end = a0 + swept
+    lo_ang, hi_ang = np.minimum(a0, a_end), np.maximum(a0, a_end)
+    xs = [x0, cx + r * np.cos(a_end)]
+    ys = [y0, cy + r * np.sin(a_end)]
+    full = np.abs(swept) >= 2.0 * math.pi - 1e-12
+    for k, (px, py) in enumerate(((1, 0), (0, 1), (-1, 0), (0, -1))):
+        ang = k * math.pi / 2.0
+        n = np.ceil((lo_ang - ang) / (2.0 * math.pi))
+        passes = full | (ang + 2.0 * math.pi * n <= hi_ang)
+        xs.append(np.where(passes, cx + px * r, x0))
+        ys.append(np.where(passes, cy + py * r, y0))
+    xs, ys = np.stack(xs), np.stack(ys)
+    return np.stack((xs.min(axis=0), ys.min(axis=0)), axis=1), np.stack((xs.max(axis=0), ys.max(axis=0)), axis=1)

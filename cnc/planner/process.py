@@ -37,7 +37,6 @@ import hashlib
 import logging
 import math
 import os
-import sys
 import threading
 import time
 from pathlib import Path
@@ -66,13 +65,16 @@ from ..programs import read_program
 from ..runtime.rt import collector_paused, leave_realtime
 from .preflight import PreflightError, preflight
 from .runner import ProgramRunner, RunState
-from .sections import move_steps, program_steps
+from .rebase import PROBE_MM, StartShift, start_shift
+from .sections import iter_steps, move_steps
+from .steps import ProgramTiming, StepSource
 
 log = logging.getLogger(__name__)
 
 REALTIME = ("stop", "hold", "jog_stop", "jog_refresh")  # also served while a program is being prepared
 PLAN_AHEAD_S = 0.5  # motion planned this far ahead of the setpoints made, by the worker thread
-RELEASE_SLICE = 25  # sections of a replaced program freed a tick while idle: 1-2 ms of the interpreter
+FIRST_STRETCH_STEPS = 8  # steps made at load (and at a start from a moved head) before the answer
+TIMED_AT_LOAD_SEGMENTS = 1000  # a program this short is made whole and timed before the load answers (< 0.2 s)
 
 _RUN_STATES = {
     RunState.RUNNING: PlannerState.RUNNING, RunState.HOLDING: PlannerState.HOLDING, RunState.HELD: PlannerState.HELD,
@@ -81,16 +83,45 @@ _RUN_STATES = {
 
 
 class LoadedProgram:
-    """A program checked and planned, ready to start."""
+    """A program interpreted and checked, its first steps made, ready to start: the rest of its steps
+    are made while it runs (`StepSource`), its cycle time beside it (`ProgramTiming`)."""
 
-    def __init__(self, path: str, text: bytes, program: Program, config: MachineConfig, start: tuple) -> None:
-        self.path, self.text, self.program, self.start = path, text, program, start
+    def __init__(self, path: str, text: bytes, program: Program, config: MachineConfig, start: tuple,
+                 shift: StartShift | None) -> None:
+        self.path, self.text, self.program, self.start, self.shift = path, text, program, start, shift
+        self.config = config
         self.name = Path(path).name
         self.hash = hashlib.sha256(text).hexdigest()
-        self.steps = program_steps(program, config)
-        runner = ProgramRunner(None, config, steps=self.steps)
-        self.planned_ticks = runner.planned_ticks()
-        self.step_ticks = runner.step_ticks
+        st = program.stats
+        self.programmed_mm = st.feed_length_mm + st.rapid_length_mm  # the path length until the timing has it
+        self.timing = ProgramTiming(config.timing.period_s)
+        self._first: StepSource | None = self.new_source()  # the first stretch, made now: the start finds it made
+        if len(program.segments) <= TIMED_AT_LOAD_SEGMENTS:  # a short program is timed now, at no cost worth a thread
+            self._first.build_until(1 << 62)  # all of it: bounded by the program's size
+            self.timing.compute([self._first.peek(i) for i in range(self._first.made)])
+
+    def new_source(self) -> StepSource:
+        """The program's steps for one run, the first stretch made."""
+        source = StepSource(iter_steps(self.program, self.config))
+        source.build_until(FIRST_STRETCH_STEPS - 1)
+        return source
+
+    def source(self) -> StepSource:
+        """The steps of the next run (the one made at load, the first time)."""
+        first, self._first = self._first, None
+        return first or self.new_source()
+
+    def rebased(self, start: tuple) -> "LoadedProgram":
+        """This program as interpreted from `start` (the head moved since loading), by its start shift."""
+        delta = [0.0, 0.0, 0.0]
+        for name, now, then in zip(self.config.axis_names, start, self.start):
+            delta["xyz".index(name)] = float(now) - float(then)
+        program = self.shift.apply(self.program, tuple(delta))
+        return LoadedProgram(self.path, self.text, program, self.config, start, self.shift)
+
+    @property
+    def total_mm(self) -> float:
+        return self.timing.total_mm if self.timing.complete else self.programmed_mm
 
 
 class Planner:
@@ -121,7 +152,7 @@ class Planner:
         ))
         self.token = session.liveliness().declare_token(self.keys.alive("planner"))
         self.loaded: LoadedProgram | None = None
-        self.to_free: list[list] = []  # sections of replaced programs, freed a slice a tick while idle
+        self.timing_published = False  # the loaded program's cycle time is in the status
         self.runner: ProgramRunner | None = None
         self.runner_kind = PlannerState.IDLE  # RUNNING (a program), JOGGING or MOVING
         self.homing = None
@@ -194,6 +225,12 @@ class Planner:
             if not self.plan_wanted.wait(0.05):
                 continue
             self.plan_wanted.clear()
+            runner = self.runner
+            if runner is not None:
+                try:
+                    runner.build_ahead()  # outside the lock: the refills go on meanwhile
+                except Exception:  # the main loop meets the same failure when it reaches that step
+                    log.exception("planner: making the next steps failed")
             while not self._stop_worker.is_set():
                 with self.lock:
                     runner = self.runner
@@ -288,31 +325,40 @@ class Planner:
         program = self.loaded.program
         self._set(
             program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
-            program_lines=program.stats.lines, planned_s=self.loaded.planned_ticks * self.dt,
-            total_mm=sum(s.length_mm for s in self.loaded.steps if hasattr(s, "path")),
-            done_mm=0.0, segment=-1, line=0, eta_s=self.loaded.planned_ticks * self.dt, run_result=int(RunResult.NONE),
+            program_lines=program.stats.lines, done_mm=0.0, segment=-1, line=0, run_result=int(RunResult.NONE),
         )
 
     def _take(self, loaded: LoadedProgram) -> None:
-        """Make `loaded` the program; the one it replaces is freed a slice a tick while nothing
-        moves (`_free_a_slice`): dropped at once, the sections of a million-line program take
-        seconds to free, all of it holding the interpreter, and the loop's heartbeat stopped long
-        enough for the supervisor to kill it as hung. Not on a thread: one of normal priority
-        holding the interpreter between slices starved this loop of it under load (a FIFO
-        underrun at the next cycle start)."""
-        old, self.loaded = self.loaded, loaded
-        if old is None:
-            return
-        steps, old.steps = old.steps, []
-        if sys.getrefcount(steps) <= 2:  # else still held (a runner's last reference): it goes with that
-            self.to_free.append(steps)
+        """Make `loaded` the program and time it on a thread of its own (the status says -1 s until
+        it is done: `_timing_done`); the timing of the program it replaces stops."""
+        if self.loaded is not None:
+            self.loaded.timing.cancelled.set()
+        self.loaded = loaded
+        self.timing_published = False
+        self._set(planned_s=-1.0, eta_s=-1.0, total_mm=loaded.total_mm)
+        if loaded.timing.complete:
+            self._timing_done()
+        else:
+            loaded.timing.start(iter_steps(loaded.program, loaded.config))
 
-    def _free_a_slice(self) -> None:
-        if self.to_free and self.runner is None and self.homing is None:
-            big = self.to_free[-1]
-            del big[-RELEASE_SLICE:]
-            if not big:
-                self.to_free.pop()
+    def _timing_done(self) -> None:
+        """Publish the loaded program's cycle time and path length once its timing is complete."""
+        loaded = self.loaded
+        if loaded is None or self.timing_published:
+            return
+        timing = loaded.timing
+        if timing.failure is not None:
+            self.timing_published = True
+            log.error("planner: timing %s failed: %r", loaded.name, timing.failure)
+            self._event("timing_failed", f"the cycle time of {loaded.name} could not be planned: {timing.failure}", 0)
+            return
+        if timing.complete:
+            self.timing_published = True
+            planned = timing.total_ticks * self.dt
+            values = dict(planned_s=planned, total_mm=timing.total_mm)
+            if self.runner is None or self.runner_kind != PlannerState.RUNNING:
+                values["eta_s"] = planned
+            self._set(**values)
 
     def _forget_program(self) -> None:
         """A planner started again has no program: the status must not name the one its
@@ -324,26 +370,47 @@ class Planner:
         self._set(program_seq=self.out.get("program_seq") + 1, program_name="", program_hash="", program_lines=0,
                   planned_s=0.0, total_mm=0.0, done_mm=0.0, segment=-1, line=0, eta_s=0.0)
 
-    def _prepare(self, path: str, data: bytes, start: tuple, check_travel: bool = False) -> LoadedProgram:
-        """Interpret and plan a program on a helper thread while this loop keeps its heartbeat: a
-        large program takes seconds to prepare (minutes for a million lines), and a silent heartbeat
-        makes the supervisor kill the planner as hung."""
-        outcome: list[LoadedProgram | BaseException] = []
+    def _prepare(self, path: str, data: bytes, start: tuple, check_travel: bool = False, probe: bool = True) -> LoadedProgram:
+        """Interpret and check a program, and make its first steps, on a helper thread while this loop
+        keeps its heartbeat: a large program takes seconds to interpret, and a silent heartbeat
+        makes the supervisor kill the planner as hung. The program is interpreted a second time
+        from a probe start (`rebase.py`), so that a start from wherever the head then is needs no
+        third interpretation."""
+        return self._on_helper(lambda: self._load(path, data, start, check_travel, probe))
 
-        def prepare() -> None:
-            leave_realtime()  # minutes of work for a large program: not at the refills' priority
+    def _load(self, path: str, data: bytes, start: tuple, check_travel: bool, probe: bool) -> LoadedProgram:
+        program = self._interpret(path, data, start)
+        if check_travel:
+            preflight(program.segments, self.config, dict.fromkeys(self.config.axis_names, True), Path(path).name)
+        if not probe:
+            return LoadedProgram(path, data, program, self.config, start, None)
+        offset = [PROBE_MM["xyz".index(a)] for a in self.config.axis_names]
+        probe_start = tuple(float(v) + d for v, d in zip(start, offset))
+        try:
+            probe = self._interpret(path, data, probe_start)
+        except CommandRefused:  # valid from here, not from there: a start elsewhere interprets again
+            shift = None
+        else:
+            shift = start_shift(program, probe, _xyz(self.config, offset))
+            del probe
+        return LoadedProgram(path, data, program, self.config, start, shift)
+
+    def _on_helper(self, work):
+        """`work()` on a helper thread (out of real time, the collector paused) while this loop beats
+        and answers stop, hold and a jog's refresh; its result, or its exception raised here."""
+        outcome: list = []
+
+        def run() -> None:
+            leave_realtime()  # seconds of work for a large program: not at the refills' priority
             try:
                 with collector_paused():
-                    program = self._interpret(path, data, start)
-                    if check_travel:
-                        preflight(program.segments, self.config, dict.fromkeys(self.config.axis_names, True), Path(path).name)
-                    outcome.append(LoadedProgram(path, data, program, self.config, start))
+                    outcome.append(work())
             except PreflightError as exc:
                 outcome.append(CommandRefused(str(exc)))
             except BaseException as exc:  # raised again below, on the loop's thread
                 outcome.append(exc)
 
-        helper = threading.Thread(target=prepare, name="prepare-program", daemon=True)
+        helper = threading.Thread(target=run, name="prepare-program", daemon=True)
         helper.start()
         while helper.is_alive():
             helper.join(0.02)
@@ -361,10 +428,7 @@ class Planner:
     preparing_start = False
 
     def _interpret(self, path: str, data: bytes, start: tuple) -> Program:
-        xyz = [0.0, 0.0, 0.0]
-        for name, value in zip(self.config.axis_names, start):
-            xyz["xyz".index(name)] = float(value)
-        dialect = dataclasses.replace(dialect_for(self.config), start_position_mm=tuple(xyz))
+        dialect = dataclasses.replace(dialect_for(self.config), start_position_mm=_xyz(self.config, start))
         try:
             return Interpreter(dialect, path).run(data)
         except GCodeError as exc:
@@ -380,7 +444,11 @@ class Planner:
             # the head moved since loading: the program's first move starts where it now is
             self.preparing_start, self.start_cancelled = True, ""
             try:
-                self._take(self._prepare(self.loaded.path, self.loaded.text, start))
+                loaded = self.loaded
+                if loaded.shift is not None:
+                    self._take(self._on_helper(lambda: loaded.rebased(start)))
+                else:  # not a pure shift of its start: interpreted again from here (and again at the next move)
+                    self._take(self._prepare(loaded.path, loaded.text, start, probe=False))
             finally:
                 self.preparing_start = False
             if self.start_cancelled:
@@ -392,11 +460,10 @@ class Planner:
             preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
         except PreflightError as exc:
             raise CommandRefused(str(exc)) from None
-        runner = ProgramRunner(None, self.config, steps=self.loaded.steps)
-        runner.step_ticks = self.loaded.step_ticks
+        runner = ProgramRunner(None, self.config, steps=self.loaded.source(), timing=self.loaded.timing)
         self._begin(runner, PlannerState.RUNNING)
         self._set(run_seq=self.out.get("run_seq") + 1, run_result=int(RunResult.NONE),
-                  run_start_tick=self.hw_r.read_dict()["tick"], planned_s=self.loaded.planned_ticks * self.dt)
+                  run_start_tick=self.hw_r.read_dict()["tick"])
 
     def _cmd_hold(self, _msg) -> Reply:
         """A feed hold of a program; a jog, go-to or homing (which cannot continue) stops."""
@@ -598,8 +665,7 @@ class Planner:
         elif self.runner is not None:
             self._deadman()
             self._feed(servo)
-        else:
-            self._free_a_slice()
+        self._timing_done()
         self._progress(servo)
 
     def _feed(self, servo: dict) -> None:
@@ -724,6 +790,14 @@ class Planner:
         for key, value in values.items():
             self.out.set(key, value)
         self.out.publish()
+
+
+def _xyz(config: MachineConfig, values) -> tuple[float, float, float]:
+    """Machine-axis values as (x, y, z), 0 for an axis the machine does not have."""
+    xyz = [0.0, 0.0, 0.0]
+    for name, value in zip(config.axis_names, values):
+        xyz["xyz".index(name)] = float(value)
+    return tuple(xyz)
 
 
 def _beyond(axis, position: float) -> float:

@@ -28,7 +28,8 @@ from gcode.program import Program
 
 from ..config import MachineConfig
 from ..data.fifo import SetpointFlag, setpoint_dtype
-from .sections import Section, Step, program_steps
+from .sections import Section, Step, iter_steps
+from .steps import STEPS_AHEAD, ProgramTiming, StepSource
 from .stream import SectionStream, WindowJob
 
 _IN_MOTION = int(SetpointFlag.IN_MOTION)
@@ -60,10 +61,19 @@ class Event:
 class ProgramRunner:
     """Setpoints of one program from its first record to its last."""
 
-    def __init__(self, program: Program | None, config: MachineConfig, steps: list[Step] | None = None) -> None:
+    def __init__(self, program: Program | None, config: MachineConfig, steps: list[Step] | StepSource | None = None,
+                 timing: ProgramTiming | None = None) -> None:
         self.config = config
         self.dt = config.timing.period_s
-        self.steps = steps if steps is not None else program_steps(program, config)
+        if steps is None:
+            self._again = lambda: iter_steps(program, config)  # the steps once more, for the timing
+        elif isinstance(steps, StepSource):
+            self._again = None
+        else:
+            steps = list(steps)
+            self._again = lambda: steps
+        self.steps = steps if isinstance(steps, StepSource) else StepSource(self._again())
+        self.timing = timing  # the cycle time step by step, for the ETA (`remaining_s`); made when missing
         self.axes = [_AXES.index(a) for a in config.axis_names]
         self.dtype = setpoint_dtype(len(self.axes))
         self.close_on_hold = config.jet.close_on_hold
@@ -85,7 +95,6 @@ class ProgramRunner:
         self._message_index = 0
         self.s_program = 0.0
         self.made = 0  # records released
-        self.total_mm = sum(s.length_mm for s in self.steps if isinstance(s, Section))
         self._next_step()
 
     # -- the operator's controls ------------------------------------------------------------
@@ -180,14 +189,15 @@ class ProgramRunner:
         if self.pause_left:
             k = min(n, self.pause_left)
             self.pause_left -= k
-            step = self.steps[self.index]
+            step = self.steps.peek(self.index)
             self.segment_now, self.line_now = step.segment, step.line
             return self._still(k, step.flags)
         self._next_step()
         return self._nothing()
 
     def _from_stream(self, n: int):
-        stream, section = self.stream, self.steps[self.index]
+        stream = self.stream
+        section = stream.section
         y, s = stream.take(n)
         if len(y):
             k = section.path.index_at(s)
@@ -212,10 +222,11 @@ class ProgramRunner:
     def _next_step(self) -> None:
         """Start the step after the current one."""
         self.index += 1
-        if self.index >= len(self.steps):
+        step = self.steps.get(self.index)
+        self.steps.forget_before(self.index)  # what the head has left
+        if step is None:
             self.state = RunState.DONE
             return
-        step = self.steps[self.index]
         if isinstance(step, Section):
             self.stream = self._ready.pop(self.index, None) or SectionStream(step, self.override, min(self.override, 1.0))
             self._message_index = 0
@@ -287,7 +298,7 @@ class ProgramRunner:
         if self.repierce:
             return bool(self._flags_ahead() & _JET_BITS)
         if self.stream is None and self.pause_left:
-            return bool(self.steps[self.index].flags & _JET_BITS)
+            return bool(self.steps.peek(self.index).flags & _JET_BITS)
         return False
 
     def _flags_ahead(self) -> int:
@@ -295,17 +306,19 @@ class ProgramRunner:
         if self.stream is not None:
             section = self.stream.section
             return int(section.flags[section.path.index_at(np.array([self.s_program - section.offset_mm]))[0]])
-        for step in self.steps[self.index + 1:]:
-            return int(step.flags[0]) if isinstance(step, Section) else int(step.flags)
-        return 0
+        step = self.steps.get(self.index + 1)
+        if step is None:
+            return 0
+        return int(step.flags[0]) if isinstance(step, Section) else int(step.flags)
 
     def _position_now(self) -> np.ndarray:
         if self._newest is not None:
             return self._newest
-        for step in self.steps[max(self.index, 0):]:
-            where = step.start if isinstance(step, Section) else step.position
-            return np.array(where)[self.axes]
-        return np.zeros(len(self.axes))
+        step = self.steps.get(max(self.index, 0))
+        if step is None:
+            return np.zeros(len(self.axes))
+        where = step.start if isinstance(step, Section) else step.position
+        return np.array(where)[self.axes]
 
     def _messages(self, section: Section, s: np.ndarray) -> None:
         msgs = section.messages
@@ -330,10 +343,12 @@ class ProgramRunner:
             left -= (self.stream.k_end - self.stream.k) * self.dt
         else:
             left -= self.pause_left * self.dt
-        for i in range(self.index + 1, len(self.steps)):
-            if left <= 0.0:
+        i = self.index
+        while left > 0.0:
+            i += 1
+            step = self.steps.peek(i)  # made ahead by the worker (`build_ahead`), never here under the lock
+            if step is None:
                 return None
-            step = self.steps[i]
             if isinstance(step, Section):
                 ready = self._ready.setdefault(i, SectionStream(step, self.override, min(self.override, 1.0)))
                 return ready.window_job(left)
@@ -342,8 +357,14 @@ class ProgramRunner:
             left -= step.seconds
         return None
 
+    def build_ahead(self) -> None:
+        """Make the steps after the one under way (`STEPS_AHEAD`), away from the refills."""
+        if not self.finished:
+            self.steps.build_until(self.index + STEPS_AHEAD)
+
     def prepare(self, lead_s: float) -> None:
         """Plan one window ahead, here and now (what the planner's worker thread does away from the refills)."""
+        self.build_ahead()
         job = self.plan_job(lead_s)
         if job is not None:
             job.compute()
@@ -351,27 +372,36 @@ class ProgramRunner:
 
     def planned_ticks(self) -> int:
         """Servo periods the whole program takes at 100 % override, from its first record to its last
-        (program stops not counted). Remembered per step for `remaining_s`."""
-        self.step_ticks = []
-        for step in self.steps:
-            if isinstance(step, Section):
-                self.step_ticks.append(SectionStream(step).planned_samples())
-            else:
-                self.step_ticks.append(0 if step.kind == "program_stop" else self._ticks(step.seconds))
-        return sum(self.step_ticks)
+        (program stops not counted): its timing (`ProgramTiming`), made now if it was not given."""
+        return self._timing().total_ticks
+
+    @property
+    def step_ticks(self):
+        return self._timing().step_ticks
+
+    def _timing(self) -> ProgramTiming:
+        if self.timing is None:
+            if self._again is None:
+                raise RuntimeError("a runner of a step source is given its timing (ProgramTiming) with it")
+            self.timing = ProgramTiming(self.dt).compute(self._again())
+        if self.timing.failure is not None:
+            raise self.timing.failure
+        return self.timing
 
     def remaining_s(self) -> float:
         """Time the records still to be made take, from the planned profile: exact at 100 % override;
         below it, the time stretched by 1 / override (feeds and rapids slow alike); above it, unchanged
-        (the axis limits, not the feed, then decide where the time goes). Infinite at 0 %."""
+        (the axis limits, not the feed, then decide where the time goes). Infinite at 0 %; NaN while
+        the program's timing is still being made."""
         if self.finished:
             return 0.0
-        if not hasattr(self, "step_ticks"):
-            self.planned_ticks()
-        i = max(self.index, 0)
-        now = self.step_ticks[i] - (self.stream.k if self.stream is not None else self.step_ticks[i] - self.pause_left)
-        ticks = max(now, 0) + sum(self.step_ticks[i + 1:]) + self.repierce
-        seconds = ticks * self.dt
         if self.override <= 0.0:
             return float("inf")
+        timing = self._timing() if self.timing is None else self.timing
+        i = max(self.index, 0)
+        if not timing.complete or i >= len(timing.step_ticks):
+            return float("nan")
+        now = timing.step_ticks[i] - (self.stream.k if self.stream is not None else timing.step_ticks[i] - self.pause_left)
+        ticks = timing.remaining_ticks(i, max(now, 0)) + self.repierce
+        seconds = ticks * self.dt
         return seconds / self.override if self.override < 1.0 else seconds

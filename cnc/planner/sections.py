@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Iterator
 
 import numpy as np
 
@@ -26,7 +27,7 @@ from .limits import (
     GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, section_limits, section_zones, smoothing_for,
 )
 from .profile import Zones, rough_duration_s
-from .path import Element, blend_corners, elements_from_program
+from .path import Element, blend_corners, iter_elements
 
 REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and the next one's start
 # then never meet in one third difference (the jerk the drives see)
@@ -96,53 +97,67 @@ def output_flags(jet: bool, aux: int, outputs: int) -> int:
 
 
 def program_steps(program: Program, config: MachineConfig) -> list[Step]:
-    """The program's sections and pauses, in order."""
-    elements = elements_from_program(program.segments)
+    """The program's sections and pauses, in order, all of them (`iter_steps` makes them as needed)."""
+    return list(iter_steps(program, config))
+
+
+def iter_steps(program: Program, config: MachineConfig) -> Iterator[Step]:
+    """The program's sections and pauses, in order, each made when it is asked for: only the run of
+    elements between two hard stops (jet or outputs switching, a dwell, a program stop) is held
+    while its sections are made, so the cost and memory of the next step do not grow with the
+    program."""
     stops = {m.segment: m for m in program.messages if m.kind in STOP_KINDS}
     notes = {}
     for m in program.messages:
         if m.kind in ("message", "tool"):
             notes.setdefault(m.segment, []).append((m.text, m.line))
-    steps: list[Step] = []
     offset = 0.0
     run: list[Element] = []
     jet = config.jet
+    made_any = False
+    where_last = None  # where the last step made ends
 
-    def close_run() -> None:
-        nonlocal offset, run
+    def close_run() -> Iterator[Step]:
+        nonlocal offset, run, made_any, where_last
         if run:
             for section in _sections_of(run, config, offset, notes):
-                steps.append(section)
                 offset += section.length_mm
+                made_any, where_last = True, section.end
+                yield section
         run = []
 
+    def pause(p: Pause) -> Pause:
+        nonlocal made_any, where_last
+        made_any, where_last = True, p.position
+        return p
+
     last = None
-    for e in elements:
-        if e.segment in stops and (run or steps):
-            close_run()
+    for e in iter_elements(program.segments):
+        if e.segment in stops and (run or made_any):
+            yield from close_run()
+            where = where_last if where_last is not None else e.start
             m = stops.pop(e.segment)
-            where = run[-1].end if run else _last_position(steps, e.start)
-            steps.append(Pause("program_stop", 0.0, _flags(last) if last else 0, where, e.segment, m.line, STOP_KINDS[m.kind]))
+            yield pause(Pause("program_stop", 0.0, _flags(last) if last else 0, where, e.segment, m.line, STOP_KINDS[m.kind]))
         if e.kind == DWELL:
-            close_run()
-            steps.append(Pause("dwell", e.dwell_s, _flags(e), e.start, e.segment, e.line, f"G4 P{e.dwell_s:g}"))
+            yield from close_run()
+            yield pause(Pause("dwell", e.dwell_s, _flags(e), e.start, e.segment, e.line, f"G4 P{e.dwell_s:g}"))
             last = e
             continue
         if last is not None and (last.jet, last.aux) != (e.jet, e.aux):
-            close_run()
+            yield from close_run()
             where = e.start
             if e.jet and not last.jet:
-                steps.append(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), where, e.segment, e.line, "jet on, pierce"))
+                yield pause(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), where, e.segment, e.line, "jet on, pierce"))
             elif last.jet and not e.jet:
-                steps.append(Pause("jet_off", jet.off_delay_s, _flags(e), where, e.segment, e.line, "jet off"))
+                yield pause(Pause("jet_off", jet.off_delay_s, _flags(e), where, e.segment, e.line, "jet off"))
         elif last is None and e.jet:
-            steps.append(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), e.start, e.segment, e.line, "jet on, pierce"))
+            yield pause(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), e.start, e.segment, e.line, "jet on, pierce"))
         run.append(e)
         last = e
-    close_run()
+    yield from close_run()
     if last is not None and last.jet:
-        steps.append(Pause("jet_off", jet.off_delay_s, 0, _last_position(steps, last.end), last.segment, last.line, "jet off at the end"))
-    return steps
+        where = where_last if where_last is not None else last.end
+        yield Pause("jet_off", jet.off_delay_s, 0, where, last.segment, last.line, "jet off at the end")
 
 
 def move_steps(
@@ -156,12 +171,6 @@ def move_steps(
 
 def _flags(e: Element) -> int:
     return output_flags(e.jet, e.aux, e.outputs)
-
-
-def _last_position(steps: list[Step], default):
-    for s in reversed(steps):
-        return s.end if isinstance(s, Section) else s.position
-    return default
 
 
 def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes: dict) -> list[Section]:

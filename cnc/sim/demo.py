@@ -216,6 +216,7 @@ def _run(sup: Supervisor, program: Path) -> list[str]:
                    120.0, "homing")
     print(f"demo: homed; X {sup.servo()['actual_mm'][0]:.3f} Y {sup.servo()['actual_mm'][1]:.3f}", flush=True)
     _upload(sup, program)
+    sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 120.0, "the cycle time to be planned")
     m = sup.motion()
     print(f"demo: loaded {m['program_name']}: {m['program_lines']} lines, {m['total_mm']:.0f} mm of path, "
           f"planned cycle time {m['planned_s']:.2f} s", flush=True)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -65,12 +66,17 @@ def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
     `config` should listen on a port of its own (see `run_cli`)."""
     dt = config.timing.period_s
     with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
-        _prepare(sup, program_path)
+        load_s = _prepare(sup, program_path)
+        sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 3600.0, "the program's cycle time to be planned")
         m0, s0 = sup.motion(), sup.servo()
         sup.pause_virtual_clock()
         sup.set_tracing(True)
         sup.trace.drain()
+        t0 = time.perf_counter()
         _ask_planner(sup, Start(), "start")
+        while sup.motion()["records_pushed"] == m0["records_pushed"]:  # the planner pushes at its next wake
+            sup.run_ticks(1)
+        start_to_motion_s = time.perf_counter() - t0
         records = _run_to_end(sup, m0["run_seq"] + 1)
         m, s = sup.motion(), sup.servo()
     program = _as_run(program_path, config, s0["commanded_mm"])
@@ -78,6 +84,8 @@ def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
     metrics.update(
         cycle_time_s=(m["records_pushed"] - m0["records_pushed"]) * dt,  # one record per servo period
         planned_cycle_time_s=m0["planned_s"],
+        load_s=load_s,  # wall time of the load command: interpretation, travel check, first steps
+        start_to_motion_s=start_to_motion_s,  # wall time from the start command to the first setpoint in the FIFO
         fifo_min_fill=int(m["fifo_min_fill"]),
         underruns=int(s["underruns"] - s0["underruns"]),
         overruns=int(s["overruns"] - s0["overruns"]),
@@ -96,7 +104,8 @@ def _as_run(program_path: str, config: MachineConfig, start_mm: list[float]) -> 
     return Interpreter(dialect, program_path).run(Path(program_path).read_bytes())
 
 
-def _prepare(sup: Supervisor, program_path: str) -> None:
+def _prepare(sup: Supervisor, program_path: str) -> float:
+    """Home the machine and load the program; the load's wall time (s)."""
     sup.enable()
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the servo to close the loop")
     _ask_planner(sup, Home(), "homing")
@@ -104,7 +113,9 @@ def _prepare(sup: Supervisor, program_path: str) -> None:
     if sup.motion()["error"]:
         raise SimulationError(f"homing failed: {sup.motion()['error']}")
     sup.wait_until(lambda: abs(max(sup.servo()["following_error_mm"], key=abs)) < 0.002, 10.0, "the axes to settle")
+    t0 = time.perf_counter()
     _ask_planner(sup, LoadProgram(str(Path(program_path).resolve())), "loading the program")
+    return time.perf_counter() - t0
 
 
 def _run_to_end(sup: Supervisor, run: int) -> np.ndarray:

@@ -1,0 +1,159 @@
+"""A program's steps made as the motion reaches them, and its planned cycle time made beside it.
+
+Making every section of a large program before the first move costs minutes (about 0.2 ms a
+line) and holds every element in memory. `StepSource` makes the steps in order as they are
+asked for (`sections.iter_steps`), keeps a bounded window of them (the step under way and what
+has been made ahead of it), and forgets the ones the head has left behind. The planner's worker
+thread makes steps ahead (`build_until`), outside the lock the refills take, so the main loop
+finds the next step already made.
+
+`ProgramTiming` walks the same steps on a thread of its own and adds up each step's servo
+periods (`SectionStream.planned_samples`: the profile's pieces, not sampled), so the cycle time
+and the ETA come from exactly the profile the run streams, without delaying the load or the
+start.
+"""
+
+from __future__ import annotations
+
+import threading
+from array import array
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+
+from .sections import Pause, Section, Step
+from .stream import SectionStream
+
+STEPS_AHEAD = 48  # steps the worker keeps made beyond the one under way (a nest: a dozen parts)
+
+
+class StepSource:
+    """The steps of one run of a program, made on demand, with a bounded window kept."""
+
+    def __init__(self, steps: Iterable[Step]) -> None:
+        self._iter: Iterator[Step] | None = iter(steps)
+        self._made: list[Step] = []
+        self._first = 0  # index of _made[0]
+        self._failure: BaseException | None = None
+        self._lock = threading.Lock()  # one maker at a time (the generator cannot run twice at once)
+        self.largest_window = 0  # the most steps held at once (a figure for tests and benches)
+
+    @property
+    def made(self) -> int:
+        """Index one past the last step made so far."""
+        return self._first + len(self._made)
+
+    @property
+    def ended(self) -> bool:
+        """Every step of the program has been made."""
+        return self._iter is None
+
+    def peek(self, i: int) -> Step | None:
+        """Step i when it has been made (and not forgotten), else None; never makes one."""
+        k = i - self._first
+        made = self._made
+        return made[k] if 0 <= k < len(made) else None
+
+    def get(self, i: int) -> Step | None:
+        """Step i, made now when needed; None past the program's end."""
+        step = self.peek(i)
+        if step is None and i >= self.made:
+            self.build_until(i)
+            step = self.peek(i)
+        if step is None and i < self._first:
+            raise IndexError(f"step {i} was forgotten (the window starts at step {self._first})")
+        return step
+
+    def build_until(self, i: int) -> None:
+        """Make the steps up to step i (fewer at the program's end), one at a time under the lock, so
+        that a `get` of the next step waits for at most one step being made. A failure while making
+        one is raised here and again by every later call."""
+        while self.made <= i:
+            with self._lock:
+                if self._failure is not None:
+                    raise self._failure
+                if self._iter is None:
+                    return
+                if self.made > i:
+                    break
+                try:
+                    self._made.append(next(self._iter))
+                except StopIteration:
+                    self._iter = None
+                except BaseException as exc:
+                    self._failure, self._iter = exc, None
+                    raise
+                self.largest_window = max(self.largest_window, len(self._made))
+
+    def forget_before(self, i: int) -> None:
+        """Drop the steps before step i: the head has left them."""
+        with self._lock:
+            k = min(max(i - self._first, 0), len(self._made))
+            if k:
+                del self._made[:k]
+                self._first += k
+
+
+class ProgramTiming:
+    """A program's cycle time at 100 % override, step by step, from the planned profile.
+
+    `step_ticks[i]` is step i's servo periods (a section: its samples, what the runner will make
+    of it; a pause: its seconds; a program stop: 0). Filled by `compute`, usually on a thread:
+    `complete` says when every step is in, `total_mm` is then the path length."""
+
+    def __init__(self, dt: float) -> None:
+        self.dt = dt
+        self.step_ticks = array("q")
+        self.total_ticks = 0
+        self.total_mm = 0.0
+        self.complete = False
+        self.after = np.zeros(0, dtype=np.int64)  # once complete: ticks from step i to the end
+        self.failure: BaseException | None = None
+        self.cancelled = threading.Event()
+
+    def compute(self, steps: Iterable[Step]) -> "ProgramTiming":
+        """Walk the steps (each made, timed and dropped) until the end or `cancelled`."""
+        try:
+            for step in steps:
+                if self.cancelled.is_set():
+                    return self
+                ticks = step_ticks(step, self.dt)
+                self.step_ticks.append(ticks)
+                self.total_ticks += ticks
+                if isinstance(step, Section):
+                    self.total_mm += step.length_mm
+            self.after = np.cumsum(np.array(self.step_ticks, dtype=np.int64)[::-1])[::-1].copy()
+            self.complete = True
+        except BaseException as exc:  # kept for the planner to report; the run itself makes the same steps
+            self.failure = exc
+        return self
+
+    def start(self, steps: Iterable[Step], on_done: Callable[[], None] | None = None) -> threading.Thread:
+        """`compute` on a daemon thread (`on_done` called at its end)."""
+        def work() -> None:
+            from ..runtime.rt import leave_realtime
+
+            leave_realtime()
+            self.compute(steps)
+            if on_done is not None:
+                on_done()
+        thread = threading.Thread(target=work, name="program-timing", daemon=True)
+        thread.start()
+        return thread
+
+    def remaining_ticks(self, index: int, left_in_step: int) -> int | None:
+        """Servo periods from within step `index` (with `left_in_step` of it to go) to the end;
+        None while the timing is still being made."""
+        if not self.complete:
+            return None
+        after = int(self.after[index + 1]) if index + 1 < len(self.after) else 0
+        return left_in_step + after
+
+
+def step_ticks(step: Step, dt: float) -> int:
+    """Servo periods one step takes at 100 % override (0 for a program stop: it waits for the operator)."""
+    if isinstance(step, Section):
+        return SectionStream(step).planned_samples()
+    assert isinstance(step, Pause)
+    return 0 if step.kind == "program_stop" else int(round(step.seconds / dt))
+

@@ -1,0 +1,157 @@
+"""Streaming: a program's steps are made as the motion reaches them, within a bounded window, its
+cycle time beside it; the first setpoints need only the first steps, whatever the program's size;
+a start from a head moved since loading shifts the interpreted program instead of interpreting
+it again. Operation counts (steps made, steps held), not wall time: the figures are in
+bench/gcode_speed.py and docs/benchmarks.md."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from bench.nests import cam_nest
+from cnc.bus.messages import GoTo, LoadProgram, Start
+from cnc.data.layout import PlannerState, RunResult
+from cnc.machine_dialect import dialect_for
+from cnc.planner.rebase import PROBE_MM, start_shift
+from cnc.planner.runner import ProgramRunner
+from cnc.planner.sections import Section, iter_steps, program_steps
+from cnc.planner.steps import STEPS_AHEAD, ProgramTiming, StepSource
+from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
+from gcode.interp import Interpreter
+
+from .conftest import ask, enable_and_hold, home, machine_config, wait_planner_idle
+
+
+@pytest.fixture(scope="module")
+def config():
+    return machine_config()
+
+
+def interpret(text: str, config, start=(0.0, 0.0, 0.0)):
+    dialect = dataclasses.replace(dialect_for(config), start_position_mm=tuple(start))
+    return Interpreter(dialect, "t.ngc").run(text.encode())
+
+
+def run_streamed(program, config, burst: int = 200, first: int | None = None):
+    """A runner on a step source (as the planner runs a loaded program), taken to its end (or to
+    its first `first` records); the source, the records made and how far ahead the steps were."""
+    source = StepSource(iter_steps(program, config))
+    runner = ProgramRunner(None, config, steps=source, timing=ProgramTiming(config.timing.period_s))
+    made, ahead = 0, 0
+    while not runner.finished and (first is None or made < first):
+        records, _ = runner.take(burst if first is None else min(burst, first - made))
+        made += len(records)
+        runner.prepare(0.5)  # what the planner's worker does after each refill
+        ahead = max(ahead, source.made - runner.index)
+    return source, runner, made, ahead
+
+
+def test_a_long_nest_streams_its_steps_in_a_bounded_window_and_runs_its_planned_time(config):
+    program = interpret(cam_nest(40), config)
+    steps = program_steps(program, config)
+    source, runner, made, ahead = run_streamed(program, config)
+    assert runner.state.name == "DONE"
+    assert source.made == len(steps) and len(steps) > 4 * STEPS_AHEAD, "every step made, many more than the window"
+    assert source.largest_window <= STEPS_AHEAD + 2, "the window holds the step under way and what is made ahead"
+    assert ahead <= STEPS_AHEAD + 1
+    timing = ProgramTiming(config.timing.period_s).compute(iter_steps(program, config))
+    assert timing.complete and timing.total_ticks == made, "the timing is exactly what the run streams"
+    assert timing.total_mm == pytest.approx(sum(s.length_mm for s in steps if isinstance(s, Section)), rel=1e-12)
+
+
+def test_the_first_setpoints_need_the_same_few_steps_whatever_the_programs_size(config):
+    counts = []
+    for parts in (10, 200):
+        program = interpret(cam_nest(parts), config)
+        source, runner, made, _ = run_streamed(program, config, first=300)
+        assert made == 300
+        counts.append(source.made)
+    assert counts[0] == counts[1] <= STEPS_AHEAD + 2, counts
+
+
+def test_the_eta_is_unknown_until_the_timing_is_made_then_exact(config):
+    program = interpret(cam_nest(3), config)
+    timing = ProgramTiming(config.timing.period_s)
+    runner = ProgramRunner(None, config, steps=StepSource(iter_steps(program, config)), timing=timing)
+    runner.take(100)
+    assert np.isnan(runner.remaining_s()), "no ETA from a timing still being made"
+    timing.compute(iter_steps(program, config))
+    left = runner.remaining_s()
+    made = 0
+    while not runner.finished:
+        made += len(runner.take(500)[0])
+    assert left == pytest.approx(made * config.timing.period_s, abs=2 * config.timing.period_s)
+
+
+SHIFTABLE = {
+    "absolute nest": cam_nest(2),
+    "first move names X only": "G21 G90\nG1 X50 F3000\nG1 Y40\nM3\nG1 X80\nM5\nM2\n",
+    "incremental program": "G21 G91\nG1 X10 Y5 F3000\nG3 X10 Y0 I5 J0\nG90 G1 X100 Y100\nM2\n",
+    "G92 at the start": "G21 G90\nG92 X0 Y0\nG1 X20 Y10 F3000\nG2 X40 Y10 I10 J0\nM2\n",
+    "dwell where the head stands": "G21 G90\nG4 P0.5\nM3\nG1 X30 Y30 F3000\nM5\nM2\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHIFTABLE))
+def test_a_program_started_from_a_moved_head_is_the_program_interpreted_from_there(config, name):
+    text = SHIFTABLE[name]
+    here, there = (120.0, 80.0, 0.0), (333.25, 17.5, 0.0)
+    program = interpret(text, config, here)
+    probe = interpret(text, config, tuple(a + b for a, b in zip(here, PROBE_MM[:2] + (0.0,))))
+    shift = start_shift(program, probe, PROBE_MM[:2] + (0.0,))
+    assert shift is not None, f"{name}: a pure shift of its start"
+    moved = shift.apply(program, tuple(b - a for a, b in zip(here, there)))
+    truth = interpret(text, config, there).segments
+    for field in ("start", "end", "center"):
+        np.testing.assert_allclose(moved.segments[field], truth[field], atol=1e-9, err_msg=f"{name}: {field}")
+    for field in ("kind", "line", "jet", "cw", "turns"):
+        assert np.array_equal(moved.segments[field], truth[field]), f"{name}: {field}"
+    np.testing.assert_array_equal(program.segments["start"], interpret(text, config, here).segments["start"])
+
+
+def test_a_program_whose_shape_depends_on_the_start_is_not_shifted(config):
+    text = "G21 G90\nG2 X50 Y0 R40 F3000\nM2\n"  # an R arc from wherever the head is: its centre is not a shift
+    here = (10.0, 0.0, 0.0)
+    program = interpret(text, config, here)
+    probe = interpret(text, config, (10.375, 0.25, 0.0))
+    assert start_shift(program, probe, (0.375, 0.25, 0.0)) is None
+
+
+@pytest.fixture(scope="module")
+def homed():
+    config = machine_config(**{"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0})
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
+        enable_and_hold(sup)
+        home(sup)
+        yield sup
+
+
+def test_a_loaded_program_started_after_the_head_moved_runs_from_there_and_keeps_its_planned_time(homed, tmp_path):
+    sup = homed
+    text = "G21 G90 G64 P0.05\nG1 X200 F6000\nG1 Y150\nM3\nG1 X260\nM5\nM2\n"  # the first move keeps Y, the second X
+    path = tmp_path / "moved.ngc"
+    path.write_text(text)
+    ask(sup, LoadProgram(str(path)))
+    sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 60.0, "the cycle time")
+    ask(sup, GoTo({"x": 60.0, "y": 90.0}))
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["commanded_mm"] == [60.0, 90.0], 60.0,
+                   "the go-to")
+    pushed = sup.motion()["records_pushed"]
+    sup.pause_virtual_clock()
+    try:
+        ask(sup, Start())
+        planned = sup.motion()["planned_s"]
+        sup.run_ticks(20)
+        first_y = sup.servo()["commanded_mm"][1]
+    finally:
+        sup.resume_virtual_clock()
+    m = wait_planner_idle(sup)
+    assert m["run_result"] == RunResult.DONE
+    assert first_y == pytest.approx(90.0, abs=1e-6), "the first move keeps the Y the head was moved to"
+    assert sup.servo()["commanded_mm"] == pytest.approx([260.0, 150.0], abs=1e-6)
+    sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 60.0, "the cycle time from there")
+    assert (m["records_pushed"] - pushed) * sup.config.timing.period_s == pytest.approx(sup.motion()["planned_s"], abs=1e-9)
+    assert planned == sup.motion()["planned_s"] > 0.0, "a program this short is timed before the start answers"
