@@ -14,6 +14,7 @@ from __future__ import annotations
 import bisect
 import math
 import re
+import weakref
 import time
 
 import numpy as np
@@ -71,7 +72,7 @@ class Interpreter:
         self.use_fast_path = fast  # off: every line through the general path (for equivalence tests)
         self.builder = ProgramBuilder()
         self.kerf = KerfCompensator(self.builder)
-        self.params = Parameters(self._predefined)
+        self.params = Parameters(_weakly(self._predefined))  # no cycle through the parameters: see `_let_go`
         # modal state
         self.units = 1.0  # mm per program unit
         self.absolute = True
@@ -121,7 +122,18 @@ class Interpreter:
             raise err.located(self.file, n, err.column or 1, self.lines[n - 1] if 0 < n <= len(self.lines) else None) from None
         except RecursionError:
             raise GCodeError("expression or call nesting too deep", code="nesting", file=self.file, line=self.line_no) from None
+        finally:
+            self._let_go()
         return self.builder.build(self.file, len(self.lines))
+
+    def _let_go(self) -> None:
+        """Break the reference cycle through the fast path (it points back here), so that the
+        interpreter, its source and its builder's columns (hundreds of MB for a million lines) go by
+        reference counting when it is dropped: the planner runs with the cyclic collector frozen
+        after a load, and a cycle would keep them for ever."""
+        fast = getattr(self, "fast", None)
+        if fast is not None:
+            fast.ip = None
 
     def _execute_lines(self) -> None:
         pc, end, lines = 0, self.end, self.lines
@@ -881,3 +893,13 @@ class Interpreter:
             "_line": float(self.line_no),
             "_call_level": float(len(self.frames)),
         }.get(name)
+
+
+def _weakly(method: Callable) -> Callable:
+    """`method`, called through a weak reference to its object (None once that is gone)."""
+    ref = weakref.WeakMethod(method)
+
+    def call(*args):
+        bound = ref()
+        return None if bound is None else bound(*args)
+    return call

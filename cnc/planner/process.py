@@ -62,7 +62,7 @@ from ..data.layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
 from ..params import registry, with_values
 from ..programs import read_program
-from ..runtime.rt import collector_paused, leave_realtime
+from ..runtime.rt import collector_paused, give_back_memory, leave_realtime
 from .preflight import PreflightError, preflight
 from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
@@ -393,6 +393,7 @@ class Planner:
         else:
             shift = start_shift(program, probe, _xyz(self.config, offset))
             del probe
+        give_back_memory()
         return LoadedProgram(path, data, program, self.config, start, shift)
 
     def _on_helper(self, work):

@@ -27,8 +27,9 @@ from .limits import (
     GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, section_limits, section_zones, smoothing_for,
 )
 from .profile import Zones, rough_duration_s
-from .path import Element, blend_corners, iter_elements
+from .path import Element, _blend_radius, blend_corners, iter_elements
 
+RUN_PIECE = 64  # a run of elements is made into sections in pieces of at least this many (`iter_steps`)
 REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and the next one's start
 # then never meet in one third difference (the jerk the drives see)
 
@@ -105,7 +106,9 @@ def iter_steps(program: Program, config: MachineConfig) -> Iterator[Step]:
     """The program's sections and pauses, in order, each made when it is asked for: only the run of
     elements between two hard stops (jet or outputs switching, a dwell, a program stop) is held
     while its sections are made, so the cost and memory of the next step do not grow with the
-    program."""
+    program. A long run is made in pieces of about `RUN_PIECE` elements, each ending at a corner
+    that is a section boundary whatever the planner decides (no blend can span it, the head
+    stops there: `_boundary`), so the pieces' sections are exactly the whole run's."""
     stops = {m.segment: m for m in program.messages if m.kind in STOP_KINDS}
     notes = {}
     for m in program.messages:
@@ -152,12 +155,19 @@ def iter_steps(program: Program, config: MachineConfig) -> Iterator[Step]:
                 yield pause(Pause("jet_off", jet.off_delay_s, _flags(e), where, e.segment, e.line, "jet off"))
         elif last is None and e.jet:
             yield pause(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), e.start, e.segment, e.line, "jet on, pierce"))
+        elif len(run) >= RUN_PIECE and _boundary(run[-1], e):
+            yield from close_run()
         run.append(e)
         last = e
     yield from close_run()
     if last is not None and last.jet:
         where = where_last if where_last is not None else last.end
         yield Pause("jet_off", jet.off_delay_s, 0, where, last.segment, last.line, "jet off at the end")
+
+
+def _boundary(a: Element, b: Element) -> bool:
+    """The corner a -> b ends a section in any case: no blend there, and the head stops."""
+    return _blend_radius(a, b)[0] == 0.0 and _stops_between(a, b)
 
 
 def move_steps(
