@@ -512,3 +512,27 @@ def test_an_alarm_the_machine_file_no_longer_declares_comes_back_latched_and_res
     assert [(a.id, a.active) for a in restarted.active().alarms] == [("plc_error", False), ("estop", True)]
     assert [a.id for a in restarted.reset()] == ["estop"]
     assert [a.id for a in restarted.active().alarms] == ["estop"]
+
+
+def test_a_job_history_written_before_planned_times_were_kept_is_migrated_and_read(tmp_path):
+    """An older jobs.sqlite (no planned_s column) is read as before, and the writer adds the column:
+    its old runs read -1 (not known), new runs keep their planned cycle time."""
+    import sqlite3
+
+    from cnc.gateway.jobs import JobHistory
+
+    path = tmp_path / "jobs.sqlite"
+    db = sqlite3.connect(path)
+    db.execute("CREATE TABLE jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, program TEXT NOT NULL, hash TEXT NOT NULL, "
+               "start_ns INTEGER NOT NULL, end_ns INTEGER NOT NULL, result TEXT NOT NULL, cycle_time_s REAL NOT NULL)")
+    db.execute("INSERT INTO jobs (program, hash, start_ns, end_ns, result, cycle_time_s) VALUES ('old.ngc', 'h', 1, 2, 'DONE', 9.5)")
+    db.commit()
+    db.close()
+    reader = JobHistory(path, readonly=True)
+    assert [(j.program, j.cycle_time_s, j.planned_s) for j in reader.page().entries] == [("old.ngc", 9.5, -1.0)]
+    writer = JobHistory(path)
+    writer.append("new.ngc", "h2", 3, 4, "DONE", 12.0, 11.25)
+    assert [(j.program, j.planned_s) for j in JobHistory(path, readonly=True).page().entries] == [("new.ngc", 11.25),
+                                                                                               ("old.ngc", -1.0)]
+    writer.close()
+    reader.close()

@@ -190,6 +190,7 @@ def test_history_queries_filter_and_page_and_every_run_is_a_job(controller, sess
     sup.wait_until(lambda: get(session, keys.jobs_history, JobPage).entries, 5.0, "the job record")
     job = get(session, keys.jobs_history, JobPage).entries[0]
     assert job.program == "part.ngc" and job.result == RunResult.DONE.name and job.cycle_time_s > 0
+    assert 0 < job.planned_s <= job.cycle_time_s, "the planned cycle time kept with the run (the run adds the FIFO's lead)"
     assert job.hash == get(session, keys.program, ProgramInfo).hash and job.end_ns >= job.start_ns
     op.close()
 

@@ -191,6 +191,7 @@ class JobRecord(msgspec.Struct, frozen=True):
     end_ns: int
     result: str  # RunResult name
     cycle_time_s: float  # machine time from start to end
+    planned_s: float = -1.0  # the planned cycle time at 100 % override (-1: not known when it ended)
 
 
 class JobPage(msgspec.Struct, frozen=True):

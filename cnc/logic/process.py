@@ -787,7 +787,7 @@ class Logic:
         if m["run_result"] != RunResult.NONE:
             ticks = max(0, m["run_end_tick"] - m["run_start_tick"])
             self.jobs.append(m["program_name"], m["program_hash"], self.run_started_ns or time.time_ns(), time.time_ns(),
-                             RunResult(m["run_result"]).name, ticks * self.config.timing.period_s)
+                             RunResult(m["run_result"]).name, ticks * self.config.timing.period_s, float(m["planned_s"]))
 
     def _note(self, text: str) -> None:
         self.message = text
