@@ -14,7 +14,7 @@ each time running the first seconds of the cut and stopping it. Measured:
 - the planner process's resident memory (VmRSS) after the load and while cutting, and its
   high-water mark (VmHWM), against the interpreted program's arrays.
 
-    python bench/streaming.py [--programs nest60k,million] [--no-timing-wait]
+    python bench/streaming.py [--programs nest60k,million] [--no-timing-wait] [--clock realtime]
 
 Programs: `nest60k`, the 60k-line nesting program of bench/gcode_speed.py (kerf-compensated
 parts, pierces, arcs); `million`, its 1M-line CAM polylines. The timing of the million-line
@@ -62,19 +62,30 @@ def memory_mb(pid: int) -> dict[str, float]:
 
 def start_and_cut(sup: Supervisor) -> tuple[float, int]:
     """Start, step the clock to the first setpoint pushed (wall time), cut CUT_TICKS, stop; the
-    start-to-motion time and the servo's underruns meanwhile."""
+    start-to-motion time and the servo's underruns meanwhile. On the real-time clock the cut runs
+    while the program's timing is planned beside it on the planner's other thread: the refills
+    must not starve."""
     pushed, underruns = sup.motion()["records_pushed"], sup.servo()["underruns"]
-    sup.pause_virtual_clock()
-    try:
+    if sup.clock == "realtime":
         t0 = time.perf_counter()
         ask(sup, Start())
         while sup.motion()["records_pushed"] == pushed:
-            sup.run_ticks(1)
+            time.sleep(0.0005)
         start_s = time.perf_counter() - t0
-        sup.run_ticks(CUT_TICKS)
+        time.sleep(CUT_TICKS * sup.config.timing.period_s)
         ask(sup, Stop())
-    finally:
-        sup.resume_virtual_clock()
+    else:
+        sup.pause_virtual_clock()
+        try:
+            t0 = time.perf_counter()
+            ask(sup, Start())
+            while sup.motion()["records_pushed"] == pushed:
+                sup.run_ticks(1)
+            start_s = time.perf_counter() - t0
+            sup.run_ticks(CUT_TICKS)
+            ask(sup, Stop())
+        finally:
+            sup.resume_virtual_clock()
     sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.HOLDING,
                    120.0, "the stop")
     return start_s, sup.servo()["underruns"] - underruns
@@ -130,11 +141,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--programs", default="nest60k,million")
     parser.add_argument("--no-timing-wait", action="store_true", help="do not wait for the cycle time to be planned")
     parser.add_argument("--machine", default=str(REPO / "machines" / "waterjet.toml"))
+    parser.add_argument("--clock", choices=("virtual", "realtime"), default="virtual",
+                        help="realtime: the cut runs in real time, its underruns counted (default virtual)")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="streaming_") as tmp:
         config = load_machine(args.machine, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"]})
         rows = []
-        with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
+        with Supervisor(config, clock=args.clock, processes=MOTION_ONLY) as sup:
             sup.enable()
             sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 30.0, "the servo")
             ask(sup, Home([]))

@@ -7,6 +7,8 @@ bench/gcode_speed.py and docs/benchmarks.md."""
 from __future__ import annotations
 
 import dataclasses
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +17,7 @@ from bench.nests import cam_nest
 from cnc.bus.messages import GoTo, LoadProgram, Start
 from cnc.data.layout import PlannerState, RunResult
 from cnc.machine_dialect import dialect_for
+from cnc.planner.process import TIMED_AT_LOAD_SEGMENTS
 from cnc.planner.rebase import PROBE_MM, start_shift
 from cnc.planner.runner import ProgramRunner
 from cnc.planner.sections import Section, iter_steps, program_steps
@@ -155,3 +158,28 @@ def test_a_loaded_program_started_after_the_head_moved_runs_from_there_and_keeps
     sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 60.0, "the cycle time from there")
     assert (m["records_pushed"] - pushed) * sup.config.timing.period_s == pytest.approx(sup.motion()["planned_s"], abs=1e-9)
     assert planned == sup.motion()["planned_s"] > 0.0, "a program this short is timed before the start answers"
+
+
+def timing_dirs() -> set[str]:
+    return {p.name for p in Path(tempfile.gettempdir()).glob("wjcnc-timing-*")}
+
+
+def test_a_large_programs_cycle_time_is_planned_in_a_process_of_its_own_exactly(homed, tmp_path):
+    """Beyond TIMED_AT_LOAD_SEGMENTS the cycle time is planned by a child process; it is the same
+    profile the run streams, a replaced program's child is stopped, and nothing is left behind."""
+    sup = homed
+    before = timing_dirs()
+    big, bigger = tmp_path / "big.ngc", tmp_path / "bigger.ngc"
+    big.write_text(cam_nest(60))
+    bigger.write_text(cam_nest(400))
+    ask(sup, LoadProgram(str(bigger)))
+    ask(sup, LoadProgram(str(big)))  # replaces it while its timing is under way
+    sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 120.0, "the cycle time")
+    start = sup.servo()["commanded_mm"]
+    program = interpret(big.read_text(), sup.config, (start[0], start[1], 0.0))
+    assert len(program.segments) > TIMED_AT_LOAD_SEGMENTS
+    timing = ProgramTiming(sup.config.timing.period_s).compute(iter_steps(program, sup.config))
+    m = sup.motion()
+    assert m["planned_s"] == pytest.approx(timing.total_ticks * sup.config.timing.period_s, abs=1e-9)
+    assert m["total_mm"] == pytest.approx(timing.total_mm, rel=1e-12)
+    sup.wait_until(lambda: timing_dirs() <= before, 30.0, "the timing processes' files removed")

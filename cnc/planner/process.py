@@ -68,6 +68,7 @@ from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
 from .sections import iter_steps, move_steps
 from .steps import ProgramTiming, StepSource
+from .timing_process import TimingProcess
 
 log = logging.getLogger(__name__)
 
@@ -96,9 +97,12 @@ class LoadedProgram:
         self.programmed_mm = st.feed_length_mm + st.rapid_length_mm  # the path length until the timing has it
         self.timing = ProgramTiming(config.timing.period_s)
         self._first: StepSource | None = self.new_source()  # the first stretch, made now: the start finds it made
-        if len(program.segments) <= TIMED_AT_LOAD_SEGMENTS:  # a short program is timed now, at no cost worth a thread
+        self.timing_job: TimingProcess | None = None
+        if len(program.segments) <= TIMED_AT_LOAD_SEGMENTS:  # a short program is timed now, at no cost worth more
             self._first.build_until(1 << 62)  # all of it: bounded by the program's size
             self.timing.compute([self._first.peek(i) for i in range(self._first.made)])
+        else:  # made on the helper thread (normal scheduling): the child process inherits that
+            self.timing_job = TimingProcess(program, config, self.timing)
 
     def new_source(self) -> StepSource:
         """The program's steps for one run, the first stretch made."""
@@ -247,6 +251,8 @@ class Planner:
                         job.stream.accept(job)
 
     def close(self) -> None:
+        if self.loaded is not None and self.loaded.timing_job is not None:
+            self.loaded.timing_job.cancel()
         self._stop_worker.set()
         self.worker.join(2.0)
         self.service.close()
@@ -329,17 +335,15 @@ class Planner:
         )
 
     def _take(self, loaded: LoadedProgram) -> None:
-        """Make `loaded` the program and time it on a thread of its own (the status says -1 s until
-        it is done: `_timing_done`); the timing of the program it replaces stops."""
-        if self.loaded is not None:
-            self.loaded.timing.cancelled.set()
+        """Make `loaded` the program; its cycle time is being planned in a process of its own (the
+        status says -1 s until it is done: `_timing_done`); the timing of the program it replaces
+        stops."""
+        if self.loaded is not None and self.loaded.timing_job is not None:
+            self.loaded.timing_job.cancel()
         self.loaded = loaded
         self.timing_published = False
         self._set(planned_s=-1.0, eta_s=-1.0, total_mm=loaded.total_mm)
-        if loaded.timing.complete:
-            self._timing_done()
-        else:
-            loaded.timing.start(iter_steps(loaded.program, loaded.config))
+        self._timing_done()
 
     def _timing_done(self) -> None:
         """Publish the loaded program's cycle time and path length once its timing is complete."""
@@ -347,6 +351,10 @@ class Planner:
         if loaded is None or self.timing_published:
             return
         timing = loaded.timing
+        if loaded.timing_job is not None and not timing.complete and timing.failure is None:
+            if not loaded.timing_job.poll():
+                return
+            loaded.timing_job = None
         if timing.failure is not None:
             self.timing_published = True
             log.error("planner: timing %s failed: %r", loaded.name, timing.failure)

@@ -7,17 +7,18 @@ has been made ahead of it), and forgets the ones the head has left behind. The p
 thread makes steps ahead (`build_until`), outside the lock the refills take, so the main loop
 finds the next step already made.
 
-`ProgramTiming` walks the same steps on a thread of its own and adds up each step's servo
-periods (`SectionStream.planned_samples`: the profile's pieces, not sampled), so the cycle time
-and the ETA come from exactly the profile the run streams, without delaying the load or the
-start.
+`ProgramTiming` walks the same steps and adds up each step's servo periods
+(`SectionStream.planned_samples`: the profile's pieces, not sampled), so the cycle time and the
+ETA come from exactly the profile the run streams; for a large program it runs in a process of
+its own (`timing_process.py`), without delaying the load or the start or sharing the
+interpreter lock with the refills.
 """
 
 from __future__ import annotations
 
 import threading
 from array import array
-from typing import Callable, Iterable, Iterator
+from typing import Iterable, Iterator
 
 import numpy as np
 
@@ -98,8 +99,8 @@ class ProgramTiming:
     """A program's cycle time at 100 % override, step by step, from the planned profile.
 
     `step_ticks[i]` is step i's servo periods (a section: its samples, what the runner will make
-    of it; a pause: its seconds; a program stop: 0). Filled by `compute`, usually on a thread:
-    `complete` says when every step is in, `total_mm` is then the path length."""
+    of it; a pause: its seconds; a program stop: 0). Filled by `compute` (or `adopt`, from the
+    timing process): `complete` says when every step is in, `total_mm` is then the path length."""
 
     def __init__(self, dt: float) -> None:
         self.dt = dt
@@ -128,18 +129,13 @@ class ProgramTiming:
             self.failure = exc
         return self
 
-    def start(self, steps: Iterable[Step], on_done: Callable[[], None] | None = None) -> threading.Thread:
-        """`compute` on a daemon thread (`on_done` called at its end)."""
-        def work() -> None:
-            from ..runtime.rt import leave_realtime
-
-            leave_realtime()
-            self.compute(steps)
-            if on_done is not None:
-                on_done()
-        thread = threading.Thread(target=work, name="program-timing", daemon=True)
-        thread.start()
-        return thread
+    def adopt(self, step_ticks: np.ndarray, total_mm: float) -> None:
+        """Take a timing made elsewhere (`timing_process.py`): per-step ticks and the path length."""
+        self.step_ticks = array("q", np.asarray(step_ticks, dtype=np.int64).tolist())
+        self.total_ticks = int(np.sum(step_ticks))
+        self.total_mm = float(total_mm)
+        self.after = np.cumsum(np.asarray(step_ticks, dtype=np.int64)[::-1])[::-1].copy()
+        self.complete = True
 
     def remaining_ticks(self, index: int, left_in_step: int) -> int | None:
         """Servo periods from within step `index` (with `left_in_step` of it to go) to the end;
