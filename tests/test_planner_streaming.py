@@ -7,6 +7,8 @@ bench/gcode_speed.py and docs/benchmarks.md."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -183,3 +185,19 @@ def test_a_large_programs_cycle_time_is_planned_in_a_process_of_its_own_exactly(
     assert m["planned_s"] == pytest.approx(timing.total_ticks * sup.config.timing.period_s, abs=1e-9)
     assert m["total_mm"] == pytest.approx(timing.total_mm, rel=1e-12)
     sup.wait_until(lambda: timing_dirs() <= before, 30.0, "the timing processes' files removed")
+
+
+def test_timing_files_a_killed_planner_left_are_removed_and_a_living_ones_kept(tmp_path):
+    from cnc.planner.timing_process import DIR_PREFIX, remove_stale
+
+    dead = 4_000_000  # above Linux's pid_max: never a living process
+    assert not Path(f"/proc/{dead}").exists()
+    stale = Path(tempfile.mkdtemp(prefix=f"{DIR_PREFIX}{dead}-"))
+    living = Path(tempfile.mkdtemp(prefix=f"{DIR_PREFIX}{os.getpid()}-"))
+    (stale / "segments.npy").write_bytes(b"x")
+    try:
+        remove_stale()
+        assert not stale.exists() and living.exists()
+    finally:
+        shutil.rmtree(living, ignore_errors=True)
+        shutil.rmtree(stale, ignore_errors=True)

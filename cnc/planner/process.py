@@ -68,7 +68,7 @@ from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
 from .sections import iter_steps, move_steps
 from .steps import ProgramTiming, StepSource
-from .timing_process import TimingProcess
+from .timing_process import TimingProcess, remove_stale
 
 log = logging.getLogger(__name__)
 
@@ -157,6 +157,7 @@ class Planner:
         self.token = session.liveliness().declare_token(self.keys.alive("planner"))
         self.loaded: LoadedProgram | None = None
         self.timing_published = False  # the loaded program's cycle time is in the status
+        remove_stale()  # a predecessor killed while it timed a program leaves its files
         self.runner: ProgramRunner | None = None
         self.runner_kind = PlannerState.IDLE  # RUNNING (a program), JOGGING or MOVING
         self.homing = None

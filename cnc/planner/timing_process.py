@@ -31,6 +31,15 @@ from ..config import MachineConfig
 from .steps import ProgramTiming
 
 _RESULT = "result.pickle"
+DIR_PREFIX = "wjcnc-timing-"  # then the planner's pid: `remove_stale` finds the ones a dead planner left
+
+
+def remove_stale() -> None:
+    """Remove the timing directories of planners that are gone (killed before they could clean up)."""
+    for d in Path(tempfile.gettempdir()).glob(f"{DIR_PREFIX}*"):
+        pid = d.name[len(DIR_PREFIX):].split("-", 1)[0]
+        if pid.isdigit() and not Path(f"/proc/{pid}").exists():
+            shutil.rmtree(d, ignore_errors=True)
 
 
 class TimingProcess:
@@ -38,7 +47,7 @@ class TimingProcess:
 
     def __init__(self, program: Program, config: MachineConfig, timing: ProgramTiming) -> None:
         self.timing = timing
-        self.dir = Path(tempfile.mkdtemp(prefix="wjcnc-timing-"))
+        self.dir = Path(tempfile.mkdtemp(prefix=f"{DIR_PREFIX}{os.getpid()}-"))
         np.save(self.dir / "segments.npy", program.segments)
         with open(self.dir / "job.pickle", "wb") as f:
             pickle.dump({"config": config, "messages": program.messages, "name": program.name}, f)
