@@ -49,13 +49,58 @@ def test_blends_never_overlap_on_short_segments():
     assert chained(path) and deviation(path, programmed, 0.001).max() <= 5.0
 
 
-def test_no_blend_where_the_jet_switches_or_at_a_reversal_or_an_arc():
+def test_no_blend_where_the_jet_switches_or_at_a_reversal():
     _, path = path_of("G64 P0.5\nG1 X10 F600\nM3\nG1 Y10\nM5\n")
     assert not any(e.blend for e in path), "the jet switches exactly at the corner"
     _, path = path_of("G64 P0.5\nG1 X10 F600\nG1 X0\n")
     assert not any(e.blend for e in path), "a reversal is a stop"
-    _, path = path_of("G64 P0.5\nG1 X10 F600\nG2 X20 Y0 R5\n")
-    assert not any(e.blend for e in path)
+    _, path = path_of("G64 P0.5\nG1 X10 F600\nG2 X20 Y0 R5\nG3 X30 Y0 R5 M3\n")
+    assert sum(e.blend for e in path) == 1, "the line-arc kink blends; the jet switching at the arc-arc kink stops"
+
+
+@pytest.mark.parametrize("text", [
+    "G1 X10 F600\nG2 X20 Y0 R5\n",  # line into an arc, 90 degrees, the turn to the arc's outside
+    "G1 X10 F600\nG3 X20 Y0 R5\n",  # ... and to its inside
+    "G3 X10 Y0 R5 F600\nG1 Y-10\n",  # an arc into a line
+    "G2 X10 Y0 R5 F600\nG2 X20 Y0 R5\n",  # arc into arc, both clockwise: a cusp of 180 degrees is a stop
+    "G2 X10 Y0 R6 F600\nG3 X20 Y0 R7\n",  # arc into arc, an S with a kink
+    "G1 X10 Y1 F600\nG3 X14 Y5 R4.5\nG1 X14 Y20\nG2 X30 Y20 R8.5\n",  # a chain of small kinks
+])
+def test_a_kink_between_an_arc_and_a_line_or_two_arcs_blends_within_half_the_tolerance(text):
+    programmed, path = path_of("G64 P0.1\nG1 X0 Y0 F600\n" + text)
+    assert chained(path)
+    assert deviation(path, programmed, step_mm=0.0005).max() <= 0.05 + 1e-6, "the smoothing keeps the other half"
+    for e in path:
+        if e.kind == ARC and e.blend:  # tangent to both neighbours: no kink left
+            i = path.index(e)
+            for u, v in ((path[i - 1].direction_at_end(), e.direction_at_start()),
+                         (e.direction_at_end(), path[i + 1].direction_at_start())):
+                assert u[0] * v[0] + u[1] * v[1] > 1.0 - 1e-9
+    kinks = sum(1 for a, b in zip(programmed, programmed[1:])
+                if a.direction_at_end()[0] * b.direction_at_start()[0] + a.direction_at_end()[1] * b.direction_at_start()[1]
+                < math.cos(1e-6) and a.direction_at_end()[0] * b.direction_at_start()[0]
+                + a.direction_at_end()[1] * b.direction_at_start()[1] > math.cos(math.pi - 1e-3))
+    assert sum(e.blend for e in path) == kinks, "every kink but a reversal blends"
+
+
+def test_a_nest_of_chords_and_arcs_blends_every_kink_within_its_tolerance():
+    """The nest's round parts: lines and R arcs around a circle, every junction a small kink."""
+    rng = random.Random(5)
+    text = ["G64 P0.05", "G1 X0 Y0 F3000"]
+    for part in range(6):
+        cx, cy, rad = 50 * part, 0.0, rng.uniform(8, 18)
+        n = rng.randint(24, 60)
+        text.append(f"G1 X{cx + rad:.4f} Y{cy:.4f}")
+        for k in range(1, n + 1):
+            a = 2 * math.pi * k / n
+            x, y = cx + rad * math.cos(a), cy + rad * math.sin(a)
+            text.append(f"G3 X{x:.4f} Y{y:.4f} R{rad * 1.02:.4f}" if k % 3 == 0 else f"G1 X{x:.4f} Y{y:.4f}")
+    programmed, path = path_of("\n".join(text) + "\n")
+    arcs_in = sum(1 for e in programmed if e.kind == ARC)
+    blended_at_arcs = sum(1 for i, e in enumerate(path) if e.blend and (path[i - 1].kind == ARC and not path[i - 1].blend
+                                                                         or path[i + 1].kind == ARC))
+    assert chained(path) and blended_at_arcs >= 1.5 * arcs_in, "both ends of nearly every arc blend"
+    assert deviation(path, programmed, 0.004).max() <= 0.025 + 1e-6
 
 
 def test_cam_polyline_corners_all_blend_within_their_tolerance():

@@ -11,11 +11,14 @@ lines, measured to their nearest point) by at most
 and cuts back each line by R * tan(phi / 2). R is the largest radius with d <= P / 2 (the
 other half of P belongs to the planner's smoothing, `limits.py`) whose cut-backs fit in half
 of each neighbouring line, so that neighbouring blends never overlap.
+A kink where an arc meets a line or another arc (kerf-compensated corners, lead-ins, CAM arcs
+fitted a hair off tangent) is blended the same way (`_fillet`): a circle tangent to both on the
+inside of the turn, within P / 2 of the corner, trimming at most half of either neighbour.
 A corner is an exact stop (no blend) under G61, where the jet or the outputs switch (they
-switch exactly at the segment boundary), around dwells, where an arc meets at an angle,
-between a rapid and a feed move, where the height changes, and where the planner finds
-stopping faster than crawling through the blend (`sections.py`). `deviation` measures how far a path strays from the programmed
-one, so tests check the bound rather than trust the formula.
+switch exactly at the segment boundary), around dwells, at a reversal, between a rapid and a
+feed move, where the height changes, and where the planner finds stopping faster than
+crawling through the blend (`sections.py`). `deviation` measures how far a path strays from
+the programmed one, so tests check the bound rather than trust the formula.
 """
 
 from __future__ import annotations
@@ -109,16 +112,34 @@ def iter_elements(segments: np.ndarray, first: int = 0) -> Iterator[Element]:
 
 
 def blend_corners(elements: list[Element], stop_before: frozenset[int] = frozenset()) -> list[Element]:
-    """Replace each blendable corner between two straight moves by a tangent arc within its tolerance,
+    """Replace each blendable corner (two straight moves, or a kink at an arc) by a tangent arc within its tolerance,
     except the corners into the elements of the segments in `stop_before` (exact stops there)."""
     if len(elements) < 2:
         return list(elements)
     cut_start = [0.0] * len(elements)  # how much each line loses at its start / end to blends
     cut_end = [0.0] * len(elements)
+    new_start: dict[int, tuple] = {}  # an arc's new start / end point, where a blend trims it
+    new_end: dict[int, tuple] = {}
     blends: dict[int, Element] = {}  # blend arc inserted after element i
     for i in range(len(elements) - 1):
         a, b = elements[i], elements[i + 1]
         if b.segment in stop_before:
+            continue
+        if a.kind == ARC or b.kind == ARC:  # a kink where an arc meets a line or another arc
+            fillet = _fillet(a, b)
+            if fillet is None:
+                continue
+            p0, p1, center, left = fillet
+            for k, e, point, lines, arcs in ((i, a, p0, cut_end, new_end), (i + 1, b, p1, cut_start, new_start)):
+                if e.kind == ARC:
+                    arcs[k] = point
+                else:
+                    lines[k] = math.dist(point[:2], a.end[:2])
+            blends[i] = Element(
+                kind=ARC, start=p0, end=p1, center=center, cw=not left, turns=0, feed_mm_s=min(a.feed_mm_s, b.feed_mm_s),
+                tolerance_mm=min(a.tolerance_mm, b.tolerance_mm), jet=a.jet, aux=a.aux, outputs=a.outputs,
+                segment=b.segment, line=b.line, blend=True,
+            )
             continue
         radius, phi = _blend_radius(a, b)
         if radius <= 0.0:
@@ -142,10 +163,19 @@ def blend_corners(elements: list[Element], stop_before: frozenset[int] = frozens
     for i, e in enumerate(elements):
         if cut_start[i] or cut_end[i]:
             e = _shortened(e, cut_start[i], cut_end[i])
+        elif i in new_start or i in new_end:
+            e = _trimmed_arc(e, new_start.get(i, e.start), new_end.get(i, e.end))
         out.append(e)
         if i in blends:
             out.append(blends[i])
     return out
+
+
+def blends(a: Element, b: Element) -> bool:
+    """Whether `blend_corners` may blend the corner a -> b (the planner may still stop there)."""
+    if a.kind == ARC or b.kind == ARC:
+        return _fillet(a, b) is not None
+    return _blend_radius(a, b)[0] > 0.0
 
 
 def _blend_radius(a: Element, b: Element) -> tuple[float, float]:
@@ -164,6 +194,139 @@ def _blend_radius(a: Element, b: Element) -> tuple[float, float]:
     by_tolerance = tol / (1.0 - math.cos(phi / 2.0))
     by_length = 0.5 * min(a.length_mm, b.length_mm) / math.tan(phi / 2.0)
     return min(by_tolerance, by_length), phi
+
+
+def _fillet(a: Element, b: Element) -> tuple[tuple, tuple, tuple[float, float], bool] | None:
+    """The blend of a kink where an arc meets a line or another arc: (point on a, point on b,
+    centre, turns left) of the circle tangent to both, on the inside of the turn, whose distance
+    from the corner is at most half the tolerance (as for two lines) and which trims at most half
+    of either neighbour; None where the corner must be an exact stop.
+
+    The centre lies at the blend's radius R from both curves: on the line offset by R, on the
+    circle of radius r -+ R about an arc's centre (minus where the turn's inside is the arc's
+    own centre side). R starts at the two lines' value, tol / (1 - cos(phi/2)), and shrinks
+    until the corner's distance |C - centre| - R is within the tolerance and both trims fit."""
+    if RAPID in (a.kind, b.kind) or a.kind == DWELL or b.kind == DWELL:
+        return None
+    if (a.kind == ARC and a.turns) or (b.kind == ARC and b.turns):
+        return None
+    tol = min(a.tolerance_mm, b.tolerance_mm) * BLEND_SHARE
+    if tol <= 0.0 or (a.jet, a.aux, a.outputs) != (b.jet, b.aux, b.outputs):
+        return None
+    if a.start[2] != a.end[2] or b.start[2] != b.end[2]:
+        return None
+    u1, u2 = a.direction_at_end(), b.direction_at_start()
+    phi = math.acos(max(-1.0, min(1.0, u1[0] * u2[0] + u1[1] * u2[1])))
+    if phi < COLLINEAR_RAD or phi > math.pi - 1e-3:
+        return None
+    left = u1[0] * u2[1] - u1[1] * u2[0] > 0.0
+    corner = a.end
+    # as for two lines: within the tolerance, and trimming at most half of the shorter neighbour
+    radius = min(tol / (1.0 - math.cos(phi / 2.0)), 0.5 * min(a.length_mm, b.length_mm) / math.tan(phi / 2.0))
+    for _ in range(40):
+        centre = _fillet_centre(a, b, radius, left, corner)
+        if centre is not None:
+            p0, p1 = _touch(a, centre, radius), _touch(b, centre, radius)
+            dev = math.hypot(corner[0] - centre[0], corner[1] - centre[1]) - radius
+            turn = abs(sweep(p0[0], p0[1], p1[0], p1[1], centre[0], centre[1], not left, 0))
+            if (dev <= tol * (1.0 + 1e-9) and math.dist(p0, p1) > 1e-9 and turn < math.pi
+                    and _trim_fits(a, p0, at_end=True) and _trim_fits(b, p1, at_end=False)):
+                z = corner[2]
+                return (p0[0], p0[1], z), (p1[0], p1[1], z), centre, left
+        radius *= 0.7
+        if radius < 1e-4:  # a blend this tight is slower than a stop: the corner is one
+            return None
+    return None
+
+
+def _fillet_centre(a: Element, b: Element, radius: float, left: bool, corner) -> tuple[float, float] | None:
+    """The centre of the circle of `radius` tangent to a and b on the inside of the turn, the
+    solution nearest the corner (None when the offset curves do not meet)."""
+    curves = [_offset(e, radius, left, at_end) for e, at_end in ((a, True), (b, False))]
+    if any(c is None for c in curves):
+        return None
+    (ka, pa, qa), (kb, pb, qb) = curves
+    if ka == "line" and kb == "line":
+        return None
+    if ka == "line":
+        candidates = _line_circle(pa, qa, pb, qb)
+    elif kb == "line":
+        candidates = _line_circle(pb, qb, pa, qa)
+    else:
+        candidates = _circle_circle(pa, qa, pb, qb)
+    if not candidates:
+        return None
+    return min(candidates, key=lambda c: math.hypot(c[0] - corner[0], c[1] - corner[1]))
+
+
+def _offset(e: Element, radius: float, left: bool, at_end: bool):
+    """e's offset by `radius` to the inside of the turn: ("line", point, direction) or ("circle", centre, radius)."""
+    if e.kind == ARC:
+        r = math.hypot(e.start[0] - e.center[0], e.start[1] - e.center[1])
+        towards_centre = (not e.cw) == left  # a CCW arc's centre is on its left
+        rho = r - radius if towards_centre else r + radius
+        return ("circle", e.center, rho) if rho > 1e-9 else None
+    u = e.direction_at_end() if at_end else e.direction_at_start()
+    n = (-u[1], u[0]) if left else (u[1], -u[0])
+    p = e.end if at_end else e.start
+    return "line", (p[0] + n[0] * radius, p[1] + n[1] * radius), u
+
+
+def _line_circle(p, u, c, rho) -> list[tuple[float, float]]:
+    fx, fy = p[0] - c[0], p[1] - c[1]
+    b = u[0] * fx + u[1] * fy
+    disc = b * b - (fx * fx + fy * fy - rho * rho)
+    if disc < 0.0:
+        return []
+    root = math.sqrt(disc)
+    return [(p[0] + u[0] * t, p[1] + u[1] * t) for t in (-b - root, -b + root)]
+
+
+def _circle_circle(c1, r1, c2, r2) -> list[tuple[float, float]]:
+    dx, dy = c2[0] - c1[0], c2[1] - c1[1]
+    d = math.hypot(dx, dy)
+    if d < 1e-12 or d > r1 + r2 or d < abs(r1 - r2):
+        return []
+    along = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d)
+    h = math.sqrt(max(r1 * r1 - along * along, 0.0))
+    mx, my = c1[0] + dx * along / d, c1[1] + dy * along / d
+    return [(mx - dy * h / d, my + dx * h / d), (mx + dy * h / d, my - dx * h / d)]
+
+
+def _touch(e: Element, centre: tuple[float, float], radius: float) -> tuple[float, float]:
+    """Where the blend circle about `centre` touches e."""
+    if e.kind == ARC:
+        cx, cy = e.center
+        r = math.hypot(e.start[0] - cx, e.start[1] - cy)
+        d = math.hypot(centre[0] - cx, centre[1] - cy)
+        return cx + (centre[0] - cx) * r / d, cy + (centre[1] - cy) * r / d
+    u = e.direction_at_start()
+    t = (centre[0] - e.start[0]) * u[0] + (centre[1] - e.start[1]) * u[1]
+    return e.start[0] + u[0] * t, e.start[1] + u[1] * t
+
+
+def _trim_fits(e: Element, point: tuple[float, float], at_end: bool) -> bool:
+    """`point` lies on e, on its half next to the corner (neighbouring blends never overlap)."""
+    if e.kind == ARC:
+        cx, cy = e.center
+        whole = abs(e.sweep_rad)
+        a_pt = math.atan2(point[1] - cy, point[0] - cx)
+        a_corner = math.atan2((e.end if at_end else e.start)[1] - cy, (e.end if at_end else e.start)[0] - cx)
+        turn = (a_corner - a_pt) if at_end else (a_pt - a_corner)
+        trimmed = turn % (2.0 * math.pi) if not e.cw else (-turn) % (2.0 * math.pi)
+        return 0.0 < trimmed <= 0.5 * whole
+    u = e.direction_at_start()
+    corner = e.end if at_end else e.start
+    t = (corner[0] - point[0]) * u[0] + (corner[1] - point[1]) * u[1]
+    t = t if at_end else -t
+    return 0.0 < t <= 0.5 * e.length_mm
+
+
+def _trimmed_arc(e: Element, start: tuple, end: tuple) -> Element:
+    return Element(
+        e.kind, tuple(start), tuple(end), e.center, e.cw, 0, e.feed_mm_s, e.tolerance_mm, e.jet, e.aux, e.outputs,
+        e.segment, e.line, e.dwell_s, e.blend,
+    )
 
 
 def _shortened(e: Element, at_start: float, at_end: float) -> Element:

@@ -27,7 +27,7 @@ from .limits import (
     GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, section_limits, section_zones, smoothing_for,
 )
 from .profile import Zones, rough_duration_s
-from .path import Element, _blend_radius, blend_corners, iter_elements
+from .path import Element, blend_corners, blends, iter_elements
 
 RUN_PIECE = 64  # a run of elements is made into sections in pieces of at least this many (`iter_steps`)
 REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and the next one's start
@@ -167,7 +167,7 @@ def iter_steps(program: Program, config: MachineConfig) -> Iterator[Step]:
 
 def _boundary(a: Element, b: Element) -> bool:
     """The corner a -> b ends a section in any case: no blend there, and the head stops."""
-    return _blend_radius(a, b)[0] == 0.0 and _stops_between(a, b)
+    return not blends(a, b) and _stops_between(a, b)
 
 
 def move_steps(
@@ -207,14 +207,19 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
     out: set[int] = set()
     for section in sections:
         lim = section.limits
+        # the neighbours' speed without the blend: a programmed arc's cap already carries the
+        # blend's curvature (its window reaches it), which is the cost weighed here, not a given;
+        # its feed stands for it
         cap = np.minimum(lim.v_hard, lim.v_feed)
+        programmed_arc = section.path.arc & ~np.array([e.blend for e in section.elements])
+        near = np.minimum(np.where(programmed_arc, np.inf, lim.v_hard), lim.v_feed)
         span_s = 2.0 * lim.smoothing.extension_s
         elements = section.elements
         for k in range(1, len(elements) - 1):
             if not elements[k].blend:
                 continue
             shortest = min(elements[k - 1].length_mm, elements[k + 1].length_mm) + elements[k].length_mm / 2.0
-            v = min(cap[k - 1], cap[k + 1], math.sqrt(accel * shortest))
+            v = min(near[k - 1], near[k + 1], math.sqrt(accel * shortest))
             r = min(cap[k] / v, 1.0) if v > 0.0 else 1.0
             blend_s = span_s * (1.0 - r) + v * (1.0 - r) ** 2 / accel
             if settle_s + v / accel < blend_s:
