@@ -55,7 +55,9 @@ from gcode_speed import nesting_program
 from cnc.config import MachineConfig, load_machine
 from cnc.machine_dialect import dialect_for
 from cnc.planner.measure import ProgrammedPath, peaks
+from cnc.planner.path import elements_from_program
 from cnc.planner.runner import ProgramRunner
+from gcode.canon import ARC, DWELL
 from gcode.interp import interpret
 from gcode.program import Program
 
@@ -287,6 +289,25 @@ def interpret_from_start(text: str, config: MachineConfig) -> tuple[Program, tup
     return interpret(text, dataclasses.replace(dialect, start_position_mm=(*start, 0.0))), start
 
 
+def feed_bound_s(program: Program, config: MachineConfig) -> float:
+    """A time no planner beats: every element at its feed, or at the speed its axes allow (a line:
+    the tightest axis over its direction; an arc: the axes' combined top speed), with no
+    acceleration at all; dwells as programmed."""
+    caps = [config.axis[a].max_velocity_mm_s for a in ("x", "y")]
+    total = 0.0
+    for e in elements_from_program(program.segments):
+        if e.kind == DWELL:
+            total += e.dwell_s
+            continue
+        if e.kind == ARC:
+            v_axes = math.hypot(*caps)
+        else:
+            d = [abs(e.end[i] - e.start[i]) for i in range(2)]
+            v_axes = min((c * e.length_mm / di for c, di in zip(caps, d) if di > 0.0), default=math.inf)
+        total += e.length_mm / min(e.feed_mm_s, v_axes)
+    return total
+
+
 def run_ours(program: Program, start: tuple[float, float], config: MachineConfig) -> Figures:
     dt = config.timing.period_s
     runner = ProgramRunner(program, config)
@@ -419,9 +440,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="run a few programs only")
     ap.add_argument("--json", type=Path, metavar="OUT", help="write every figure here")
+    ap.add_argument("--bounds", action="store_true", help="print only each program's feed bound (`feed_bound_s`) and exit")
     args = ap.parse_args(argv)
     t0 = time.monotonic()
     config = load_machine(MACHINE_FILE, NO_JET_DELAYS)
+    if args.bounds:
+        for bench in benches():
+            program, _ = interpret_from_start(bench.text, config)
+            print(f"{bench.name:<34} feed bound {feed_bound_s(program, config):9.3f} s")
+        return 0
     available, reason = linuxcnc_sim.available()
     rows: list[Comparison] = []
     with tempfile.TemporaryDirectory(prefix="linuxcnc_compare-") as tmp:
