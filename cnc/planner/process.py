@@ -202,6 +202,7 @@ class Planner:
             with self.lock:
                 self.apply_params()
                 self.handle_commands()
+                self._timing_done()  # also while the clock stands (a paused virtual clock)
                 if woke:
                     try:
                         self.on_tick()
@@ -675,7 +676,6 @@ class Planner:
         elif self.runner is not None:
             self._deadman()
             self._feed(servo)
-        self._timing_done()
         self._progress(servo)
 
     def _feed(self, servo: dict) -> None:
