@@ -163,6 +163,16 @@ def direct_controller(machine):
         yield sup
 
 
+@pytest.fixture(scope="module")
+def homed():
+    """One motion controller (no control logic), homed, for a module's tests that leave it idle again."""
+    config = machine_config(**{"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0})
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
+        enable_and_hold(sup)
+        home(sup)
+        yield sup
+
+
 @pytest.fixture
 def realtime_controller(machine):
     with Supervisor(machine, clock="realtime", processes=MOTION_ONLY) as sup:

@@ -17,7 +17,7 @@ from cnc.bus.session import open_client
 from cnc.data.layout import PlannerState, RunResult, ServoState
 from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 
-from .conftest import MACHINE_FILE, REPO, ask, enable_and_hold, home, machine_config, wait_planner_idle
+from .conftest import MACHINE_FILE, REPO, ask, enable_and_hold, machine_config, wait_planner_idle
 
 PART = """G21 G90 G64 P0.05
 G0 X100 Y100
@@ -29,16 +29,6 @@ M5
 G0 X120 Y120
 M2
 """
-
-
-@pytest.fixture(scope="module")
-def homed():
-    """One controller, homed, for the tests that leave it idle again."""
-    config = machine_config(**{"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0})
-    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
-        enable_and_hold(sup)
-        home(sup)
-        yield sup
 
 
 def write(tmp_path, text: str, name: str = "part.ngc") -> str:

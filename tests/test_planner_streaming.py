@@ -24,10 +24,9 @@ from cnc.planner.rebase import PROBE_MM, start_shift
 from cnc.planner.runner import ProgramRunner
 from cnc.planner.sections import Section, iter_steps, program_steps
 from cnc.planner.steps import STEPS_AHEAD, ProgramTiming, StepSource
-from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 from gcode.interp import Interpreter
 
-from .conftest import ask, enable_and_hold, home, machine_config, wait_planner_idle
+from .conftest import ask, machine_config, wait_planner_idle
 
 
 @pytest.fixture(scope="module")
@@ -123,15 +122,6 @@ def test_a_program_whose_shape_depends_on_the_start_is_not_shifted(config):
     program = interpret(text, config, here)
     probe = interpret(text, config, (10.375, 0.25, 0.0))
     assert start_shift(program, probe, (0.375, 0.25, 0.0)) is None
-
-
-@pytest.fixture(scope="module")
-def homed():
-    config = machine_config(**{"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0})
-    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
-        enable_and_hold(sup)
-        home(sup)
-        yield sup
 
 
 def test_a_loaded_program_started_after_the_head_moved_runs_from_there_and_keeps_its_planned_time(homed, tmp_path):
