@@ -44,11 +44,6 @@ class StepSource:
         """Index one past the last step made so far."""
         return self._first + len(self._made)
 
-    @property
-    def ended(self) -> bool:
-        """Every step of the program has been made."""
-        return self._iter is None
-
     def peek(self, i: int) -> Step | None:
         """Step i when it has been made (and not forgotten), else None; never makes one."""
         k = i - self._first
@@ -110,28 +105,23 @@ class ProgramTiming:
         self.complete = False
         self.after = np.zeros(0, dtype=np.int64)  # once complete: ticks from step i to the end
         self.failure: BaseException | None = None
-        self.cancelled = threading.Event()
 
     def compute(self, steps: Iterable[Step]) -> "ProgramTiming":
-        """Walk the steps (each made, timed and dropped) until the end or `cancelled`."""
+        """Walk the steps (each made, timed and dropped) to the end."""
         try:
+            ticks, total_mm = array("q"), 0.0
             for step in steps:
-                if self.cancelled.is_set():
-                    return self
-                ticks = step_ticks(step, self.dt)
-                self.step_ticks.append(ticks)
-                self.total_ticks += ticks
+                ticks.append(step_ticks(step, self.dt))
                 if isinstance(step, Section):
-                    self.total_mm += step.length_mm
-            self.after = np.cumsum(np.array(self.step_ticks, dtype=np.int64)[::-1])[::-1].copy()
-            self.complete = True
+                    total_mm += step.length_mm
+            self.adopt(np.array(ticks, dtype=np.int64), total_mm)
         except BaseException as exc:  # kept for the planner to report; the run itself makes the same steps
             self.failure = exc
         return self
 
     def adopt(self, step_ticks: np.ndarray, total_mm: float) -> None:
         """Take a timing made elsewhere (`timing_process.py`): per-step ticks and the path length."""
-        self.step_ticks = array("q", np.asarray(step_ticks, dtype=np.int64).tolist())
+        self.step_ticks = array("q", np.asarray(step_ticks, dtype=np.int64).tobytes())
         self.total_ticks = int(np.sum(step_ticks))
         self.total_mm = float(total_mm)
         self.after = np.cumsum(np.asarray(step_ticks, dtype=np.int64)[::-1])[::-1].copy()
