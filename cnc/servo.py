@@ -547,8 +547,14 @@ class Servo:
     # -- parameters and references ---------------------------------------------------------
     def _apply_params(self, tick: int) -> None:
         """Take the control parameters in force from the params block (its writer, the gateway,
-        has checked them); the tick they apply from is published with their change number."""
-        values, _ = self.params.read_nowait()
+        has checked them); the tick they apply from is published with their change number. A
+        block found mid-write is left for the next tick (its change number is not taken)."""
+        values, consistent = self.params.read_nowait()
+        if not consistent:
+            # the gateway is writing the block this very moment: what the reader falls back to is the
+            # last copy it saw, or before any the layout's zeros (a gain of 0, a following-error limit
+            # of 0: a trip at once). Keep the values in force; the change is taken at the next tick.
+            return
         block = self.params.layout.index
         slots = values[block["values"]]
         for attr, axis, slot in self._param_slots:

@@ -340,6 +340,38 @@ def test_control_parameters_written_between_two_ticks_apply_from_the_next_tick_w
         assert s["params_change"] == 1 and s["params_tick"] == 2, "applied once"
 
 
+def test_control_parameters_found_mid_write_are_taken_at_the_next_tick_never_as_zeros():
+    """The params block caught mid-write at the tick the servo sees a change: before this was fixed
+    the reader's fallback (the layout's zeros, when it had not read the block before) became the
+    gains and limits, and a following-error limit of 0 tripped the cut at once (seen in a fresh-clone
+    `make test` under load). The values in force stay; the change applies once the block is whole."""
+    from cnc.params import registry, values_of
+
+    config = machine_config()
+    specs = registry(config)
+    kp_x = next(s for s in specs if s.name == "axis.x.kp_1_s")
+    with BareServo(fifo_capacity=64, encoder_counts=(0, 0)) as bare:
+        for _ in range(4):
+            bare.fifo.push_one((0.010, 0.0), (0.0, 0.0), SetpointFlag.IN_MOTION)  # 10 um of error on X
+        s = bare.run(1)
+        kp_before, fe_before = list(bare.servo.kp), list(bare.servo.fe_lim)
+        block = bare.area.writer("params")
+        values = values_of(config, specs)
+        values[kp_x.index] = 2 * values[kp_x.index]
+        block.set("values", values + [0.0] * (len(block.get("values")) - len(values)))
+        block.set("change", 1)
+        block.publish()
+        cell = bare.area.blocks["params"].seq_cell
+        cell[0] += 1  # the writer stopped half-way through its next write
+        s = bare.run(2)
+        assert s["state"] != ServoState.FAULT and s["params_change"] == 0, "nothing taken from a block mid-write"
+        assert bare.servo.kp == kp_before and bare.servo.fe_lim == fe_before
+        cell[0] += 1  # the write completes
+        s = bare.run(3)
+        assert s["params_change"] == 1 and s["params_tick"] == 3 and bare.servo.kp[0] == values[kp_x.index]
+        assert s["state"] != ServoState.FAULT
+
+
 def _home_both(bare: BareServo, tick: int) -> int:
     """Home both axes where the encoders stand (counts are machine micrometres)."""
     bare.order(position_ref_counts=[0, 0], position_ref_mm=[0.0, 0.0], position_ref_mask=0b11, position_ref_seq=1)
