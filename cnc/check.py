@@ -13,7 +13,6 @@ from gcode.program import Program
 
 from .config import MachineConfig
 from .machine_dialect import dialect_for
-from .planner.sections import iter_steps
 from .planner.steps import ProgramTiming
 
 
@@ -91,7 +90,7 @@ def check_program(
 def program_timing(program: Program, config: MachineConfig) -> ProgramTiming:
     """The program's cycle time from the planner's profile (acceleration, jerk, corners, dwells, jet
     delays), step by step as the planner streams it."""
-    timing = ProgramTiming(config.timing.period_s).compute(iter_steps(program, config))
+    timing = ProgramTiming.of(program, config)
     if timing.failure is not None:
         raise timing.failure
     return timing

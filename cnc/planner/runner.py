@@ -375,10 +375,6 @@ class ProgramRunner:
         (program stops not counted): its timing (`ProgramTiming`), made now if it was not given."""
         return self._timing().total_ticks
 
-    @property
-    def step_ticks(self):
-        return self._timing().step_ticks
-
     def _timing(self) -> ProgramTiming:
         if self.timing is None:
             if self._again is None:

@@ -22,7 +22,10 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from .sections import Pause, Section, Step
+from gcode.program import Program
+
+from ..config import MachineConfig
+from .sections import Pause, Section, Step, iter_steps
 from .stream import SectionStream
 
 STEPS_AHEAD = 48  # steps the worker keeps made beyond the one under way (a nest: a dozen parts)
@@ -105,6 +108,11 @@ class ProgramTiming:
         self.complete = False
         self.after = np.zeros(0, dtype=np.int64)  # once complete: ticks from step i to the end
         self.failure: BaseException | None = None
+
+    @classmethod
+    def of(cls, program: Program, config: MachineConfig) -> "ProgramTiming":
+        """A whole program's timing, its steps made as the planner streams them (`iter_steps`)."""
+        return cls(config.timing.period_s).compute(iter_steps(program, config))
 
     def compute(self, steps: Iterable[Step]) -> "ProgramTiming":
         """Walk the steps (each made, timed and dropped) to the end."""

@@ -102,12 +102,11 @@ def _die_with_parent() -> None:
 def main(argv: list[str]) -> int:
     _die_with_parent()
     from ..runtime.rt import leave_realtime
-    from .sections import iter_steps
 
-    leave_realtime()
     try:  # only the time no other process wants: the controller's own processes, the HMI's host tools
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (OSError, AttributeError):
+        leave_realtime()
         os.nice(19)
     workdir = Path(argv[0])
     with open(workdir / "job.pickle", "rb") as f:
@@ -115,7 +114,7 @@ def main(argv: list[str]) -> int:
     segments = np.load(workdir / "segments.npy")
     program = Program(job["name"], segments, job["messages"], None)
     config: MachineConfig = job["config"]
-    timing = ProgramTiming(config.timing.period_s).compute(iter_steps(program, config))
+    timing = ProgramTiming.of(program, config)
     result = {
         "failure": f"{type(timing.failure).__name__}: {timing.failure}" if timing.failure is not None else "",
         "step_ticks": np.array(timing.step_ticks, dtype=np.int64), "total_mm": timing.total_mm,
