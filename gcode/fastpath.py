@@ -77,6 +77,8 @@ class FastPath:
             stop = min(end, pc + window)
             run_end, quiet = self._plain_until(pc, stop)
             if run_end - pc < MIN_RUN:
+                if run_end < stop:  # no run starts before the line that is not plain, nor on it
+                    self.skip_until = run_end + 1
                 return 0
             chunk = self.text[self.starts[pc] : self.starts[run_end]]
             if quiet:  # whole-line comments that do nothing: blank lines to the bulk path
@@ -246,7 +248,7 @@ class FastPath:
             fmm = fmm[keep_seg][comp.source]
             seg_lines = idx[keep_seg][comp.source]
             kind, starts, e, center, cw = comp.kind, comp.start, comp.end, comp.center, comp.cw
-        length, lo, hi = _geometry(kind, starts, e, center, cw)
+        length, lo, hi = piece_geometry(kind, starts, e, center, cw)
         dwells = np.flatnonzero(is_dwell[:limit])
         if not ip.kerf.idle:
             self._through_kerf(first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm)
@@ -355,6 +357,7 @@ class FastPath:
     def _emit(self, first, limit, mc, dwells, pw, ends, idx, kind, starts, e, center, cw, fmm, length, lo, hi) -> None:
         """No kerf compensation: moves and dwells go to the program builder as arrays."""
         ip = self.ip
+        ip.kerf.drain()  # the general path's contours still queued go first
         jet_l, aux_l, jet_off = self._outputs_by_line(limit, mc)
         order = np.argsort(np.concatenate((idx, dwells)), kind="stable")
         nm, nd = len(idx), len(dwells)
@@ -461,7 +464,7 @@ class FastPath:
         return None
 
 
-def _geometry(kind, starts, ends, centers, cw) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def piece_geometry(kind, starts, ends, centers, cw) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Length and XYZ bounds of every piece, arcs' quadrant points included."""
     length = np.sqrt(((ends - starts) ** 2).sum(axis=1))
     lo, hi = np.minimum(starts, ends), np.maximum(starts, ends)

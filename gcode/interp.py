@@ -12,7 +12,10 @@ repeat) moves a program counter over the lines; the first error stops interpreta
 from __future__ import annotations
 
 import bisect
+import contextlib
+import gc
 import math
+import threading
 import re
 import weakref
 import time
@@ -27,7 +30,7 @@ from .canon import ARC, LINE, RAPID, Event, Move
 from .dialect import AUX_BITS, Dialect
 from .errors import GCodeError
 from .fastpath import FastPath
-from .kerf import KerfCompensator
+from .kerf_batch import BatchedKerfCompensator
 from .lexer import MAX_WORD_VALUE, Block, OWord, column_of, lex_line
 from .modal import INCH_MM
 from .params import Parameters
@@ -71,7 +74,7 @@ class Interpreter:
         self.file = file
         self.use_fast_path = fast  # off: every line through the general path (for equivalence tests)
         self.builder = ProgramBuilder()
-        self.kerf = KerfCompensator(self.builder)
+        self.kerf = BatchedKerfCompensator(self.builder, batching=fast)
         self.params = Parameters(_weakly(self._predefined))  # no cycle through the parameters: see `_let_go`
         # modal state
         self.units = 1.0  # mm per program unit
@@ -106,6 +109,10 @@ class Interpreter:
         self.progress = progress
         self.lines, self.end = SourceLines(""), 0
         text = decode(source, self.file) if isinstance(source, (bytes, bytearray)) else source
+        with _collector_paused():
+            return self._run(text)
+
+    def _run(self, text: str) -> Program:
         try:
             self.lines, self.end = split_lines(text, self.file)
             nonblank = re.search(r"\S", self.lines.text)
@@ -118,6 +125,7 @@ class Interpreter:
             self._execute_lines()
             self.kerf.flush()
         except GCodeError as err:
+            err = self.kerf.earlier_error() or err  # a contour still queued comes from earlier lines
             n = err.line or self.line_no
             raise err.located(self.file, n, err.column or 1, self.lines[n - 1] if 0 < n <= len(self.lines) else None) from None
         except RecursionError:
@@ -178,7 +186,13 @@ class Interpreter:
             if block.oword is not None:
                 pc = self._oword(block.oword, pc)
                 continue
-            self._execute(block)
+            lane = block.lane
+            if lane is None:
+                lane = block.lane = self._plain_lane(block)
+            if lane:
+                self._execute_plain(block, lane)
+            else:
+                self._execute(block)
             pc += 1
         if self.frames and not self.ended:
             f = self.frames[-1]
@@ -399,6 +413,58 @@ class Interpreter:
         gg, mm = self._check_groups(b, g_codes, m_codes) if g_codes or m_codes else ({}, {})
         self._check_words(b, w, gg, mm)
         self._run_block(b, w, gg, mm)
+
+    def _plain_lane(self, b: Block) -> tuple | bool:
+        """A block that is only a motion: at most one constant G0/G1/G2/G3, axis words of this
+        machine, F, and for an arc with its G code on the line I, J, R, P; no comments, no
+        assignments, no letter twice. Such a block needs none of the group and word checks
+        (they cannot fail on it) and none of the other steps of a block, so `_execute_plain`
+        runs it directly: a subroutine's body runs through here once per call.
+        Returns (motion code or None, [(letter, word)], {letter: position}) or False."""
+        if b.comments or b.assignments or b.block_delete:
+            return False
+        motion, words, wpos = None, [], {}
+        for word in b.words:
+            letter = word.letter
+            if letter == "g":
+                if motion is not None or word.value is None:
+                    return False
+                motion = modal.code_number(word.value)
+                if motion not in (0, 10, 20, 30):
+                    return False
+                continue
+            if letter in wpos or not (letter in self.d.axes or letter in "fijrp"):
+                return False
+            words.append((letter, word))
+            wpos[letter] = word.pos
+        if not any(a in wpos for a in modal.AXIS_LETTERS):
+            return False
+        if any(k in wpos for k in "ijrp") and motion not in (20, 30):
+            return False
+        return motion, words, wpos
+
+    def _execute_plain(self, b: Block, lane: tuple) -> None:
+        """A block `_plain_lane` accepted: its words evaluated, F, the motion mode, the move;
+        the same result and the same errors as `_execute`."""
+        motion, words, wpos = lane
+        params = self.params
+        w: dict[str, float] = {}
+        for letter, word in words:
+            value = word.value if word.value is not None else word.node.evaluate(params)
+            if not -MAX_WORD_VALUE <= value <= MAX_WORD_VALUE:  # also NaN
+                raise GCodeError(
+                    f"{letter.upper()} word {value:g} is out of range: word values are limited to +-{MAX_WORD_VALUE:g}",
+                    code="overflow", column=self._col(b, word.pos),
+                )
+            w[letter] = value
+        self._block, self._wpos = b, wpos
+        if "f" in w:
+            if w["f"] < 0:
+                raise self._err(f"negative feed rate F{w['f']:g}", "feed", "f")
+            self.feed_mm = w["f"] * self.units
+        if motion is not None:
+            self.motion = motion
+        self._motion(self.motion, w, False)
 
     def _col(self, b: Block, norm_pos: int) -> int:
         return column_of(b.text, norm_pos)
@@ -775,12 +841,18 @@ class Interpreter:
     def _target(self, w: dict, machine: bool) -> list[float]:
         if machine:
             return [w[a] * self.units if a in w else self.pos[i] for i, a in enumerate(modal.AXIS_LETTERS)]
-        if not self.rotated:
+        if not self.cs_rotation[self.cs]:
             target = list(self.pos)
+            units, absolute = self.units, self.absolute
+            origin, g92 = self.cs_origin[self.cs], self.g92 if self.g92_on else None
             for i, a in enumerate(modal.AXIS_LETTERS):
-                if a in w:
-                    v = w[a] * self.units
-                    target[i] = v + self._offset(i) if self.absolute else self.pos[i] + v
+                v = w.get(a)
+                if v is not None:
+                    v *= units
+                    if not absolute:
+                        target[i] += v
+                    else:  # the translation summed first, as `_offset` does
+                        target[i] = v + (origin[i] if g92 is None else origin[i] + g92[i])
             return target
         work = self._to_work(self.pos)
         for i, a in enumerate(modal.AXIS_LETTERS):
@@ -804,10 +876,10 @@ class Interpreter:
         end = tuple(target)
         line = self._block.line
         if motion == 0:
-            self.kerf.move(Move(RAPID, start, end, feed=math.nan, line=line, column=1, attrs=self._attrs))
+            self.kerf.move(Move(RAPID, start, end, None, False, 0, math.nan, line, 1, self._attrs))
         elif motion == 10:
-            feed = self._feed_for(w, math.dist(start, end), "G1")
-            self.kerf.move(Move(LINE, start, end, feed=feed, line=line, column=1, attrs=self._attrs))
+            feed = self.feed_mm if self.feed_mm > 0 and not self.inverse_time else self._feed_for(w, math.dist(start, end), "G1")
+            self.kerf.move(Move(LINE, start, end, None, False, 0, feed, line, 1, self._attrs))
         else:
             self._arc(motion == 20, w, start, end, line)
         self.pos = target
@@ -893,6 +965,37 @@ class Interpreter:
             "_line": float(self.line_no),
             "_call_level": float(len(self.frames)),
         }.get(name)
+
+
+_pause_lock = threading.Lock()
+_pauses = 0  # interpretations running with the collector paused
+_resume = False  # the collector was on when the first of them began
+
+
+@contextlib.contextmanager
+def _collector_paused():
+    """The cyclic garbage collector off while a program is interpreted.
+
+    An interpretation allocates many small objects that live a while (the moves of contours
+    waiting to be offset, lexed blocks, parameters), and each full pass of the collector walks
+    every object of the process: a third of a subroutine nest's interpretation time. The
+    interpreter makes no reference cycles (the ones it had are broken: `_let_go`, `_weakly`;
+    `tests/test_gcode_linear.py` checks that a run leaves nothing for the collector), so nothing
+    waits for it meanwhile. Counted, so that interpretations on several threads resume it once,
+    after the last one."""
+    global _pauses, _resume
+    with _pause_lock:
+        if _pauses == 0:
+            _resume = gc.isenabled()
+            gc.disable()
+        _pauses += 1
+    try:
+        yield
+    finally:
+        with _pause_lock:
+            _pauses -= 1
+            if _pauses == 0 and _resume:
+                gc.enable()
 
 
 def _weakly(method: Callable) -> Callable:

@@ -426,7 +426,7 @@ class KerfCompensator:
             if isinstance(item, _Held):
                 self._emit(_collapsed(item), chained=True)
             else:
-                self._sink(item)
+                self._pass(item)
 
     def _emit_corner(self, m: Move, corner: XY, end: XY) -> None:
         """The arc around a convex corner (a straight rapid for G0), at the Z where the jet is."""
@@ -445,11 +445,15 @@ class KerfCompensator:
         self._sink(m)
         self._position = m.end
 
+    def _pass(self, item: Event | Move) -> None:
+        """Hand on an event (or a dwell) as it is."""
+        self._sink(item)
+
     def _queue_or_emit(self, item: Event | Move) -> None:
         if self._held:
             self._held.append(item)
         else:
-            self._sink(item)
+            self._pass(item)
 
     # small helpers
 

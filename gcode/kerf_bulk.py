@@ -37,6 +37,7 @@ class Compensated:
     center: np.ndarray  # (n, 2)
     cw: np.ndarray
     source: np.ndarray  # index of the programmed move each piece belongs to
+    corner: np.ndarray  # the piece is the arc around a convex corner before its move
 
 
 def compensate(
@@ -51,6 +52,21 @@ def compensate(
     Returns (result, None), or (None, i) where i is the first move of the first stretch that
     is not plain.
     """
+    result, bad = compensate_each(kind, start, end, center, cw, stretch, side, radius, first, exit_)
+    if bad.any():
+        hit = int(np.flatnonzero(bad)[0])
+        return None, int(np.flatnonzero(stretch == stretch[hit])[0]) if stretch[hit] >= 0 else hit
+    return result, None
+
+
+def compensate_each(
+    kind: np.ndarray, start: np.ndarray, end: np.ndarray, center: np.ndarray, cw: np.ndarray,
+    stretch: np.ndarray, side: np.ndarray, radius: np.ndarray, first: np.ndarray, exit_: np.ndarray,
+) -> tuple[Compensated, np.ndarray]:
+    """`compensate`, answering for each move: (result, bad) with bad[i] set on the moves that
+    make their stretch not plain. The pieces of a plain stretch are right whatever the others
+    are; the pieces' starts chain across stretches (`Compensated.start`), which a caller
+    emitting stretches apart from each other replaces with where each one really starts."""
     n = len(kind)
     comp = (stretch >= 0) & ~exit_
     xy0, xy1 = start[:, :2], end[:, :2]
@@ -142,10 +158,7 @@ def compensate(
     # collapsed offset arcs (start meets end) are not plain
     collapsed = comp & is_arc & (np.hypot(*(piece_end - anchor).T) < COLLAPSED_MM)
     bad |= bad_corner | collapsed
-    if bad.any():
-        hit = int(np.flatnonzero(bad)[0])
-        return None, int(np.flatnonzero(stretch == stretch[hit])[0]) if stretch[hit] >= 0 else hit
-    return _assemble(kind, start, end, center, cw, comp, exit_, anchor, piece_end, tool, offset_start, corner_arc, side), None
+    return _assemble(kind, start, end, center, cw, comp, exit_, anchor, piece_end, tool, offset_start, corner_arc, side), bad
 
 
 def _reverses(idx, point, anchor, xy0, xy1, center, d, cw, is_arc, first) -> np.ndarray:
@@ -257,4 +270,6 @@ def _assemble(kind, start, end, center, cw, comp, exit_, anchor, piece_end, tool
     out_start = np.empty((total, 3))
     out_start[0] = start[0]
     out_start[1:] = out_end[:-1]
-    return Compensated(out_kind, out_start, out_end, out_center, out_cw, source)
+    corner = np.zeros(total, dtype=bool)
+    corner[at] = True
+    return Compensated(out_kind, out_start, out_end, out_center, out_cw, source, corner)

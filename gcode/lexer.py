@@ -58,6 +58,7 @@ class Block:
     assignments: list = field(default_factory=list)  # (ParamRef, node, pos)
     comments: list[str] = field(default_factory=list)
     oword: OWord | None = None
+    lane: object = None  # the interpreter's plain-motion lane for this block (None: not yet classified)
 
 
 def column_of(raw: str, norm_pos: int) -> int:

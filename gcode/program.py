@@ -185,9 +185,11 @@ class ProgramBuilder:
         self, kind: np.ndarray, start: np.ndarray, end: np.ndarray, center: np.ndarray, cw: np.ndarray,
         feed: np.ndarray, dwell: np.ndarray, jet: np.ndarray, aux: np.ndarray, line: np.ndarray, attrs: Attrs,
         tolerance: np.ndarray, length: np.ndarray, lo: np.ndarray, hi: np.ndarray, pierces: int, jet_was_on_after: bool,
+        outputs: np.ndarray | None = None,
     ) -> None:
-        """Append a run of segments computed in bulk (the interpreter's fast path); the same result
-        as `move`/`event` one by one, with pierces counted by the caller."""
+        """Append a run of segments computed in bulk (the interpreter's fast path, offset contours);
+        the same result as `move`/`event` one by one, with pierces counted by the caller.
+        `outputs` per segment, or `attrs.outputs` for all."""
         n = len(kind)
         if not n:
             return
@@ -196,7 +198,7 @@ class ProgramBuilder:
         self.jet.frombytes(jet.astype(np.uint8).tobytes())
         self.turns.frombytes(np.zeros(n, dtype=np.int32).tobytes())
         self.aux.frombytes(aux.astype(np.uint32).tobytes())
-        self.outputs.frombytes(np.full(n, attrs.outputs, dtype=np.uint32).tobytes())
+        self.outputs.frombytes((np.full(n, attrs.outputs) if outputs is None else outputs).astype(np.uint32).tobytes())
         self.line.frombytes(line.astype(np.int32).tobytes())
         block = np.empty((n, 11))
         block[:, 0:3], block[:, 3:6], block[:, 6:8] = start, end, center

@@ -54,3 +54,45 @@ def test_a_nest_of_twice_the_parts_costs_at_most_2_3_times_the_work(shape):
     assert seg2 >= 1.9 * seg1 > 0, "the larger nest has about twice the moves"
     assert conv2 <= 2.3 * max(conv1, 1) and general2 <= 2.3 * max(general1, 1), (conv1, conv2, general1, general2)
     assert conv2 <= 4 * len(large), "the fast path converts each character a bounded number of times"
+
+
+@pytest.mark.parametrize("shape", ["plain", "subroutine per part", "if per part"])
+def test_an_interpretation_leaves_nothing_for_the_cyclic_collector(shape):
+    """The interpreter pauses the cyclic collector while it runs (`interp._collector_paused`):
+    that is only sound if it makes no reference cycles, which the collector would find here."""
+    import gc
+
+    text = SHAPES[shape](60)
+    gc.collect()
+    gc.disable()
+    try:
+        program = Interpreter(DIALECT, "p.ngc").run(text)
+        assert program.stats.pierces == (30 if shape == "if per part" else 60)
+        del program
+        try:
+            Interpreter(DIALECT, "p.ngc").run(text.replace("M2", "G7.5\nM2"))
+        except Exception as err:  # noqa: BLE001 - the error's own objects are the point
+            assert "G7.5" in str(err)
+        found = gc.collect()
+    finally:
+        gc.enable()
+    assert found == 0
+
+
+def test_the_collector_is_resumed_after_an_interpretation_as_it_was_before():
+    import gc
+
+    from gcode.errors import GCodeError
+
+    assert gc.isenabled()
+    Interpreter(DIALECT, "p.ngc").run(cam_nest(3))
+    assert gc.isenabled()
+    with pytest.raises(GCodeError):
+        Interpreter(DIALECT, "p.ngc").run("G1 X1 F100\nG7.5\nM2\n")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        Interpreter(DIALECT, "p.ngc").run(cam_nest(3))
+        assert not gc.isenabled(), "a collector that was off stays off"
+    finally:
+        gc.enable()
