@@ -48,6 +48,8 @@ _180_L = np.longdouble(180)
 
 _LITERAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?![0-9.])")
 _match_literal = _LITERAL.match  # bound once: this is the hot path
+# A bracket holding one number, as CAM posts write subroutine arguments: `[40.000]`
+_match_bracketed_literal = re.compile(r"\[([+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))\]").match
 _match_simple_parameter = re.compile(r"#([0-9]+)(?![0-9.])").match
 _NUMBER_SPAN = re.compile(r"[+-]*[0-9.]*")
 _WORD = re.compile(r"[a-z]+")
@@ -115,6 +117,9 @@ def parse_expression(text: str, pos: int) -> tuple[Node, int]:
     """The bracketed expression starting at text[pos] == '['."""
     if text[pos : pos + 1] != "[":
         raise _error(f"expected '[' to start an expression, found {_found(text, pos)}", pos)
+    match = _match_bracketed_literal(text, pos)
+    if match is not None:
+        return Const(float(match.group(1))), match.end()
     return _bracket(text, pos, 0)
 
 

@@ -39,6 +39,8 @@ from .source import SourceLines, decode, split_lines
 
 ARC_RADIUS_TOLERANCE_MM = 0.002 * INCH_MM / 1.0  # LinuxCNC accepts this much spiral (end radius - start radius)
 ARC_RADIUS_RELATIVE_TOLERANCE = 0.001
+SHORT_LINE = 24  # lines up to this long are lexed once per text (`Interpreter._lex`)
+SHORT_LINES_KEPT = 4096
 _OLINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[nN][\d. \t]*)?[oO]")
 _O_CHAR = re.compile(r"[oO]")
 _MOTION_CODES = (0, 10, 20, 30, 800)
@@ -148,6 +150,7 @@ class Interpreter:
         self._next_progress = 16384
         self._next_clock_check, started = 4096, time.monotonic()
         self._cache: dict[int, Block] = {}
+        self._by_text: dict[str, Block] = {}
         while pc < end and not self.ended:
             self.line_no = pc + 1
             self.blocks_run += 1
@@ -163,7 +166,7 @@ class Interpreter:
                 if self.d.max_seconds and time.monotonic() - started > self.d.max_seconds:
                     raise GCodeError(f"program still running after {self.d.max_seconds:g} s of interpretation "
                                      f"({self.blocks_run} blocks): an endless loop?", code="runaway", line=pc + 1, column=1)
-            if self.use_fast_path and pc not in self._olines:
+            if self.use_fast_path and not self.frames and pc not in self._olines:
                 taken = self.fast.run(pc, end)
                 if taken:
                     pc += taken
@@ -177,7 +180,7 @@ class Interpreter:
                         raise GCodeError("'%' is allowed only as the first and the last line (tape markers)", code="bad-character", line=pc + 1, column=raw.index("%") + 1)
                     pc += 1
                     continue
-                block = lex_line(raw, pc + 1)
+                block = self._lex(raw, pc + 1)
                 if pc in self._olines or self.frames:
                     self._cache[pc] = block
             if block.block_delete and self.d.block_delete:
@@ -203,6 +206,21 @@ class Interpreter:
             raise GCodeError(
                 "file ended with no program end (M2 or M30) and no closing '%'", code="program-end", line=last + 1, column=1
             )
+
+    def _lex(self, raw: str, line: int) -> Block:
+        """`lex_line`, with short lines a program repeats (M3, M5, G4 P0.3, G40) lexed once: a
+        block's words, expressions and plain lane depend on its text alone."""
+        if len(raw) > SHORT_LINE:
+            return lex_line(raw, line)
+        seen = self._by_text.get(raw)
+        if seen is None:
+            seen = lex_line(raw, line)
+            if len(self._by_text) >= SHORT_LINES_KEPT:
+                self._by_text.clear()
+            self._by_text[raw] = seen
+            return seen
+        return Block(line, seen.text, seen.norm, seen.block_delete, seen.words, seen.assignments, seen.comments,
+                     seen.oword, seen.lane)
 
     # -- O-words -------------------------------------------------------------------------
     def _scan_owords(self) -> None:

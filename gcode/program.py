@@ -155,7 +155,11 @@ class ProgramBuilder:
             if not e.data["on"]:
                 self._jet_was_on = False  # the next cutting move with the jet on pierces again
             return
-        self.messages.append(Message(e.line, len(self.kind), e.kind, e.data.get("text", ""), e.data))
+        self.message_at(e, len(self.kind))
+
+    def message_at(self, e: Event, segment: int) -> None:
+        """A message event that appears before segment `segment` (see `event`)."""
+        self.messages.append(Message(e.line, segment, e.kind, e.data.get("text", ""), e.data))
 
     def _account(self, m: Move, a: Attrs) -> None:
         st = self.stats
@@ -185,18 +189,18 @@ class ProgramBuilder:
         self, kind: np.ndarray, start: np.ndarray, end: np.ndarray, center: np.ndarray, cw: np.ndarray,
         feed: np.ndarray, dwell: np.ndarray, jet: np.ndarray, aux: np.ndarray, line: np.ndarray, attrs: Attrs,
         tolerance: np.ndarray, length: np.ndarray, lo: np.ndarray, hi: np.ndarray, pierces: int, jet_was_on_after: bool,
-        outputs: np.ndarray | None = None,
+        outputs: np.ndarray | None = None, turns: np.ndarray | None = None,
     ) -> None:
         """Append a run of segments computed in bulk (the interpreter's fast path, offset contours);
         the same result as `move`/`event` one by one, with pierces counted by the caller.
-        `outputs` per segment, or `attrs.outputs` for all."""
+        `outputs` per segment, or `attrs.outputs` for all; `turns` per segment, or none."""
         n = len(kind)
         if not n:
             return
         self.kind.frombytes(kind.astype(np.uint8).tobytes())
         self.cw.frombytes(cw.astype(np.uint8).tobytes())
         self.jet.frombytes(jet.astype(np.uint8).tobytes())
-        self.turns.frombytes(np.zeros(n, dtype=np.int32).tobytes())
+        self.turns.frombytes((np.zeros(n) if turns is None else turns).astype(np.int32).tobytes())
         self.aux.frombytes(aux.astype(np.uint32).tobytes())
         self.outputs.frombytes((np.full(n, attrs.outputs) if outputs is None else outputs).astype(np.uint32).tobytes())
         self.line.frombytes(line.astype(np.int32).tobytes())

@@ -30,12 +30,18 @@ def _both(text: str, counts: dict | None = None):
     return out
 
 
-def _general(text: str, every: int = 1) -> str:
+def _general(text: str, every: int = 1, messages: bool = False) -> str:
     """Every `every`-th part's coordinates written as expressions, so that the general path runs
-    them (the fast path takes no brackets); the other parts stay plain for the fast path."""
+    them (the fast path takes no brackets); the other parts stay plain for the fast path.
+    `messages`: a message before each part and a nozzle change before every fifth."""
     parts = re.split(r"(?m)^(?=G0 X)", text)
     coord = re.compile(r"([XYIJR])(-?\d+\.?\d*)")
-    return "".join(coord.sub(r"\1[\2 + 0]", p) if k % every == 0 else p for k, p in enumerate(parts))
+    out = []
+    for k, p in enumerate(parts):
+        if messages and k:
+            out.append(f"(MSG, part {k})\n" + (f"T{1 + k % 2} M6\n" if k % 5 == 0 else ""))
+        out.append(coord.sub(r"\1[\2 + 0]", p) if k % every == 0 else p)
+    return "".join(out)
 
 
 def _segments_equal(slow, fast) -> None:
@@ -48,7 +54,7 @@ def _segments_equal(slow, fast) -> None:
 
 def test_a_subroutine_nest_batched_equals_the_per_move_compensator():
     counts = {}
-    slow, fast = _both(cam_nest(150, subroutines=True), counts)
+    slow, fast = _both(cam_nest(150, subroutines=True, comments=True), counts)
     assert not isinstance(slow, GCodeError), str(slow)
     _segments_equal(slow, fast)
     assert counts == {"bulk": 150, "replayed": 0}
@@ -56,14 +62,18 @@ def test_a_subroutine_nest_batched_equals_the_per_move_compensator():
 
 
 @pytest.mark.parametrize("seed", range(6))
-@pytest.mark.parametrize("every", [1, 2])
-def test_general_path_nests_batched_equal_the_per_move_compensator(seed, every):
+@pytest.mark.parametrize("every, messages", [(1, False), (2, False), (1, True)])
+def test_general_path_nests_batched_equal_the_per_move_compensator(seed, every, messages):
     """Both sides, nozzle-table and direct diameters, lines and arcs, events inside contours and
-    bare G40s (replayed per move), parts of the fast path between them (`every` = 2)."""
+    bare G40s (replayed per move), parts of the fast path between them (`every` = 2), messages
+    and nozzle changes between the parts."""
     counts = {}
-    slow, fast = _both(_general(_nest(seed), every), counts)
+    slow, fast = _both(_general(_nest(seed), every, messages), counts)
     assert not isinstance(slow, GCodeError), str(slow)
     _segments_equal(slow, fast)
+    if messages:
+        kinds = [m.kind for m in fast.messages]
+        assert kinds.count("message") >= 60 and kinds.count("tool") >= 12
     assert counts["bulk"] > 60 / every / 2 and counts["bulk"] + counts["replayed"] <= 60
 
 
@@ -146,3 +156,52 @@ def test_a_queue_offset_many_times_over_a_program_equals_one_offset(monkeypatch)
     monkeypatch.setattr(kerf_batch, "QUEUE_MOVES", 50)
     _segments_equal(Interpreter(NEST_DIALECT, "p.ngc", fast=False).run(text), Interpreter(NEST_DIALECT, "p.ngc").run(text))
     _segments_equal(whole, Interpreter(NEST_DIALECT, "p.ngc").run(text))
+
+
+def _drive(kerf) -> None:
+    """Three parts straight into a compensator: rapid, jet on, G41 contour of lines and an arc,
+    G40 and its exit, jet off; then the program's end."""
+    from gcode.canon import ARC, LINE, RAPID, Event, Move
+
+    here = (0.0, 0.0, 0.0)
+    for k in range(3):
+        x = 40.0 * k
+        pts = [(x + 5, 5), (x + 25, 5), (x + 25, 15)]
+        kerf.move(Move(RAPID, here, (x + 2, 2, 0.0), feed=float("nan"), line=10 * k + 1))
+        kerf.event(Event("jet", 10 * k + 2, {"on": True}))
+        kerf.start(1, 0.4, 10 * k + 3, 1)
+        prev = (x + 2, 2, 0.0)
+        for j, (px, py) in enumerate(pts):
+            end = (px, py, 0.0)
+            kerf.move(Move(LINE, prev, end, feed=2400.0, line=10 * k + 3 + j))
+            prev = end
+        end = (x + 15, 25, 0.0)
+        kerf.move(Move(ARC, prev, end, (x + 15, 15), False, 0, 2400.0, 10 * k + 7))
+        kerf.move(Move(LINE, end, (x + 5, 5, 0.0), feed=2400.0, line=10 * k + 8))
+        kerf.stop(10 * k + 9, 1)
+        here = (x + 1, 1, 0.0)
+        kerf.move(Move(LINE, (x + 5, 5, 0.0), here, feed=2400.0, line=10 * k + 9))
+        kerf.event(Event("jet", 10 * k + 10, {"on": False}))
+    kerf.flush()
+
+
+def test_a_sink_that_is_no_program_builder_gets_the_per_move_items():
+    from gcode.canon import Move
+    from gcode.kerf import KerfCompensator
+
+    per_move, batched = [], []
+    _drive(KerfCompensator(per_move.append))
+    kerf = kerf_batch.BatchedKerfCompensator(batched.append)
+    _drive(kerf)
+    assert kerf.offset_in_bulk == 3 and kerf.replayed == 0
+    assert len(per_move) == len(batched) > 20
+    for a, b in zip(per_move, batched):
+        assert type(a) is type(b)
+        if isinstance(a, Move):
+            assert (a.kind, a.line, a.cw, a.turns) == (b.kind, b.line, b.cw, b.turns)
+            assert np.allclose(a.start, b.start, atol=1e-9) and np.allclose(a.end, b.end, atol=1e-9)
+            assert (a.center is None) == (b.center is None)
+            if a.center is not None:
+                assert np.allclose(a.center, b.center, atol=1e-9)
+        else:
+            assert (a.kind, a.line, a.data) == (b.kind, b.line, b.data)
