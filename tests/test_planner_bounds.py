@@ -1,0 +1,51 @@
+"""The cycle-time bounds the LinuxCNC comparison states (`bench/linuxcnc_compare.py`) are what they
+claim: the closed form on a single move, and never above what our jerk-limited planner achieves."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+
+import linuxcnc_compare as lc  # noqa: E402
+
+from cnc.config import load_machine  # noqa: E402
+from cnc.planner.runner import ProgramRunner  # noqa: E402
+
+CONFIG = load_machine(lc.MACHINE_FILE, lc.NO_JET_DELAYS)
+
+
+def test_the_jerk_limited_bound_of_one_straight_move_is_the_closed_form():
+    """100 mm along X at 200 mm/s from rest to rest: 200 > A^2/J, so each ramp takes
+    v/A + A/J = 65 ms over 6.5 mm, 32.5 ms more than cruising that far."""
+    program, _ = lc.interpret_from_start("G21 G90 G0 X100 Y100\nG1 X200 F12000\nM2\n", CONFIG)
+    x = CONFIG.axis["x"]
+    v, a, j = 200.0, x.max_accel_mm_s2, x.max_jerk_mm_s3
+    ramp_s = v / a + a / j
+    assert lc.jerk_bound_s(program, CONFIG) == pytest.approx(100.0 / v + 2 * (ramp_s - (v * ramp_s / 2) / v), rel=1e-12)
+    assert lc.feed_bound_s(program, CONFIG) == pytest.approx(0.5)
+
+
+def test_a_move_too_short_to_reach_its_feed_counts_as_the_fastest_rest_to_rest_move():
+    program, _ = lc.interpret_from_start("G21 G90 G0 X100 Y100\nG1 X101 F12000\nM2\n", CONFIG)
+    j = CONFIG.axis["x"].max_jerk_mm_s3
+    # 1 mm never reaches A (the ramp to v_peak is a triangle of acceleration): 2 ramps of
+    # 2 sqrt(v/J) covering v sqrt(v/J) each, so v = (J / 4)^(1/3) mm/s
+    v_peak = (j / 4.0) ** (1.0 / 3.0)
+    assert lc.jerk_bound_s(program, CONFIG) == pytest.approx(4.0 * math.sqrt(v_peak / j), rel=1e-9)
+
+
+@pytest.mark.parametrize("text", [
+    "G21 G90 G64 P0.05 G0 X200 Y200\nF12000\nG1 X300\nG1 Y300\nG1 X200\nG1 Y200\nM2\n",
+    "G21 G90 G64 P0.05 G0 X900 Y600\nF6000\n" + "\n".join(
+        f"G1 X{800 + 100 * math.cos(k / 60):.4f} Y{600 + 100 * math.sin(k / 60):.4f}" for k in range(1, 200)) + "\nM2\n",
+    "G21 G90 G0 X100 Y100\nG1 X101 F12000\nG4 P0.5\nG1 X150 Y120\nM2\n",
+])
+def test_our_planner_never_beats_the_bounds(text):
+    program, _ = lc.interpret_from_start(text, CONFIG)
+    ours_s = ProgramRunner(program, CONFIG).planned_ticks() * CONFIG.timing.period_s
+    assert lc.feed_bound_s(program, CONFIG) < lc.jerk_bound_s(program, CONFIG) <= ours_s
