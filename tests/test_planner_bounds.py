@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+sys.path.append(str(Path(__file__).resolve().parent.parent / "bench"))  # linuxcnc_compare imports its neighbours by name
 
 import linuxcnc_compare as lc  # noqa: E402
 
