@@ -188,7 +188,14 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
     whichever is faster."""
     first = _split(blend_corners(run), config, offset, notes, choose_jerk=False)
     stops = _corners_to_stop(first, config)
-    return _split(blend_corners(run, frozenset(stops)) if stops else blend_corners(run), config, offset, notes)
+    if stops:
+        return _split(blend_corners(run, frozenset(stops)), config, offset, notes)
+    for section in first:  # the same path and sections: only the share of jerk is still to choose
+        section.limits = _fastest_limits(
+            section.path, section.limits.v_feed, section.limits.rapid, min(e.tolerance_mm for e in section.elements),
+            any(e.blend for e in section.elements), config, known=section.limits,
+        )
+    return first
 
 
 def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]:
@@ -229,13 +236,20 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
 
 def _fastest_limits(
     path: PathArrays, feed, rapid, tolerance: float, blended: bool, config: MachineConfig, choose: bool = True,
+    known: SectionLimits | None = None,
 ) -> SectionLimits:
     """The section's limits under the share of jerk for curvature that runs it soonest: curves
     want more of it (higher speeds on arcs), speed changes want less (shorter ramps). The
-    estimate ranks the candidates by the profile over the elements' own caps (unwidened)."""
+    estimate ranks the candidates by the profile over the elements' own caps (unwidened).
+    `known`: the limits under the default share, already made (a straight section's answer)."""
+    if known is not None and known.smoothing.jerk_path == _axis_jerk(config):
+        return known  # straight: no share to choose
     best, best_s = None, math.inf
     for share in GEOMETRY_JERK_SHARES if choose else (GEOMETRY_JERK_SHARE,):
-        lim = section_limits(path, feed, rapid, tolerance, blended, config, share)
+        if known is not None and share == GEOMETRY_JERK_SHARE:
+            lim = known
+        else:
+            lim = section_limits(path, feed, rapid, tolerance, blended, config, share)
         if not choose or lim.smoothing.jerk_path == _axis_jerk(config):  # straight: no share to choose
             return lim
         sm = lim.smoothing
