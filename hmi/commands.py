@@ -17,6 +17,7 @@ import msgspec
 from PySide6.QtCore import QObject, Qt, Signal, Slot
 from PySide6.QtWidgets import QWidget
 
+from cnc.bus import messages
 from cnc.bus.messages import Reply
 from cnc.bus.operator import LOADS
 
@@ -33,10 +34,53 @@ class CommandSink(Protocol):
 
 
 def describe(msg: msgspec.Struct) -> str:
-    """A short label of a command for the operator: its type and the fields that say what it does."""
-    fields = {f: getattr(msg, f) for f in msg.__struct_fields__ if f not in ("version", "text")}
-    args = ", ".join(f"{k}={v}" for k, v in fields.items() if v not in (None, [], {}))
-    return f"{type(msg).__name__}({args})" if args else type(msg).__name__
+    """What a command does, as the operator reads it on the status line ("Take the command lock",
+    "Jog Y+ 1 mm at 50 mm/s"): a sentence, never the message's repr."""
+    m = messages
+    if isinstance(msg, m.LockRequest):
+        return "Take the command lock" if msg.take else "Release the command lock"
+    if isinstance(msg, m.Jog):
+        axis = f"{msg.axis.upper()}{'+' if msg.velocity_mm_s >= 0 else '-'}"
+        step = f" {abs(msg.distance_mm):g} mm" if msg.distance_mm else ""
+        return f"Jog {axis}{step} at {abs(msg.velocity_mm_s):g} mm/s"
+    if isinstance(msg, m.GoTo):
+        where = " ".join(f"{a.upper()}{v:g}" for a, v in msg.position_mm.items())
+        return f"Go to {where}"
+    if isinstance(msg, m.Home):
+        return f"Home {', '.join(a.upper() for a in msg.axes)}" if msg.axes else "Home all axes"
+    if isinstance(msg, m.Hold):
+        return f"Feed hold ({msg.why})" if msg.why else "Feed hold"
+    if isinstance(msg, m.CycleStart):
+        return f"Cycle start, {msg.cycles} cycles" if msg.cycles > 1 else "Cycle start"
+    if isinstance(msg, m.Override):
+        return f"Feed override {msg.percent:g} %"
+    if isinstance(msg, m.SetMode):
+        return f"{msg.mode} mode"
+    if isinstance(msg, (m.Drives, m.JetTest)):
+        return f"{'Drives' if isinstance(msg, m.Drives) else 'Jet test'} {'on' if msg.on else 'off'}"
+    if isinstance(msg, m.Pump):
+        return f"Pump on at {msg.pressure_bar:g} bar" if msg.on and msg.pressure_bar else f"Pump {'on' if msg.on else 'off'}"
+    if isinstance(msg, m.Acknowledge):
+        return f"Acknowledge alarm {msg.code}"
+    if isinstance(msg, m.LoadProgram):
+        return f"Load program {msg.path}"
+    if isinstance(msg, m.UploadProgram):
+        return f"Load program {msg.name}"
+    if isinstance(msg, m.ProcedureStart):
+        return f"Start procedure {msg.id}"
+    fixed = _FIXED.get(type(msg))
+    if fixed is not None:
+        return fixed
+    words = "".join(f" {c.lower()}" if c.isupper() else c for c in type(msg).__name__).strip()
+    return words[:1].upper() + words[1:]
+
+
+_FIXED: dict[type, str] = {
+    messages.Resume: "Resume", messages.Stop: "Stop", messages.Reset: "Reset", messages.JogStop: "Stop jogging",
+    messages.JogRefresh: "Jog held", messages.ProcedureConfirm: "Confirm the procedure step",
+    messages.ProcedureStop: "Stop the procedure", messages.ProcedureEnd: "End the procedure",
+}
+JOG_HELD = _FIXED[messages.JogRefresh]  # ten a second while a jog key is held: not shown on the status line
 
 
 class CommandRunner(QObject):

@@ -20,6 +20,7 @@ from cnc.bus.messages import (
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import LOCAL_USER, open_client
 
+from .commands import describe
 from .model import HISTORY_KEPT, MachineModel
 from .tuning_model import TuningModel
 
@@ -145,7 +146,7 @@ class Connection:
         """Send one operator command through the station; refused here, with the reason, when this
         station does not hold the command lock (a LockRequest always goes: it is how one takes it).
         Blocks until the controller answers: call it off the GUI thread or accept the wait."""
-        refused = self._refuse(type(msg).__name__, needs_lock=not isinstance(msg, LockRequest))
+        refused = self._refuse(describe(msg), needs_lock=not isinstance(msg, LockRequest))
         if refused is not None:
             return refused
         reply = self.operator.request(msg)

@@ -24,7 +24,7 @@ from cnc.bus.states import Mode
 
 from .adapter import ModelAdapter
 from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea, Search
-from .commands import CommandRunner
+from .commands import JOG_HELD, CommandRunner
 from .contour import ContourView
 from .controls import AutoPage, CommandBar, JogPad, KeyJog, ManualPage
 from .model import Screen
@@ -260,7 +260,7 @@ class MainWindow(QMainWindow):
         return self.banner.text() if self.banner.isVisibleTo(self) else ""
 
     def _show_reply(self, label: str, reply: Reply) -> None:
-        if label == "JogRefresh":
+        if label == JOG_HELD:
             return  # ten a second while a jog key is held: the jog's own reply says what happened
         if reply.ok:
             self.command_line.setStyleSheet("color: #1b5e20;")

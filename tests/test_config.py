@@ -124,12 +124,12 @@ def _shipped_with(replace: tuple[str, str] | None = None, drop_alarm: str | None
 
 
 def test_a_safety_alarm_may_be_reworded_or_made_graver_but_never_demoted():
-    doors = 'id = "doors_open"\nlevel = "error"\ntext = "Safety doors closed"'
+    doors = 'id = "doors_open"\nlevel = "error"\ntext = "Safety door open"'
     reworded = loads_machine(_shipped_with((doors, 'id = "doors_open"\nlevel = "fatal"\ntext = "Door open"')), "m.toml")
     entry = next(a for a in reworded.alarm if a.id == "doors_open")
     assert (entry.level, entry.text) == ("fatal", "Door open")
     with pytest.raises(ConfigError, match=r"m\.toml: \[\[alarm\]\] #\d+ \(doors_open\) level: 'warning' is below 'error'"):
-        loads_machine(_shipped_with((doors, 'id = "doors_open"\nlevel = "warning"\ntext = "Safety doors closed"')), "m.toml")
+        loads_machine(_shipped_with((doors, 'id = "doors_open"\nlevel = "warning"\ntext = "Safety door open"')), "m.toml")
 
 
 @pytest.mark.parametrize("alarm_id", ["x_drive", "barrier_interrupted", "operator_lost", "press_button", "mains_off"])

@@ -24,5 +24,5 @@ def test_demo_runs_automatic_cycles_handles_a_door_fault_and_exits_0():
     assert "demo: homed" in out and "demo: cycles ended (DONE)" in out
     assert "CUTTING" in out and "jet ON" in out and "PLC OK" in out, "the subscriber saw the cut under way"
     assert "procedure TRANSPORT PHASE: step 11/11 'Button pressed'" in out
-    assert "raised     2292 error   Safety doors closed" in out
+    assert "raised     2292 error   Safety door open" in out
     assert "demo: OK: homed, automatic cycles cut, the door fault handled and reset" in out

@@ -111,11 +111,11 @@ def test_operator_runs_the_automatic_cycle_end_to_end_from_the_screen(qtbot, plc
     screen.commands.replied.connect(lambda label, reply: sent.append(label))
     qtbot.keyPress(w, Qt.Key.Key_Up)
     # held: the pad refreshes the jog (the controller's dead-man stops a jog nobody refreshes)
-    qtbot.waitUntil(lambda: sent.count("JogRefresh") >= 2, timeout=WAIT_MS)
+    qtbot.waitUntil(lambda: sent.count("Jog held") >= 2, timeout=WAIT_MS)
     qtbot.keyRelease(w, Qt.Key.Key_Up)
-    qtbot.waitUntil(lambda: "JogStop" in sent, timeout=WAIT_MS)
-    assert sent[0].startswith("Jog(axis=y, velocity_mm_s=50") and sent[-1] == "JogStop"
-    assert set(sent[1:-1]) == {"JogRefresh"} and not manual.jog._refresh.isActive(), "released: no more refreshes"
+    qtbot.waitUntil(lambda: "Stop jogging" in sent, timeout=WAIT_MS)
+    assert sent[0] == "Jog Y+ at 50 mm/s" and sent[-1] == "Stop jogging"
+    assert set(sent[1:-1]) == {"Jog held"} and not manual.jog._refresh.isActive(), "released: no more refreshes"
     qtbot.waitUntil(lambda: model.status.axes[1].commanded_mm > y0 and model.status.machine_state == "READY"
                     and model.status.planner_state == "IDLE", timeout=WAIT_MS)
 
@@ -189,7 +189,7 @@ def test_an_alarm_shows_in_the_list_faults_messages_and_history_and_is_acknowled
     qtbot.waitUntil(lambda: [r[6] for r in w.alarms.rows() if r[1] == "2292"] == ["yes"], timeout=WAIT_MS)
     reply = click(qtbot, screen, w.bar.reset)
     assert "still present: 2292" in reply.reason, "not reset while the cause is present"
-    assert "still present: 2292" in w.command_line.text()
+    assert w.command_line.text().startswith("✔ Reset: ") and "still present: 2292" in w.command_line.text()
     sup.set_sim(doors_open=0)
     qtbot.waitUntil(lambda: [r[5] for r in w.alarms.rows() if r[1] == "2292"] == ["cleared, reset needed"]
                     and "Safety door open" not in w.faults.entries(), timeout=WAIT_MS)

@@ -179,7 +179,7 @@ def test_door_opened_during_a_cut_closes_the_jet_in_the_tick_then_the_servo_stop
     assert sup.motion()["run_result"] == RunResult.FAULT
     assert logic(sup)["state"] == MachineState.FAULT and not jet()
     sup.wait_until(lambda: 2292 in events.codes(), 5.0, "alarm 2292 in the events")
-    assert "2292 Safety doors closed" in command(sup, Reset())  # the door is still open: not reset
+    assert "2292 Safety door open" in command(sup, Reset())  # the door is still open: not reset
     sup.set_sim(doors_open=0)
     sup.wait_until(lambda: 2292 in events.codes("cleared"), 5.0, "the door alarm to clear")
     assert command(sup, Reset()) == ""

@@ -1,0 +1,41 @@
+"""What an operator reads is a sentence: the status line's label of every command, and the alarm
+texts, never a message's repr."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from cnc.bus.operator import OPERATOR_COMMANDS
+from cnc.config import load_machine
+from hmi.commands import describe
+from tests.test_fuzz_commands import VALID
+
+REPR = re.compile(r"[A-Z][a-z]+[A-Z]\w*|\w+=|\(\)")  # CamelCase class names, field=value, empty brackets
+
+
+@pytest.mark.parametrize("msg", [m for m in VALID if type(m) in OPERATOR_COMMANDS.values()], ids=lambda m: type(m).__name__)
+def test_every_operator_command_reads_as_words(msg):
+    text = describe(msg)
+    assert text[:1].isupper() and not REPR.search(text), text
+
+
+def test_every_operator_command_kind_is_covered_here():
+    assert set(OPERATOR_COMMANDS.values()) <= {type(m) for m in VALID}
+
+
+def test_the_words_say_what_the_command_does():
+    from cnc.bus.messages import GoTo, Hold, Jog, LockRequest, Override
+
+    assert describe(LockRequest(take=True)) == "Take the command lock"
+    assert describe(Hold(why="")) == "Feed hold"
+    assert describe(Jog("y", -50.0, 2.0)) == "Jog Y- 2 mm at 50 mm/s"
+    assert describe(GoTo({"x": 10.0, "y": 20.5}, 50.0)) == "Go to X10 Y20.5"
+    assert describe(Override(80.0)) == "Feed override 80 %"
+
+
+def test_the_door_alarm_reads_as_what_is_wrong():
+    catalogue = {a.code: a.text for a in load_machine(Path(__file__).resolve().parent.parent / "machines" / "waterjet.toml").alarm}
+    assert catalogue[2292] == "Safety door open"
