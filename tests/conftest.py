@@ -117,6 +117,21 @@ def reset_and_home(sup: Supervisor, request) -> None:
 logic = logic_block  # the control logic's block (mode, state, phase, cycles, procedure), as the tests name it
 
 
+SHM = Path("/dev/shm")
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _dev_shm_left_as_found():
+    """No test leaves a file in /dev/shm: the controller's segments, a station's, Zenoh's own
+    (its shared-memory transport is configured off in every session, `cnc.bus.session`) and
+    Python's semaphores. Checked once, at the end of the run: what is there then and was not at
+    its start fails the run, named."""
+    before = set(os.listdir(SHM)) if SHM.is_dir() else set()
+    yield
+    left = sorted(set(os.listdir(SHM)) - before) if SHM.is_dir() else []
+    assert not left, f"the tests left these in {SHM}: {left}"
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _earlier_modules_objects_out_of_the_collectors_way():
     """What earlier modules left alive goes to the permanent generation, as the controller's

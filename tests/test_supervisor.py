@@ -36,7 +36,7 @@ def test_stop_frees_every_shared_memory_segment_and_the_plc_simulator(machine, t
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig, tmp_path):
-    before = _ours()
+    before, everything = _ours(), set(os.listdir(SHM))
     port = free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "cnc.cli", "up", "--machine", str(MACHINE_FILE), "--clock", "virtual",
@@ -55,6 +55,7 @@ def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig, t
         if proc.poll() is None:
             proc.kill()
     assert not created & _ours(), f"left in /dev/shm: {created & _ours()}"
+    assert set(os.listdir(SHM)) <= everything, "nothing else either (Zenoh's own segments: its shared memory is off)"
     assert "stopping" in proc.stderr.read()
     assert (tmp_path / "waterjet" / "waterjet" / "history.sqlite").exists(), "the control logic kept its history"
 
@@ -187,3 +188,14 @@ def test_the_process_table_names_every_process_once_and_every_entry_point_resolv
     priorities = [realtime_priority(config, p.name) for p in PROCESSES if p.rt_rank is not None]
     assert realtime_priority(config, "hardware") == max(priorities) > realtime_priority(config, "servo")
     assert BY_NAME["hardware"].restart == "never" and BY_NAME["servo"].restart == "faulted"
+
+
+def test_every_zenoh_session_the_project_opens_has_shared_memory_off():
+    """Zenoh's shared-memory transport would leave a segment per process in /dev/shm (1.3 MB
+    each); our payloads are small and our fast data has its own shared memory."""
+    import json
+
+    from cnc.bus.session import zenoh_config
+
+    for mode in ("client", "peer", "router"):
+        assert json.loads(zenoh_config(mode).get_json("transport/shared_memory/enabled")) is False
