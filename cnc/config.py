@@ -80,6 +80,10 @@ class TimingConfig:
     commander_timeout_ms: float = opt(
         100.0, "ms", "the tick stops the machine when the commander's (control logic's) heartbeat is this late", 10.0, 10000.0
     )
+    max_overruns_per_s: int = opt(
+        20, "ticks", "servo ticks late within one second beyond which the cut stops (an error); "
+        "fewer raise a warning", 1, 100000,
+    )
 
     @property
     def period_s(self) -> float:
@@ -302,7 +306,7 @@ CONTROLLER_ALARM_IDS = (
     "fifo_underrun", "process_lost", "plc_link_lost",
     "plc_error", "pump_pressure_fault", "transport_timeout", "procedure_stop", "procedure_timeout", "program_error",
     "program_message", "wrong_mode", "cycle_done", "internal_error", "operator_lost", "press_button", "press_start",
-    "feed_hold",
+    "feed_hold", "tick_overruns", "tick_overrun_rate",
 )  # and `<axis>_drive` for every axis (cnc.safety)
 
 

@@ -183,6 +183,7 @@ class Servo:
         if not self.first and tick > self.last_tick + 1:
             steps = tick - self.last_tick
             v[I["overruns"]] += steps - 1
+            v[I["overrun_last_ticks"]] = steps - 1
         self.first = False
         self.last_tick = tick
         if self._params_change_cell[0] != v[I["params_change"]]:

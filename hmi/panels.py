@@ -122,6 +122,7 @@ class StatusPanels(QWidget):
         box = _Group("Safety and network")
         box.add(self._lamp("estop", "Emergency stop"), self._lamp("doors", "Doors"))
         box.add(self._lamp("network", "Network alive"), self._lamp("reset", "Reset fault"))
+        box.add(self._lamp("timing", "Servo timing"))
         return box
 
     # -- refreshing ---------------------------------------------------------------------------
@@ -221,3 +222,7 @@ class StatusPanels(QWidget):
                                   (f"yes ({holder})" if alive else f"no ({holder})") if reachable else "NO (controller unreachable)")
         needs = self.model.needs_reset()
         self.lamps["reset"].set(BAD if needs else OK, "reset needed" if needs else "none")
+        late = {a.id: a for a in self.model.active_alarms if a.id in ("tick_overruns", "tick_overrun_rate") and a.active}
+        told = f"{st.overruns} ticks late since start" if st.overruns else "every tick on time"
+        self.lamps["timing"].set(BAD if "tick_overrun_rate" in late else WARN if late else OK,
+                                 ("LATE NOW: " if late else "") + told)

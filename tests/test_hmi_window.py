@@ -221,6 +221,13 @@ def test_an_alarm_shows_in_the_list_faults_messages_and_history_and_is_acknowled
     assert "found in the controller's whole history" in h.count.text()
     shot(h, "07_message_history")
 
+    # the servo three ticks late: a warning in the list, the timing lamp says so until the episode ends
+    sup.stall_servo(3)
+    qtbot.waitUntil(lambda: any(r[1] == "1015" and r[0] == "WARNING" for r in w.alarms.rows())
+                    and w.panels.lamps["timing"].state.startswith("LATE NOW: "), timeout=WAIT_MS)
+    qtbot.waitUntil(lambda: w.panels.lamps["timing"].state.endswith("ticks late since start")
+                    and not w.panels.lamps["timing"].state.startswith("LATE"), timeout=WAIT_MS)
+
 
 def test_walking_a_procedure_with_confirmations_and_manual_steps_from_the_procedure_window(qtbot, screen):
     w, model = screen.window, screen.model

@@ -99,6 +99,7 @@ def servo_layout(n: int) -> BlockLayout:
             F("setpoint_line", "i"),
             F("ticks_processed", "Q"),
             F("overruns", "Q"),  # ticks the servo skipped (its count fell behind the tick counter)
+            F("overrun_last_ticks", "Q"),  # ticks skipped at its latest overrun (how late it was, in periods)
             F("underruns", "Q"),  # ticks the FIFO ran dry during a motion
             F("underrun_tick", "Q"),  # first tick of the latest dry spell (the jet closed on it)
             F("loop_ns", "q"),  # compute time of the last tick
@@ -212,6 +213,8 @@ def sim_layout(n: int) -> BlockLayout:
             F("planner_stall", "I"),  # the planner pushes no setpoints (a planner starved of CPU)
             F("limit_switch_mask", "I"),  # bits 2i, 2i+1: axis i's min, max limit switch forced active (a tripped switch)
             F("inject_bug", "s", 96),  # "<process>/<verb>,...": those handlers raise (cnc.bus.service, fault injection)
+            F("servo_stall_seq", "Q"),  # +1: the servo sits out the next servo_stall_ticks ticks (a host hiccup)
+            F("servo_stall_ticks", "I"),
         ],
     )
 

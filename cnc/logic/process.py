@@ -57,6 +57,7 @@ from .cycle import AutoCycle
 from .pressure import PlcView, PressureWatch
 from .procedures import ProcedureRunner
 from .requests import PlannerLink
+from .overruns import OverrunWatch
 from .signals import PlcOutputs, SignalReader, Snapshot
 from .states import CyclePhase, MachineState, Mode
 
@@ -95,6 +96,8 @@ class Logic:
         hb["pid"][Proc.LOGIC] = os.getpid()
         self.scan_hist = area.blocks["logic_scan"].array
         self.wake_hist = area.blocks["logic_wake"].array
+        self.overruns = OverrunWatch(int(area.reader("servo").read_dict()["overruns"]), config.timing.period_s,
+                                     config.timing.max_overruns_per_s)
         self.recorder = Recorder("logic-recorder")
         self.alarm_pub = session.declare_publisher(
             self.keys.event_alarm, encoding=zenoh.Encoding.APPLICATION_JSON,
@@ -190,6 +193,7 @@ class Logic:
         signals = self.reader.signals(snap, self.state.name, self.mode.name)
         self._interlocks(snap, signals)
         self._losses(snap)
+        self._overruns(snap, now)
         self._program_events(snap)
         self._record_jobs(snap)
         self.cycle.step(snap, now)
@@ -590,6 +594,20 @@ class Logic:
             self.fault("watchdog", f"the servo missed {self.config.timing.watchdog_missed_ticks} ticks (tick {dog}): "
                                    "the hardware server brought the axes to rest and holds the board safe")
             self._committed(watchdog_seen=dog)
+
+    def _overruns(self, snap: Snapshot, now: float) -> None:
+        """The servo's overruns as alarms (`overruns.OverrunWatch`): a warning per episode, an
+        error that stops the cut when they come faster than the machine file allows."""
+        servo = snap.servo
+        for action, alarm_id, detail in self.overruns.update(int(servo["overruns"]), int(servo["overrun_last_ticks"]), now):
+            if action == "raise":
+                self.book.raise_(alarm_id, detail, "logic")
+            elif action == "clear":
+                self.book.clear(alarm_id)
+            elif action == "latch":
+                self._latch(alarm_id, detail, "logic")
+            else:
+                self.fault(alarm_id, detail)
 
     def _committed(self, **counters: int) -> None:
         """What the logic's block says was told, once its alarm is stored: a logic killed before

@@ -17,6 +17,7 @@ from ..bus.keys import Keys
 from ..bus.session import open_client
 from ..data.dataserver import SharedArea
 from ..data.fifo import SetpointFifo
+from ..data.injection import servo_stall
 from ..data.layout import ClockKind, Proc, controller_layouts
 from .rt import enter_realtime, keep_gc_out
 from .table import realtime_priority
@@ -84,6 +85,7 @@ def run_servo(rt: Runtime, ready) -> None:
     servo = Servo(rt.config, area, fifo, record_latency=rt.clock == "realtime", trace=trace)
     timer = rt.timer_clients["servo"]
     shutdown = area.blocks["supervisor"].array["shutdown"]
+    stall = servo_stall(area, rt.config)  # fault injection, on the simulated board only
     my_bit = 1 << Proc.SERVO
     if rt.clock == "realtime":
         enter_realtime(realtime_priority(rt.config, "servo"), "servo")
@@ -94,6 +96,8 @@ def run_servo(rt: Runtime, ready) -> None:
             if timer.wait_tick(0.25):
                 while timer.wake.acquire(False):
                     pass  # ticks missed while late: run once on the newest, the tick counter counts the overrun
+                if stall is not None and stall.sit_out():
+                    continue  # injected: this tick is neither run nor finished, as if the host were late
                 servo.tick()
                 timer.tick_done()
     finally:

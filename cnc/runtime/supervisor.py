@@ -552,6 +552,11 @@ class Supervisor:
         if self.clock != "virtual":
             raise RuntimeError(f"only the virtual clock can be paused and stepped (this controller runs {self.clock})")
 
+    def stall_servo(self, ticks: int) -> None:
+        """Make the servo sit out its next `ticks` ticks (`cnc.data.injection.ServoStall`): each
+        is an overrun; `[timing] watchdog_missed_ticks` of them in a row trip the drive watchdog."""
+        self.set_sim(servo_stall_ticks=ticks, servo_stall_seq=int(self.sim.get("servo_stall_seq")) + 1)
+
     def set_sim(self, **values: Any) -> None:
         """Change the simulated environment: estop_pressed, doors_open, mains_off, drive_fault_mask, friction_scale,
         planner_stall (the planner produces nothing: the FIFO runs dry), limit_switch_mask, inject_bug
