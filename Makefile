@@ -34,8 +34,14 @@ demo: $(STAMP) bytecode
 	  else echo "make demo: Qt's X11 libraries are missing (sudo apt-get install $(QT_XCB_LIBS))"; fi; fi
 	$(VENV)/bin/waterjet demo
 
+# and /dev/shm left as the run found it (the tests check their own leftovers; this, after the
+# test process has ended, also what Python's resource tracker should have removed)
 test: $(STAMP) bytecode
+	@ls -A /dev/shm 2>/dev/null | sort > .shm-before || true
 	$(PY) -m pytest
+	@ls -A /dev/shm 2>/dev/null | sort | comm -13 .shm-before - > .shm-left || true; \
+	  if [ -s .shm-left ]; then echo "make test: left in /dev/shm:"; cat .shm-left; rm -f .shm-before .shm-left; exit 1; fi; \
+	  rm -f .shm-before .shm-left
 
 bench: $(STAMP) bytecode
 	@command -v cyclictest >/dev/null || { [ "$$(id -u)" = 0 ] && (apt-get update -qq && apt-get install -y -qq rt-tests) >/dev/null 2>&1; } || true

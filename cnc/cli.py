@@ -106,6 +106,8 @@ def build_parser() -> argparse.ArgumentParser:
         ("certs", "the machine's TLS certificates: its CA, the routers', the stations'", "cnc.certscli"),
         ("watch", "observe a running controller: live status, alarms and procedures (read-only)", "cnc.watch"),
         ("log", "the data logger: list, start and stop log runs, export one to MATLAB or CSV", "cnc.logger.logcli"),
+        ("sim", "the simulated machine's inputs: list them, or change one (a door, the e-stop, the transport button...)",
+         "cnc.simcli"),
         ("hmi", "the operator screen (Qt): connects to a controller over Zenoh", "hmi.app"),
     ):
         module = importlib.import_module(module_name)

@@ -306,7 +306,7 @@ CONTROLLER_ALARM_IDS = (
     "fifo_underrun", "process_lost", "plc_link_lost",
     "plc_error", "pump_pressure_fault", "transport_timeout", "procedure_stop", "procedure_timeout", "program_error",
     "program_message", "wrong_mode", "cycle_done", "internal_error", "operator_lost", "press_button", "press_start",
-    "feed_hold", "tick_overruns", "tick_overrun_rate",
+    "feed_hold", "tick_overruns", "tick_overrun_rate", "simulator",
 )  # and `<axis>_drive` for every axis (cnc.safety)
 
 

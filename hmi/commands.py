@@ -68,6 +68,8 @@ def describe(msg: msgspec.Struct) -> str:
         return f"Load program {msg.name}"
     if isinstance(msg, m.ProcedureStart):
         return f"Start procedure {msg.id}"
+    if isinstance(msg, m.SimInput):
+        return f"Simulator: {msg.input.replace('_', ' ')} {msg.value:g}"
     fixed = _FIXED.get(type(msg))
     if fixed is not None:
         return fixed

@@ -121,14 +121,23 @@ SHM = Path("/dev/shm")
 
 
 @pytest.fixture(autouse=True, scope="session")
-def _dev_shm_left_as_found():
+def _dev_shm_left_as_found(request):
     """No test leaves a file in /dev/shm: the controller's segments, a station's, Zenoh's own
-    (its shared-memory transport is configured off in every session, `cnc.bus.session`) and
-    Python's semaphores. Checked once, at the end of the run: what is there then and was not at
-    its start fails the run, named."""
+    (its shared-memory transport is configured off in every session, `cnc.bus.session`).
+    Checked once, at the end of the run: what is there then and was not at its start fails the
+    run, named. Python's multiprocessing semaphores (`sem.mp-*`) are not counted here: their
+    objects may outlive this check, and its resource tracker removes them when the test process
+    ends (`make test` checks /dev/shm after it). After a failed test only a warning: its report
+    keeps the test's objects alive past this check."""
     before = set(os.listdir(SHM)) if SHM.is_dir() else set()
     yield
-    left = sorted(set(os.listdir(SHM)) - before) if SHM.is_dir() else []
+    gc.collect()
+    left = sorted(n for n in set(os.listdir(SHM)) - before if not n.startswith("sem.mp-")) if SHM.is_dir() else []
+    if left and request.session.testsfailed:
+        import warnings
+
+        warnings.warn(f"a failed test left these in {SHM}: {left}")
+        return
     assert not left, f"the tests left these in {SHM}: {left}"
 
 

@@ -299,7 +299,7 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
     from cnc.bus.messages import (
         Acknowledge, Drives, GoTo, Hold, Jog, JogRefresh, JogStop, JetTest, LoadProgram, Override, ProcedureConfirm,
         ProcedureEnd,
-        ProcedureStart, ProcedureStop, Pump, Resume, Stop,
+        ProcedureStart, ProcedureStop, Pump, Resume, SimInput, Stop,
     )
     from cnc.bus.operator import OPERATOR_COMMANDS
 
@@ -329,6 +329,7 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
         "procedure_end": (ProcedureEnd(), "procedure"),
         "lock": None,
         "program": None,  # refusals covered by the upload test
+        "sim": (SimInput("door", 1.0), "no simulated input 'door'"),  # the rest: tests/test_sim_inputs.py
     }
     assert set(refusals) == set(OPERATOR_COMMANDS), "every verb has its case"
     wrong = []

@@ -28,6 +28,16 @@ class Keys:
         """The planner's command queryable for one verb (controller-internal: the commander asks)."""
         return f"{self.root}/internal/planner/{verb}"
 
+    def supervisor(self, what: str) -> str:
+        """The supervisor's queryables (controller-internal): `sim` lists the simulated machine's
+        inputs, `sim/set` changes one (the gateway asks, behind the lock)."""
+        return f"{self.root}/internal/supervisor/{what}"
+
+    @property
+    def sim(self) -> str:
+        """The simulated machine's inputs (read-only query; changed with `cmd/sim`)."""
+        return f"{self.root}/sim"
+
     def logic(self, verb: str) -> str:
         """The control logic's command queryable for one verb (the gateway and tests ask)."""
         return f"{self.root}/internal/logic/{verb}"

@@ -674,6 +674,46 @@ class ProcedureEnd(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     version: int = SCHEMA_VERSION
 
 
+# -- the simulated machine's inputs (`cmd/sim`, `<root>/sim`; the supervisor owns them) -------------
+
+
+class SimInput(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Change one input of the simulated machine: press a button (value 1), throw a switch (0 or
+    1), set a value within its range (`SimInputs` lists them). Refused on a real board."""
+
+    input: str
+    value: float
+    version: int = SCHEMA_VERSION
+
+
+class SimInputInfo(msgspec.Struct, frozen=True):
+    """One input of the simulated machine, its value now and what it may be set to."""
+
+    name: str
+    kind: str  # "button" (pressed by 1), "switch" (0 or 1) or "value"
+    value: float
+    unit: str
+    minimum: float
+    maximum: float
+    doc: str
+
+
+class SimInputs(msgspec.Struct, frozen=True):
+    """Answer of `<root>/sim`: every input of the simulated machine."""
+
+    inputs: list[SimInputInfo]
+    version: int = SCHEMA_VERSION
+
+
+class Notice(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Controller-internal: an info entry for the alarm history, which the control logic keeps
+    (the gateway tells it what an operator changed on the simulated machine)."""
+
+    id: str
+    detail: str
+    version: int = SCHEMA_VERSION
+
+
 LOGIC_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "mode": SetMode, "start": CycleStart, "hold": Hold, "resume": Resume, "stop": Stop, "reset": Reset,
     "drives": Drives, "home": Home, "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo,

@@ -11,11 +11,14 @@ import zenoh
 from .keys import Keys
 from .session import LOCAL_USER
 from .messages import (
-    LOGIC_COMMANDS, LoadProgram, LockRequest, LogStart, LogStop, ParamList, Reply, SaveParams, SetParam, UploadProgram,
+    LOGIC_COMMANDS, LoadProgram, LockRequest, LogStart, LogStop, ParamList, Reply, SaveParams, SetParam, SimInput,
+    UploadProgram,
     decode, encode,
 )
 
-OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {**LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram}
+OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {
+    **LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram, "sim": SimInput,
+}
 _VERBS = {kind: verb for verb, kind in OPERATOR_COMMANDS.items()}
 # An upload or load is answered once the planner has checked and planned the program: minutes for
 # a million lines, bounded by the controller's own `[planner] load_timeout_s` (at most 7200 s) and

@@ -36,8 +36,9 @@ from .audit import AuditTrail, AuditWriter, audit_path
 from ..bus.access import Roles
 from ..bus.keys import Keys
 from ..bus.messages import (
-    LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, ProcedureCatalogue,
-    ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, UploadProgram, encode,
+    LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, Notice,
+    ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SimInput, SimInputs,
+    UploadProgram, decode, encode,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..bus.states import MachineState
@@ -51,6 +52,7 @@ from ..runtime.rt import collector_paused
 
 log = logging.getLogger(__name__)
 
+SUPERVISOR_TIMEOUT_S = 10.0  # a simulated input's change waits at most this for the supervisor (and its PLC simulator)
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}\Z")
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")  # tab, LF, FF, CR are text; the rest is not
 
@@ -95,6 +97,8 @@ class Door:
             Route("lock", keys.cmd_any("lock"), self._lock, LockRequest, role="operator", lane="cmd", audit=True),
             Route("program", keys.cmd_any("program"), self._upload, UploadProgram, role="operator", lock=True,
                   lane="upload", audit=True),
+            Route("sim", keys.cmd_any("sim"), self._sim, SimInput, role="operator", lock=True, lane="cmd", audit=True),
+            Route("sim", keys.sim, self._read(lambda _params: self._sim_inputs()), read=True, lane="query"),
             *reads,
         )
         self.lock_pub = session.declare_publisher(keys.lock, encoding=zenoh.Encoding.APPLICATION_JSON)
@@ -119,6 +123,53 @@ class Door:
             path, _ = self.programs.read(command.path)
             command = LoadProgram(str(path))
         return self.logic.request(command, self._limit_for(command))
+
+    def _sim(self, request: Request) -> Reply:
+        """An input of the simulated machine changed (`cnc.sim.inputs`): checked, told to the alarm
+        history (before it takes effect, so that what it causes follows it there), then made by
+        the supervisor, which owns the simulated environment."""
+        from ..sim.inputs import SimInputError, check
+
+        msg: SimInput = request.message
+        self._simulated_only()
+        try:
+            check(msg.input, float(msg.value))
+        except SimInputError as exc:
+            raise CommandRefused(str(exc)) from None
+        who = request.caller.user + (f" at station {request.caller.station}" if request.caller.station else "")
+        self._notice(f"simulator: {msg.input} set to {msg.value:g} by {who}")
+        reply = self._ask_supervisor("sim/set", msg)
+        if not reply.ok:
+            self._notice(f"simulator: {msg.input} not changed: {reply.reason}")
+        return reply
+
+    def _sim_inputs(self) -> SimInputs:
+        self._simulated_only()
+        replies = list(self.session.get(self.keys.supervisor("sim"), timeout=SUPERVISOR_TIMEOUT_S))
+        if not replies or replies[0].ok is None:
+            raise CommandRefused("the supervisor did not list the simulated inputs")
+        return decode(replies[0].ok.payload.to_bytes(), SimInputs)
+
+    def _simulated_only(self) -> None:
+        from ..sim.inputs import SimInputError, simulated_only
+
+        try:
+            simulated_only(self.config)
+        except SimInputError as exc:
+            raise CommandRefused(str(exc)) from None
+
+    def _ask_supervisor(self, what: str, msg: SimInput) -> Reply:
+        replies = list(self.session.get(self.keys.supervisor(what), payload=encode(msg),
+                                        encoding=zenoh.Encoding.APPLICATION_JSON, timeout=SUPERVISOR_TIMEOUT_S))
+        if not replies or replies[0].ok is None:
+            return Reply(False, f"no answer from the supervisor within {SUPERVISOR_TIMEOUT_S:g} s")
+        return decode(replies[0].ok.payload.to_bytes(), Reply)
+
+    def _notice(self, detail: str) -> None:
+        """An info entry in the alarm history (the control logic keeps it), stored before this returns."""
+        reply = self.logic.request(Notice("simulator", detail), SUPERVISOR_TIMEOUT_S)
+        if not reply.ok:
+            log.warning("gateway: the control logic did not note %r: %s", detail, reply.reason)
 
     def _audit_record(self, request: Request, reply: Reply) -> None:
         """Every command with its answer, refusals included; a read only when it carried a change

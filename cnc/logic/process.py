@@ -42,7 +42,7 @@ from ..alarms.recorder import Recorder
 from ..bus.keys import Keys
 from ..bus.messages import (
     LOGIC_COMMANDS, MOTION_COMMANDS, MOTION_VERBS, AlarmEvent, GoTo, Hold, Home, InternalError, Jog, JogRefresh, JogStop,
-    LoadProgram, Override, Reply, Resume, Stamp, Stop, encode,
+    LoadProgram, Notice, Override, Reply, Resume, Stamp, Stop, encode,
 )
 from ..bus.service import DEFERRED, CommandRefused, CommandService, Request, Route
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
@@ -127,6 +127,7 @@ class Logic:
               for verb, kind in LOGIC_COMMANDS.items()),
             Route("alarms", self.keys.alarms_active, lambda _request: self.book.active(), read=True),
             Route("bug", self.keys.logic("bug"), self._bug_reported, InternalError, motion=True),
+            Route("notice", self.keys.logic("notice"), self._noticed, Notice),
         )
         self.jobs = JobHistory(jobs_path(history_path))
         self.run_seen = (-1, -1)  # (run_seq, run_result) of the last run recorded or seen starting
@@ -237,6 +238,14 @@ class Logic:
             self.fault("internal_error", detail)
         else:
             self._latch("internal_error", detail, "logic")
+
+    def _noticed(self, request: Request) -> None:
+        """Another process tells the operators something (the gateway: a simulated input changed):
+        an info entry, nothing graver (alarms are raised where their cause is watched)."""
+        m: Notice = request.message
+        if m.id not in self.book.catalogue or self.book.catalogue.entry(m.id).level != AlarmLevel.INFO:
+            raise CommandRefused(f"{m.id!r} is not an info entry of the alarm catalogue")
+        self.notice(m.id, m.detail)
 
     def _bug_reported(self, request: Request) -> None:
         """Another process met a bug serving a request (`cnc.bus.service.report_to_logic`)."""

@@ -142,6 +142,7 @@ class Supervisor:
         self.fifo: SetpointFifo | None = None
         self.trace: TraceRing | None = None
         self.router = None
+        self._sim_inputs_close: Callable[[], None] | None = None
         self.access: Plan | None = None
         self._socket: Path | None = None
         self._local_login: Path | None = None
@@ -185,6 +186,10 @@ class Supervisor:
             self.router = open_machine_router(cfg, self.access)
             self._local_login = write_local_login(self.access)
             self._token = self.router.liveliness().declare_token(self.keys.alive("supervisor"))
+            if cfg.board.kind == "sim":  # the simulated machine's inputs, for the gateway's cmd/sim
+                from ..sim.inputs import serve
+
+                self._sim_inputs_close = serve(self, self.router)
             plc_port, self._sim_pending = self._plc_port()
             clients = {}
             if "servo" in self.process_names:
@@ -323,6 +328,9 @@ class Supervisor:
         if self._plc_dir is not None:
             self._plc_dir.cleanup()
             self._plc_dir = None
+        if self._sim_inputs_close is not None:
+            self._sim_inputs_close()
+            self._sim_inputs_close = None
         if self._token is not None:
             self._token.undeclare()
             self._token = None
