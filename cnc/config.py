@@ -306,7 +306,7 @@ CONTROLLER_ALARM_IDS = (
     "fifo_underrun", "process_lost", "plc_link_lost",
     "plc_error", "pump_pressure_fault", "transport_timeout", "procedure_stop", "procedure_timeout", "program_error",
     "program_message", "wrong_mode", "cycle_done", "internal_error", "operator_lost", "press_button", "press_start",
-    "feed_hold", "tick_overruns", "tick_overrun_rate", "simulator",
+    "feed_hold", "tick_overruns", "tick_overrun_rate", "simulator", "stop_all",
 )  # and `<axis>_drive` for every axis (cnc.safety)
 
 
@@ -426,6 +426,9 @@ class AccessConfig:
     )
     tls_dir: str = opt(
         "", doc="the machine's TLS directory (`waterjet certs`; relative to the machine file), for tls/ endpoints"
+    )
+    observers_may_stop_all: bool = opt(
+        False, doc="let observer stations (read-only screens) send stop_all too: every operator station may"
     )
 
 

@@ -79,6 +79,7 @@ def describe(msg: msgspec.Struct) -> str:
 
 _FIXED: dict[type, str] = {
     messages.Resume: "Resume", messages.Stop: "Stop", messages.Reset: "Reset", messages.JogStop: "Stop jogging",
+    messages.StopAll: "Stop all",
     messages.JogRefresh: "Jog held", messages.ProcedureConfirm: "Confirm the procedure step",
     messages.ProcedureStop: "Stop the procedure", messages.ProcedureEnd: "End the procedure",
 }

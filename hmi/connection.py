@@ -15,7 +15,7 @@ from cnc.bus.certs import TlsFiles
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
     AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState,
-    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, Status, decode,
+    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, Status, StopAll, decode,
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import LOCAL_USER, open_client
@@ -146,7 +146,7 @@ class Connection:
         """Send one operator command through the station; refused here, with the reason, when this
         station does not hold the command lock (a LockRequest always goes: it is how one takes it).
         Blocks until the controller answers: call it off the GUI thread or accept the wait."""
-        refused = self._refuse(describe(msg), needs_lock=not isinstance(msg, LockRequest))
+        refused = self._refuse(describe(msg), needs_lock=not isinstance(msg, (LockRequest, StopAll)))
         if refused is not None:
             return refused
         reply = self.operator.request(msg)

@@ -20,7 +20,7 @@ from PySide6.QtWidgets import (
 
 from cnc.bus.messages import (
     CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop, LockRequest, Override, ProcedureStart, Pump,
-    Reset, Resume, SetMode, Stop,
+    Reset, Resume, SetMode, Stop, StopAll,
 )
 from cnc.bus.states import Mode
 
@@ -30,6 +30,7 @@ from .program import ProgramPanel
 
 JOG_STEPS_MM = (None, 0.01, 0.1, 1.0, 10.0, 100.0)  # None: continuous while held
 JOG_KEYS = {Qt.Key.Key_Left: ("x", -1), Qt.Key.Key_Right: ("x", 1), Qt.Key.Key_Down: ("y", -1), Qt.Key.Key_Up: ("y", 1)}
+STOP_ALL_KEY = "Ctrl+Shift+Space"  # the stop-all control from the keyboard, on every page
 OVERRIDE_SEND_DELAY_MS = 120  # the slider sends its value after this pause (not a command per pixel)
 JOG_REFRESH_MS = 100  # a held jog key is refreshed this often: the controller stops a jog not refreshed in 250 ms
 
@@ -67,6 +68,14 @@ class CommandBar(QWidget):
         self.stop.setStyleSheet("QPushButton { background: #c62828; color: white; font-weight: bold; }"
                                 "QPushButton:disabled { background: #d9a0a0; }")
         self.stop.clicked.connect(lambda: self.commands.send(Stop()))
+        # any station may stop everything, lock or not; a software stop, named so that nobody takes
+        # it for the emergency stop (the hardwired e-stop circuit is that)
+        self.stop_all = _button("Stop all (software)", "Close the jet, stop the axes on their braking distance and "
+                                f"switch the drives off, from this station, lock or not ({STOP_ALL_KEY}). "
+                                "Reset to go on. Not the emergency stop: that is the machine's hardwired e-stop button")
+        self.stop_all.setStyleSheet("QPushButton { background: #ffd600; color: black; font-weight: bold; "
+                                    "border: 3px solid black; padding: 4px 10px; }")
+        self.stop_all.clicked.connect(lambda: self.commands.send(StopAll()))
         self.override = QSlider(Qt.Orientation.Horizontal)
         self.override.setRange(0, 200)
         self.override.setValue(100)
@@ -87,7 +96,7 @@ class CommandBar(QWidget):
         for w in (self.lock_button, self.lock_label):
             layout.addWidget(w)
         layout.addSpacing(16)
-        for w in (self.manual, self.auto, self.reset, self.stop):
+        for w in (self.manual, self.auto, self.reset, self.stop, self.stop_all):
             layout.addWidget(w)
         layout.addSpacing(16)
         layout.addWidget(QLabel("Feed override"))

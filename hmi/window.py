@@ -26,7 +26,7 @@ from .adapter import ModelAdapter
 from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea, Search
 from .commands import JOG_HELD, CommandRunner
 from .contour import ContourView
-from .controls import AutoPage, CommandBar, JogPad, KeyJog, ManualPage
+from .controls import STOP_ALL_KEY, AutoPage, CommandBar, JogPad, KeyJog, ManualPage
 from .model import Screen
 from .panels import StatusPanels
 from .procedure import ProcedureWindow
@@ -192,6 +192,9 @@ class MainWindow(QMainWindow):
         self._stop_key = QShortcut(QKeySequence(Qt.Key.Key_Escape), self)  # STOP from the keyboard, on any page
         self._stop_key.setContext(Qt.ShortcutContext.ApplicationShortcut)
         self._stop_key.activated.connect(self.bar.stop.click)  # a disabled button ignores the click
+        self._stop_all_key = QShortcut(QKeySequence(STOP_ALL_KEY), self)  # stop all: lock or not
+        self._stop_all_key.setContext(Qt.ShortcutContext.ApplicationShortcut)
+        self._stop_all_key.activated.connect(self.bar.stop_all.click)
         self._banner_timer = QTimer(self)
         self._banner_timer.setInterval(BANNER_REFRESH_MS)
         self._banner_timer.timeout.connect(self._show_banner)

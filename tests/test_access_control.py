@@ -204,6 +204,24 @@ def test_each_user_reaches_only_its_own_command_keys_and_observers_none(bus):
     assert seen == [bus.keys.cmd("hold", "operator1"), bus.keys.user_param("engineer1", "axis.x.kp_1_s")]
 
 
+def test_an_observer_reaches_its_stop_all_only_where_the_machine_file_lets_it(tmp_path):
+    """Observers command nothing, unless `[zenoh.access] observers_may_stop_all`: then their own
+    stop_all key, and still no other command."""
+    for allowed in (False, True):
+        bus = Bus(machine(tmp_path, **{"zenoh.access.observers_may_stop_all": allowed}), tmp_path)
+        try:
+            inside = bus.inside()
+            seen: list[str] = []
+            _cmd = command_queryable(inside, f"{bus.keys.root}/u/*/**", seen)
+            observer = bus.login("observer1")
+            reached(inside, observer, bus.keys)
+            assert replies(observer, bus.keys.cmd("stop_all", "observer1")) == (["ok"] if allowed else [])
+            assert replies(observer, bus.keys.cmd("stop", "observer1")) == []
+            assert replies(observer, bus.keys.cmd("stop_all", "operator1")) == [], "only under its own name"
+        finally:
+            bus.close()
+
+
 def test_the_controllers_own_login_opens_nothing_internal_from_the_network(bus):
     inside = bus.inside()
     seen: list[str] = []

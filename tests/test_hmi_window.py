@@ -23,6 +23,7 @@ from cnc.alarms.history import AlarmHistory
 from cnc.bus.keys import Keys
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
+from hmi.controls import STOP_ALL_KEY
 from hmi.model import Screen
 from hmi.session import OperatorScreen
 
@@ -331,3 +332,27 @@ def test_a_program_file_that_is_not_utf8_text_is_refused_before_it_is_sent_namin
         read_program(tmp_path / "missing.ngc")
     path.write_text("G1 X1 (café)\n", encoding="utf-8")
     assert read_program(path) == "G1 X1 (café)\n"
+
+
+def test_stop_all_is_enabled_without_the_lock_and_its_key_stops_everything(qtbot, plc_controller, screen):
+    """A read-only station (another holds the lock) greys STOP but not stop all: the prominent
+    control and its shortcut send it, and the alarm names this station."""
+    sup, w = plc_controller, screen.window
+    keys = Keys(sup.config.zenoh.key_prefix, sup.config.machine.name)
+    other_session = open_client([sup.config.zenoh.listen[0]])
+    other = OperatorStation(other_session, keys, "other")
+    assert other.take_lock().ok
+    qtbot.waitUntil(lambda: not w.bar.stop.isEnabled() and w.bar.stop_all.isEnabled(), timeout=WAIT_MS)
+    assert "Not the emergency stop" in w.bar.stop_all.toolTip() and "software" in w.bar.stop_all.text()
+    assert STOP_ALL_KEY == "Ctrl+Shift+Space" and STOP_ALL_KEY in w.bar.stop_all.toolTip()
+    with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as blocker:
+        qtbot.keyClick(w, Qt.Key.Key_Space, Qt.KeyboardModifier.ControlModifier | Qt.KeyboardModifier.ShiftModifier)
+    label, reply = blocker.args
+    assert (label, reply.ok) == ("Stop all", True), reply.reason
+    assert w.command_line.text().startswith("✔ Stop all: everything stopped")
+    qtbot.waitUntil(lambda: any(r[1] == "1097" for r in w.alarms.rows()), timeout=WAIT_MS)
+    with AlarmHistory(sup.history_path, readonly=True) as history:
+        [raised] = [e for e in history.after(0, 1000).entries if e.code == 1097 and e.action == "raised"]
+    assert raised.detail.startswith("stop all from station ") and "(local)" in raised.detail
+    other.close()
+    other_session.close()

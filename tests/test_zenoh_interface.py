@@ -330,6 +330,7 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
         "lock": None,
         "program": None,  # refusals covered by the upload test
         "sim": (SimInput("door", 1.0), "no simulated input 'door'"),  # the rest: tests/test_sim_inputs.py
+        "stop_all": None,  # always accepted, lock or not: tests/test_stop_all.py
     }
     assert set(refusals) == set(OPERATOR_COMMANDS), "every verb has its case"
     wrong = []

@@ -246,6 +246,10 @@ def access_control(cfg: MachineConfig, plan: Plan, upstream_zid: str | None = No
             own += [f"commands {principal}", f"answers {principal}"]
             rules.append(_rule(own[-2], ["ingress"], ["query"], [f"{root}/u/{principal}/**"]))
             rules.append(_rule(own[-1], ["egress"], ["reply"], [f"{root}/u/{principal}/**"]))
+        elif cfg.zenoh.access.observers_may_stop_all:  # its one command: stop everything
+            own += [f"stop all {principal}", f"stopped {principal}"]
+            rules.append(_rule(own[-2], ["ingress"], ["query"], [f"{root}/u/{principal}/cmd/stop_all"]))
+            rules.append(_rule(own[-1], ["egress"], ["reply"], [f"{root}/u/{principal}/cmd/stop_all"]))
         every_station += own
         sid = f"station {principal}"
         if plan.auth and principal == LOCAL_USER:

@@ -576,13 +576,14 @@ PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo, "home": Home,
 }
 MOTION_COMMANDS = (Start, Resume, Jog, JogRefresh, GoTo, Home)  # carried out only with the commander's Stamp
-REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset")  # never queued behind slow work
+REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset", "stop_all")  # never queued behind slow work
 # Verbs whose handlers command motion or the jet: a bug met while serving one brings the machine to
 # its safe state (cnc.bus.service). A stop is among them: a stop that failed must still stop.
 MOTION_VERBS = frozenset({
     "start", "resume", "jog", "jog_refresh", "goto", "home", "drives", "pump", "jet_test", "override",
-    "stop", "hold", "jog_stop", "reset", "procedure_start", "procedure_confirm", "procedure_stop",
+    "stop", "hold", "jog_stop", "reset", "procedure_start", "procedure_confirm", "procedure_stop", "stop_all",
 })
+LOCK_FREE_VERBS = frozenset({"stop_all"})  # any operator station, with or without the command lock
 
 
 class InternalError(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -611,6 +612,16 @@ class CycleStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Start the automatic cycle for `cycles` cycles (0: until stopped)."""
 
     cycles: Annotated[int, msgspec.Meta(le=MAX_CYCLES)] = 1  # the logic refuses a negative count
+    version: int = SCHEMA_VERSION
+
+
+class StopAll(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Stop everything, from any operator station, with or without the command lock: the jet closed
+    at once, the axes stopped on their braking distance, then the drives off; latched (alarm 1097,
+    naming the station) until reset. A software stop: the hardwired e-stop circuit stays the
+    category-0 stop, and this does not replace it."""
+
+    station: str = ""  # who asked: the gateway writes it (what a client sends here is replaced)
     version: int = SCHEMA_VERSION
 
 
@@ -720,7 +731,7 @@ LOGIC_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "load": LoadProgram,
     "override": Override, "pump": Pump, "jet_test": JetTest, "acknowledge": Acknowledge,
     "procedure_start": ProcedureStart, "procedure_confirm": ProcedureConfirm, "procedure_stop": ProcedureStop,
-    "procedure_end": ProcedureEnd,
+    "procedure_end": ProcedureEnd, "stop_all": StopAll,
 }
 
 

@@ -36,9 +36,9 @@ from .audit import AuditTrail, AuditWriter, audit_path
 from ..bus.access import Roles
 from ..bus.keys import Keys
 from ..bus.messages import (
-    LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, Notice,
+    LOCK_FREE_VERBS, LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, Notice,
     ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SimInput, SimInputs,
-    UploadProgram, decode, encode,
+    StopAll, UploadProgram, decode, encode,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..bus.states import MachineState
@@ -81,8 +81,10 @@ class Door:
         self.service = CommandService(session, keys, "gateway", report_to_logic(session, keys, "gateway"), threaded=True,
                                       roles=Roles.load(config), lock=self.lock, audit=self._audit_record,
                                       inject=inject)
+        stop_all_role = "observer" if config.zenoh.access.observers_may_stop_all else "operator"
         commands = [
-            Route(verb, keys.cmd_any(verb), self._forward, LOGIC_COMMANDS[verb], role="operator", lock=True,
+            Route(verb, keys.cmd_any(verb), self._forward, LOGIC_COMMANDS[verb],
+                  role=stop_all_role if verb == "stop_all" else "operator", lock=verb not in LOCK_FREE_VERBS,
                   motion=verb in MOTION_VERBS, lane="realtime" if verb in REALTIME_VERBS else "cmd", audit=True)
             for verb in LOGIC_COMMANDS
         ]
@@ -122,6 +124,9 @@ class Door:
         if isinstance(command, LoadProgram):
             path, _ = self.programs.read(command.path)
             command = LoadProgram(str(path))
+        elif isinstance(command, StopAll):  # who asked, as the router and the service know it
+            caller = request.caller
+            command = StopAll(f"station {caller.station or '?'} ({caller.user or 'no user'})")
         return self.logic.request(command, self._limit_for(command))
 
     def _sim(self, request: Request) -> Reply:

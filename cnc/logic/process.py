@@ -149,6 +149,7 @@ class Logic:
         # cleared on the falling one (a restarted logic picks up what the history says is active)
         self.present: set[str] = {a.id for a in self.book.active().alarms if a.active}
         self.drives_wanted = bool(self.command.get("servo_enable"))
+        self.drives_off_at_rest = False  # a stop-all: the drives go off once the axes stand still
         self.inhibit = int(self.command.get("output_inhibit"))
         self.inhibit_release = False  # a reset or a start asked for the inhibit to go, once nothing runs out a stop
         self.barriers_latched = bool(self.command.get("arm") & StopCause.BARRIER)  # a restarted logic keeps them armed
@@ -195,6 +196,7 @@ class Logic:
         self._interlocks(snap, signals)
         self._losses(snap)
         self._overruns(snap, now)
+        self._drives_after_stop_all(snap)
         self._program_events(snap)
         self._record_jobs(snap)
         self.cycle.step(snap, now)
@@ -355,6 +357,26 @@ class Logic:
             return None
         return self._forward(Stop(), request)
 
+    def _cmd_stop_all(self, msg, snap, now, request) -> Reply:
+        """Stop everything (any operator station, lock or not): the jet closed in the next tick, the
+        axes stopped on their braking distance by the servo itself, the cycle and the program
+        ended, then the drives off once the axes stand still; latched until reset."""
+        who = msg.station or "an operator station"
+        self._stop_epoch()
+        self.fault("stop_all", f"stop all from {who}")
+        self.drives_off_at_rest = True
+        return Reply(True, "everything stopped: jet closed, axes stopping, drives off once they stand still; reset to go on")
+
+    def _drives_after_stop_all(self, snap: Snapshot) -> None:
+        """The drives off once a stop-all's axes stand still (never while they still brake: they
+        would coast)."""
+        if not self.drives_off_at_rest:
+            return
+        if snap.servo["state"] != ServoState.STOPPING and not snap.hw["braking"] and \
+                snap.motion["state"] in (PlannerState.IDLE,):
+            self.drives_wanted = False
+            self.drives_off_at_rest = False
+
     def _cmd_reset(self, msg, snap, now, request) -> Reply:
         """Reset: servo and watchdog faults that tripped before it, the PLC's faults, then every
         alarm whose cause has gone. Nothing, while the axes still run out a stop."""
@@ -369,6 +391,7 @@ class Logic:
         self.barriers_latched = False
         self.plc_reset_until = now + PLC_RESET_PULSE_S
         self.drives_wanted = True
+        self.drives_off_at_rest = False
         if self.cycle.stopped:
             self.cycle.stopped = False
         still = self.book.reset()

@@ -37,7 +37,7 @@ from plc_link.sim_model import PlantTimes
 from ..alarms import AlarmHistory
 from ..brake import stop_distance_bound_mm
 from ..bus.keys import Keys
-from ..bus.messages import CycleStart, Hold, Override, Resume, Stop
+from ..bus.messages import CycleStart, Hold, Override, Resume, Stop, StopAll
 from ..bus.operator import OperatorStation
 from ..bus.session import open_client
 from ..data.layout import ServoFault, ServoState
@@ -163,6 +163,20 @@ def _station(sup: Supervisor) -> OperatorStation:
     return station
 
 
+def _stop_all(sup: Supervisor) -> None:
+    """Stop all from a second station that does not hold the command lock (any station may)."""
+    port = sup.config.zenoh.listen[0].rsplit(":", 1)[1]
+    session = open_client([f"tcp/127.0.0.1:{port}"])
+    try:
+        station = OperatorStation(session, Keys(sup.config.zenoh.key_prefix, sup.config.machine.name), "bench-stop-all")
+        reply = station.request(StopAll())
+        station.close()
+    finally:
+        session.close()
+    if not reply.ok:
+        raise RuntimeError(f"stop all was refused: {reply.reason}")
+
+
 def _bug_cleared(sup: Supervisor) -> None:
     sup.set_sim(inject_bug="")
     if id(sup) in _STATIONS:
@@ -200,6 +214,9 @@ def catalogue() -> list[Fault]:
         Fault("FIFO starved (planner stalled)", sim(planner_stall=1), sim(planner_stall=0), "fifo_underrun", 50.0,
               ServoFault.UNDERRUN),
         Fault("override 0 %", _override(0.0), _nothing, "feed_hold", 500.0, hold=True),
+        # any operator station, without the command lock: jet off, the servo's stop, then the drives off
+        Fault("stop all (software)", _stop_all, _nothing, "stop_all", 500.0),
+        Fault("stop all (software), slow", _stop_all, _nothing, "stop_all", 50.0),
         # a bug in a request handler that commands motion (cnc.bus.service): the process's safe state, the
         # internal-error alarm, the door goes on serving; in each process that serves such requests
         Fault("bug in the gateway's override", _bug("gateway/override", Override(100.0)), _bug_cleared, "internal_error",
