@@ -17,7 +17,7 @@ from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.data.layout import LinkState
 from cnc.logic.states import CyclePhase
-from cnc.sim.inputs import INPUTS, SimInputError, check
+from cnc.siminputs import INPUTS, SimInputError, check
 
 from .conftest import MACHINE_FILE, REPO, logic
 from .test_logic_process import Events, ready_in_auto
@@ -154,7 +154,7 @@ def test_waterjet_sim_lists_and_changes_the_inputs_from_a_shell(plc_controller):
 
 def test_only_a_simulated_machine_has_simulator_inputs():
     from cnc.config import load_machine
-    from cnc.sim.inputs import simulated_only
+    from cnc.siminputs import simulated_only
 
     config = load_machine(MACHINE_FILE)
     simulated_only(config)  # the shipped machine is the simulated one

@@ -49,6 +49,7 @@ from ..logic.client import LogicClient
 from ..machine_dialect import dialect_for
 from ..programs import ProgramDirectory
 from ..runtime.rt import collector_paused
+from ..siminputs import SimInputError, check, simulated_only
 
 log = logging.getLogger(__name__)
 
@@ -130,11 +131,9 @@ class Door:
         return self.logic.request(command, self._limit_for(command))
 
     def _sim(self, request: Request) -> Reply:
-        """An input of the simulated machine changed (`cnc.sim.inputs`): checked, told to the alarm
+        """An input of the simulated machine changed (`cnc.siminputs`): checked, told to the alarm
         history (before it takes effect, so that what it causes follows it there), then made by
         the supervisor, which owns the simulated environment."""
-        from ..sim.inputs import SimInputError, check
-
         msg: SimInput = request.message
         self._simulated_only()
         try:
@@ -156,8 +155,6 @@ class Door:
         return decode(replies[0].ok.payload.to_bytes(), SimInputs)
 
     def _simulated_only(self) -> None:
-        from ..sim.inputs import SimInputError, simulated_only
-
         try:
             simulated_only(self.config)
         except SimInputError as exc:

@@ -3,90 +3,41 @@
 The supervisor owns the simulated environment: the `sim` block the hardware server hands to the
 simulated board (e-stop, doors, mains, friction) and the handle on the PLC simulator (the
 transport station's button, the light barriers, the pump, the serial link). `SimulatorInputs`
-names those inputs, says what each may be set to, applies a change and reads them back; the
-supervisor serves it on its internal keys (`Keys.supervisor("sim")`, `"sim/set"`), which only the
-gateway reaches: an operator's `cmd/sim` passes the gateway's role and lock checks first
-(`cnc.gateway.door`), and `<root>/sim` reads them.
+applies a change (`cnc.siminputs` names the inputs and checks it) and reads them back; the
+supervisor serves it through its command service on internal keys (`Keys.supervisor("sim")`,
+`"sim/set"`), which only the gateway reaches: an operator's `cmd/sim` passes the gateway's
+role and lock checks first (`cnc.gateway.door`), and `<root>/sim` reads them.
 """
 
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import Any, Callable, Protocol
 
-import msgspec
 import zenoh
 
-from ..bus.messages import Reply, SimInput, SimInputInfo, SimInputs, decode, encode
+from ..bus.messages import Reply, SimInput, SimInputInfo, SimInputs
+from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
+from ..siminputs import BUTTON, INPUTS, InputSpec, SimInputError, check
 
-if TYPE_CHECKING:
-    from ..config import MachineConfig
-    from ..runtime.supervisor import Supervisor
+
+
+class SimOwner(Protocol):
+    """What of the supervisor this needs (`cnc.runtime.supervisor.Supervisor` fits)."""
+
+    config: Any
+    keys: Any
+    sim: Any  # the `sim` block's writer
+    plc_sim: Any  # the PLC simulator's handle, or None
+
+    def set_sim(self, **values: Any) -> None: ...
 
 log = logging.getLogger(__name__)
-
-BUTTON, SWITCH, VALUE = "button", "switch", "value"
-FRICTION_MAX = 100.0  # times the plant's own friction: far past what the servo can hold
-
-
-@dataclass(frozen=True)
-class InputSpec:
-    """One input: what it is, and where it goes (the board's `sim` block or the PLC simulator)."""
-
-    name: str
-    kind: str
-    doc: str
-    board_field: str = ""  # the `sim` block's field (switches; friction: every axis)
-    plc_fault: str = ""  # the PLC simulator's fault (`plc_link.sim_model.FAULTS`)
-    unit: str = ""
-    maximum: float = 1.0
-
-
-INPUTS = (
-    InputSpec("transport_button", BUTTON, "the transport station's button, pressed once (the procedure asks for it)"),
-    InputSpec("doors_open", SWITCH, "a safety door open (the controller's door input)", board_field="doors_open"),
-    InputSpec("estop", SWITCH, "the e-stop button pressed (the controller's e-stop input)", board_field="estop_pressed"),
-    InputSpec("mains_off", SWITCH, "the machine mains off (the controller's mains input)", board_field="mains_off"),
-    InputSpec("barrier_front", SWITCH, "the front light barrier interrupted (the PLC's input)", plc_fault="barrier_front"),
-    InputSpec("barrier_rear", SWITCH, "the rear light barrier interrupted (the PLC's input)", plc_fault="barrier_rear"),
-    InputSpec("pump_fault", SWITCH, "the high-pressure pump reports a fault and stops (the PLC's input)",
-              plc_fault="pump_fault"),
-    InputSpec("plc_link_cut", SWITCH, "the PLC's serial port stops answering (a cut cable)", plc_fault="link_dead"),
-    InputSpec("friction", VALUE, "the axes' friction, times the plant's own: raise it to provoke a following error",
-              board_field="friction_scale", unit="x", maximum=FRICTION_MAX),
-)
-BY_NAME = {spec.name: spec for spec in INPUTS}
-
-
-class SimInputError(ValueError):
-    """A change that cannot be made, with the reason an operator reads."""
-
-
-def simulated_only(config: "MachineConfig") -> None:
-    """SimInputError unless the machine's board is the simulated one (a real one has no such inputs)."""
-    if config.board.kind != "sim":
-        raise SimInputError(f"this machine's board is {config.board.kind!r}, not the simulated one: "
-                            "it has no simulator inputs")
-
-
-def check(name: str, value: float) -> InputSpec:
-    """The input `name` if `value` is one it takes; SimInputError says why not."""
-    spec = BY_NAME.get(name)
-    if spec is None:
-        raise SimInputError(f"no simulated input {name!r} (inputs: {', '.join(BY_NAME)})")
-    if not 0.0 <= value <= spec.maximum:
-        raise SimInputError(f"{name}: {value:g} is outside 0 to {spec.maximum:g}{' ' + spec.unit if spec.unit else ''}")
-    if spec.kind in (BUTTON, SWITCH) and value not in (0.0, 1.0):
-        raise SimInputError(f"{name} is a {spec.kind}: 0 or 1, not {value:g}")
-    return spec
-
 
 class SimulatorInputs:
     """The supervisor's simulated inputs: `listing()` and `apply(name, value)`."""
 
-    def __init__(self, sup: "Supervisor") -> None:
+    def __init__(self, sup: "SimOwner") -> None:
         self.sup = sup
         self.plc_values = {spec.name: 0.0 for spec in INPUTS if spec.plc_fault}  # what was set (the PLC has no read-back)
 
@@ -126,35 +77,25 @@ class SimulatorInputs:
         return plc
 
 
-def serve(sup: "Supervisor", session: zenoh.Session) -> Callable[[], None]:
-    """Answer the gateway on the supervisor's internal keys, one query at a time on a worker
-    thread (a change may wait for the PLC simulator: never on Zenoh's own threads, which route
-    for the whole controller here); returns what undeclares them."""
+def serve(sup: "SimOwner", session: zenoh.Session) -> Callable[[], None]:
+    """Answer the gateway on the supervisor's internal keys, through a command service of its own
+    (a worker thread: a change may wait for the PLC simulator, never on Zenoh's threads, which
+    route for the whole controller here); returns what stops it."""
     inputs = SimulatorInputs(sup)
-    worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-inputs")
 
-    def answer(query: zenoh.Query, make: Callable[[], msgspec.Struct]) -> None:
+    def change(request: Request) -> Reply:
+        msg: SimInput = request.message
         try:
-            query.reply(query.key_expr, encode(make()), encoding=zenoh.Encoding.APPLICATION_JSON)
-        finally:
-            query.drop()
-
-    def change(query: zenoh.Query) -> Reply:
-        try:
-            msg = decode(query.payload.to_bytes() if query.payload is not None else b"", SimInput)
             return Reply(True, inputs.apply(msg.input, float(msg.value)))
-        except (SimInputError, msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
-            return Reply(False, str(exc))
+        except SimInputError as exc:
+            raise CommandRefused(str(exc)) from None
         except (TimeoutError, OSError, EOFError) as exc:  # the PLC simulator did not answer
-            return Reply(False, f"the PLC simulator did not take it: {exc}")
+            raise CommandRefused(f"the PLC simulator did not take it: {exc}") from None
 
-    queryables = [
-        session.declare_queryable(sup.keys.supervisor("sim"), lambda q: worker.submit(answer, q, inputs.listing)),
-        session.declare_queryable(sup.keys.supervisor("sim/set"), lambda q: worker.submit(answer, q, lambda: change(q))),
-    ]
-
-    def close() -> None:
-        for q in queryables:
-            q.undeclare()
-        worker.shutdown(wait=True)
-    return close
+    service = CommandService(session, sup.keys, "supervisor", report_to_logic(session, sup.keys, "supervisor"),
+                             threaded=True)
+    service.serve(
+        Route("sim", sup.keys.supervisor("sim"), lambda _request: inputs.listing(), read=True, lane="query"),
+        Route("sim/set", sup.keys.supervisor("sim/set"), change, SimInput, lane="cmd"),
+    )
+    return service.close
