@@ -92,6 +92,24 @@ def ready_in_auto(sup: Supervisor, tmp_path, program: str | None = None) -> None
     command(sup, SetMode("AUTO"))
 
 
+def jet_open(sup: Supervisor) -> bool:
+    return bool(sup.hw()["digital_out"] & DigitalOut.JET_VALVE)
+
+
+def cutting_in_auto(sup: Supervisor, tmp_path, start=None) -> None:
+    """READY in AUTO, one cycle started (by `start()`, default the logic's own request), the
+    transport station's button pressed when asked, until the head cuts with the jet open."""
+    ready_in_auto(sup, tmp_path)
+    if start is None:
+        command(sup, CycleStart(cycles=1))
+    else:
+        reply = start()
+        assert reply.ok, reply.reason
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING and jet_open(sup)
+                            and max(map(abs, sup.servo()["commanded_velocity_mm_s"])) > 20.0, 60.0,
+                            "cutting with the jet on")
+
+
 def test_automatic_cycle_runs_transport_cutting_and_unload_for_the_cycles_asked(plc_controller, tmp_path):
     sup = plc_controller
     events = Events(sup)
@@ -153,12 +171,8 @@ def test_door_opened_during_a_cut_closes_the_jet_in_the_tick_then_the_servo_stop
     servo brings the axes to rest along the path itself, then trips; the logic tells people."""
     sup = plc_controller
     events = Events(sup)
-    ready_in_auto(sup, tmp_path)
-    command(sup, CycleStart(cycles=1))
-    jet = lambda: bool(sup.hw()["digital_out"] & DigitalOut.JET_VALVE)  # noqa: E731
-    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING and jet()
-                            and max(map(abs, sup.servo()["commanded_velocity_mm_s"])) > 20.0, 60.0,
-                            "cutting with the jet on")
+    cutting_in_auto(sup, tmp_path)
+    jet = lambda: jet_open(sup)  # noqa: E731
     start = sup.pause_virtual_clock()
     sup.set_sim(doors_open=1)
     jet_off_at = moving_after_jet_off = None

@@ -4,14 +4,13 @@ error that stops the cut when they come faster than `[timing] max_overruns_per_s
 from __future__ import annotations
 
 from cnc.alarms import AlarmHistory
-from cnc.bus.messages import CycleStart, Reset
+from cnc.bus.messages import Reset
 from cnc.data.layout import ServoState
-from cnc.hw.board import DigitalOut
 from cnc.logic.overruns import EPISODE_GAP_S, OverrunWatch
-from cnc.logic.states import CyclePhase, MachineState
+from cnc.logic.states import MachineState
 
-from .conftest import NEAR_HOME, full_controller, logic, machine_config, press_button_when_asked
-from .test_logic_process import Events, command, ready_in_auto
+from .conftest import NEAR_HOME, full_controller, logic, machine_config
+from .test_logic_process import Events, command, cutting_in_auto, jet_open
 
 PERIOD_S = 0.001
 
@@ -75,12 +74,8 @@ def test_overruns_faster_than_allowed_during_a_cut_close_the_jet_and_stop_then_r
     config = machine_config(**NEAR_HOME, **{"timing.max_overruns_per_s": 5})
     with full_controller(config, tmp_path / "history.sqlite") as sup:
         events = Events(sup)
-        ready_in_auto(sup, tmp_path)
-        command(sup, CycleStart(cycles=1))
-        jet = lambda: bool(sup.hw()["digital_out"] & DigitalOut.JET_VALVE)  # noqa: E731
-        press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING and jet()
-                                and max(map(abs, sup.servo()["commanded_velocity_mm_s"])) > 20.0, 60.0,
-                                "cutting with the jet on")
+        cutting_in_auto(sup, tmp_path)
+        jet = lambda: jet_open(sup)  # noqa: E731
         before = sup.servo()["overruns"]
         sup.stall_servo(3)
         sup.wait_until(lambda: sup.servo()["overruns"] == before + 3, 10.0, "the first three ticks late")

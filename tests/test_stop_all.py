@@ -11,24 +11,21 @@ from cnc.bus.messages import CycleStart, Reset, StopAll
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.data.layout import PlannerState, ServoState
-from cnc.hw.board import DigitalOut
-from cnc.logic.states import CyclePhase, MachineState
+from cnc.logic.states import MachineState
 
-from .conftest import logic, press_button_when_asked
-from .test_logic_process import Events, command, ready_in_auto
+from .conftest import logic
+from .test_logic_process import Events, command, cutting_in_auto, jet_open
 
 
 def test_a_station_without_the_lock_stops_everything_and_only_a_reset_goes_on(plc_controller, tmp_path):
     sup = plc_controller
     events = Events(sup)
     keys = Keys(sup.config.zenoh.key_prefix, sup.config.machine.name)
-    ready_in_auto(sup, tmp_path)
     sessions = [open_client([sup.config.zenoh.listen[0]]) for _ in range(2)]
     holder, other = (OperatorStation(s, keys, name) for s, name in zip(sessions, ("panel", "bench-2")))
     assert holder.take_lock().ok
-    assert holder.request(CycleStart(cycles=1)).ok
-    jet = lambda: bool(sup.hw()["digital_out"] & DigitalOut.JET_VALVE)  # noqa: E731
-    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING and jet(), 60.0, "cutting")
+    cutting_in_auto(sup, tmp_path, start=lambda: holder.request(CycleStart(cycles=1)))
+    jet = lambda: jet_open(sup)  # noqa: E731
     reply = other.request(StopAll(station="forged"))
     assert reply.ok and "reset to go on" in reply.reason, reply.reason
     sup.wait_until(lambda: not jet() and sup.motion()["state"] == PlannerState.IDLE
