@@ -62,6 +62,7 @@ class ModelAdapter(TopicAdapter):
     history = Signal()
     procedure = Signal()
     catalogue = Signal()
+    sim = Signal()
     lock = Signal()
     program = Signal()
     connection = Signal()

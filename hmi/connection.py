@@ -15,7 +15,8 @@ from cnc.bus.certs import TlsFiles
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
     AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState,
-    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, Status, StopAll, decode,
+    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, SimInput, SimInputs, Status, StopAll,
+    decode,
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import LOCAL_USER, open_client
@@ -152,7 +153,27 @@ class Connection:
         reply = self.operator.request(msg)
         if isinstance(msg, LockRequest) and reply.ok:
             self._refresh(self.keys.lock, LockState, self.model.apply_lock)
+        elif isinstance(msg, SimInput):
+            try:
+                self._read_sim()  # the panel shows the values the controller now has
+            except NoAnswer as exc:
+                log.info("refresh: %s", exc)
         return reply
+
+    def _read_sim(self) -> None:
+        """The simulated machine's inputs; a controller that refuses (a real board) has none."""
+        session = self.session
+        if session is None:
+            return
+        for reply in session.get(self.keys.sim, timeout=QUERY_TIMEOUT_S):
+            if reply.ok is None:
+                self.model.apply_sim_inputs(None)
+                return
+            inputs = self._decode(self.keys.sim, reply.ok.payload.to_bytes(), SimInputs)
+            if inputs is not None:
+                self.model.apply_sim_inputs(inputs)
+            return
+        raise NoAnswer(f"{self.keys.sim}: no answer within {QUERY_TIMEOUT_S:g} s")
 
     # -- callbacks (Zenoh's threads) -------------------------------------------------------------
 
@@ -243,6 +264,7 @@ class Connection:
             self._read(self.keys.lock, LockState, self.model.apply_lock)
             self._read(f"{self.keys.program}?path=1", ProgramInfo, self.model.apply_program)
             self._read(self.keys.procedures, ProcedureCatalogue, self.model.apply_catalogue)
+            self._read_sim()
         except NoAnswer as exc:
             log.info("catch-up incomplete: %s", exc)
             return False

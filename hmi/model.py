@@ -11,13 +11,13 @@ import msgspec
 
 from cnc.bus.messages import (
     ActiveAlarm, AlarmEvent, AlarmList, HistoryPage, LockState, Position, ProcedureCatalogue, ProcedureInfo,
-    ProcedureState, ProgramInfo, ProgramPath, Status,
+    ProcedureState, ProgramInfo, ProgramPath, SimInputs, Status,
 )
 from cnc.bus.states import AlarmLevel, CyclePhase, LinkState, MachineState, Mode, PlannerState, RunResult, ServoFault
 
 from .observable import Observable
 
-TOPICS = ("status", "position", "alarms", "history", "procedure", "catalogue", "lock", "program", "connection", "screen",
+TOPICS = ("status", "position", "alarms", "history", "procedure", "catalogue", "sim", "lock", "program", "connection", "screen",
           "error")
 HISTORY_KEPT = 20000  # entries of the message history held in memory (the oldest go first)
 LATCHED_LEVELS = tuple(level.text for level in AlarmLevel if level.latched)  # listed, cleared, until reset (the alarm book's rule)
@@ -80,6 +80,7 @@ class MachineModel(Observable):
         self._history: dict[int, AlarmEvent] = {}
         self._procedure: ProcedureState | None = None
         self._catalogue: list[ProcedureInfo] = []
+        self._sim: SimInputs | None = None  # the simulated machine's inputs; None: not a simulated machine
         self._holder = ""
         self._stations: list[str] = []
         self._program: LoadedProgram | None = None
@@ -184,6 +185,13 @@ class MachineModel(Observable):
             return ["catalogue"] if old != self._catalogue else []
         self._update(change)
 
+    def apply_sim_inputs(self, inputs: SimInputs | None) -> None:
+        """The simulated machine's inputs and their values (None: the machine is not simulated)."""
+        def change() -> list[str]:
+            old, self._sim = self._sim, inputs
+            return ["sim"] if old != inputs else []
+        self._update(change)
+
     def apply_lock(self, lock: LockState) -> None:
         def change() -> list[str]:
             old = (self._holder, self._stations)
@@ -242,6 +250,11 @@ class MachineModel(Observable):
     def procedure(self) -> ProcedureState | None:
         with self._lock:
             return self._procedure
+
+    @property
+    def sim_inputs(self) -> SimInputs | None:
+        with self._lock:
+            return self._sim
 
     @property
     def catalogue(self) -> list[ProcedureInfo]:

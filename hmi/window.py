@@ -27,6 +27,7 @@ from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea, Search
 from .commands import JOG_HELD, CommandRunner
 from .contour import ContourView
 from .controls import STOP_ALL_KEY, AutoPage, CommandBar, JogPad, KeyJog, ManualPage
+from .sim_panel import SimPanel
 from .model import Screen
 from .panels import StatusPanels
 from .procedure import ProcedureWindow
@@ -136,6 +137,10 @@ class MainWindow(QMainWindow):
         self.tabs.addTab(self.messages, "Messages")
         self.tabs.addTab(self.alarms, "Active alarms")
         self.tabs.addTab(self.faults, "Faults")
+        self.simulator = SimPanel(adapter, commands)  # a tab only for a simulated machine
+        self._sim_tab = self.tabs.addTab(self.simulator, "Simulator")
+        self.tabs.setTabVisible(self._sim_tab, False)
+        adapter.sim.connect(lambda: self.tabs.setTabVisible(self._sim_tab, adapter.model.sim_inputs is not None))
         self.history = HistoryWindow(adapter, search_history, parent=self)  # owned by the window, shown apart
         self.history.setWindowFlag(Qt.WindowType.Window)
         self.bar.history_requested.connect(self.show_history)

@@ -26,3 +26,12 @@ def test_demo_runs_automatic_cycles_handles_a_door_fault_and_exits_0():
     assert "procedure TRANSPORT PHASE: step 11/11 'Button pressed'" in out
     assert "raised     2292 error   Safety door open" in out
     assert "demo: OK: homed, automatic cycles cut, the door fault handled and reset" in out
+
+
+def test_the_example_program_for_trying_it_is_the_demos_nest():
+    """README "Try it" loads machines/programs/leather_nest.ngc: the demo's own nest, kept in step."""
+    from cnc.sim.demo import demo_program
+
+    from .conftest import REPO
+
+    assert (REPO / "machines" / "programs" / "leather_nest.ngc").read_text() == demo_program()

@@ -150,7 +150,8 @@ def test_operator_runs_the_automatic_cycle_end_to_end_from_the_screen(qtbot, plc
     assert len(lines) == 11 and all("(done)" in line for line in lines[:10]) and "(awaited)" in lines[10]
     assert not w.pages[Screen.PROCEDURE].manual.isVisibleTo(w), "in AUTO the steps are actions at the machine"
     shot(w, "03_transport_procedure")
-    sup.plc_sim.press_button()  # the operator at the transport station
+    qtbot.waitUntil(lambda: w.tabs.isTabVisible(w._sim_tab), timeout=WAIT_MS)  # a simulated machine: its panel
+    click(qtbot, screen, w.simulator.controls["transport_button"])  # the operator at the transport station
 
     heads: list[tuple[float, float] | None] = []
     screen.adapter.position.connect(lambda: heads.append(w.contour.head_position()))  # after the window drew it
@@ -168,6 +169,38 @@ def test_operator_runs_the_automatic_cycle_end_to_end_from_the_screen(qtbot, plc
     qtbot.waitUntil(lambda: w.contour.head_position() == pytest.approx((60.0, 60.0), abs=0.01), timeout=WAIT_MS)
     qtbot.waitUntil(lambda: any("3001" in line for line in w.messages.entries()), timeout=WAIT_MS)
     shot(w, "05_cycle_done")
+
+    # a second cut, the door opened from the simulator panel: the fault page, the door closed, reset, cut again
+    panel = w.simulator
+    w.tabs.setCurrentWidget(panel)
+    shot(w, "05b_simulator_panel")
+
+    def start_and_press() -> None:
+        click(qtbot, screen, auto.cycle_start)
+        qtbot.waitUntil(lambda: "Press the button at the transport station" in procedure.instruction.text(),
+                        timeout=WAIT_MS)
+        click(qtbot, screen, panel.controls["transport_button"])
+        qtbot.waitUntil(lambda: model.status.cycle_phase == "CUTTING" and model.status.jet_on, timeout=60000)
+
+    start_and_press()
+    click(qtbot, screen, panel.controls["doors_open"])
+    qtbot.waitUntil(lambda: w.current_screen is Screen.FAULT and "Safety door open" in w.faults.entries()
+                    and not model.status.jet_on and panel.controls["doors_open"].isChecked(), timeout=WAIT_MS)
+    shot(w, "05c_door_opened_from_the_panel")
+    click(qtbot, screen, panel.controls["doors_open"])
+    qtbot.waitUntil(lambda: "Safety door open" not in w.faults.entries()
+                    and not panel.controls["doors_open"].isChecked(), timeout=WAIT_MS)
+    click(qtbot, screen, w.bar.reset)
+    qtbot.waitUntil(lambda: model.status.machine_state == "READY" and w.current_screen is Screen.AUTO, timeout=WAIT_MS)
+    cycles = model.status.cycles_done
+    start_and_press()
+    qtbot.waitUntil(lambda: model.status.cycles_done == cycles + 1 and model.status.cycle_phase == "NONE",
+                    timeout=60000)
+    history = [e.detail for e in model.history_view() if e.code == 3004]
+    assert any("transport_button set to 1" in d for d in history) and any("doors_open set to 0" in d for d in history)
+    shot(w, "05d_cut_again")
+    model.apply_sim_inputs(None)  # what a controller on a real board answers (it refuses <root>/sim): no panel
+    qtbot.waitUntil(lambda: not w.tabs.isTabVisible(w._sim_tab), timeout=WAIT_MS)
 
 
 def test_an_alarm_shows_in_the_list_faults_messages_and_history_and_is_acknowledged_and_reset(
