@@ -242,6 +242,7 @@ class BatchedKerfCompensator(KerfCompensator):
             lo.min(axis=0) if len(lo) else np.full(3, np.inf), hi.max(axis=0) if len(hi) else np.full(3, -np.inf),
             pierces, after, outputs=outputs, turns=turns,
         )
+        builder._jet_was_on = after  # also when the run was events only (extend then adds nothing)
         for i, e in events:
             builder.message_at(e, base + i)
         if moving.any():

@@ -205,3 +205,18 @@ def test_a_sink_that_is_no_program_builder_gets_the_per_move_items():
                 assert np.allclose(a.center, b.center, atol=1e-9)
         else:
             assert (a.kind, a.line, a.data) == (b.kind, b.line, b.data)
+
+
+def test_a_jet_off_left_alone_at_the_end_of_a_batch_still_makes_the_next_cut_pierce():
+    """A queued stretch the bulk rules send back (an entry arc) and the M5 after it are the last
+    of a batch that the fast path's next run drains: the jet-off must reach the builder even with
+    no segment beside it, or the fast path's first cut after it is not counted as a pierce."""
+    part = ("G0 X[-3] Y[7]\nM3\nG4 P0.2\nG41 D1 G3 X[0] Y[10] I[3] J[0]\n" + CONTOUR.replace("#1", "0")
+            + "G40 G1 X[-4] Y[6]\nM5 (MSG, part done)\n")
+    plain = ["G0 X100 Y100", "M3", "G4 P0.2"] + [f"G1 X{100 + k} Y{100 + (k % 2)} F2400" for k in range(1, 80)] + ["M5"]
+    text = "G21 G90 G17 F2400\n" + part + "\n".join(plain) + "\nG0 X0 Y0\nM2\n"
+    counts = {}
+    slow, fast = _both(text, counts)
+    assert not isinstance(slow, GCodeError), str(slow)
+    _segments_equal(slow, fast)
+    assert slow.stats.pierces == fast.stats.pierces == 2 and counts["replayed"] == 1
