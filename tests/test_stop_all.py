@@ -53,4 +53,5 @@ def test_stop_all_at_rest_switches_the_drives_off_and_is_latched(plc_controller)
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the drives on")
     assert command(sup, StopAll(station="station test (local)")).startswith("everything stopped")
     sup.wait_until(lambda: sup.servo()["drive_enable_mask"] == 0, 10.0, "the drives off")
-    assert logic(sup)["state"] == MachineState.FAULT and logic(sup)["blocking"]
+    # the logic's block says "blocking" once the alarm is in the history (its recorder's thread)
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT and logic(sup)["blocking"], 10.0, "latched")
