@@ -616,7 +616,9 @@ class Logic:
             # every trip is told, also one a reset right after it has already cleared in the servo
             self.trips_told = servo["trip_seq"]
             alarm_id = fault_alarm(ServoFault(servo["trip_fault"]), self.names, servo["trip_axis"])
-            if alarm_id not in self.present:  # a cause whose own alarm stands already says it
+            # a cause whose own alarm is listed already says it: present, or latched since (a door
+            # closed before the trip that followed its opening is seen keeps its one alarm)
+            if alarm_id not in self.present and not any(a.id == alarm_id for a in self.book.active().alarms):
                 more = f" ({trips} trips since the last report)" if trips > 1 else ""
                 self.fault(alarm_id, self._servo_detail(servo) + more)
             self._committed(trip_seen=self.trips_told)
