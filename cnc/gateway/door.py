@@ -34,6 +34,7 @@ import zenoh
 from ..alarms import AlarmHistory, AlarmLevel, HistoryError
 from .audit import AuditTrail, AuditWriter, audit_path
 from ..bus.access import Roles
+from ..bus.client import CommandClient
 from ..bus.keys import Keys
 from ..bus.messages import (
     LOCK_FREE_VERBS, LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, Notice,
@@ -76,6 +77,8 @@ class Door:
         self.lock = OperatorLock()
         self.audit = AuditWriter(audit_path(history_path))
         self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
+        # the simulated machine's inputs: the supervisor owns them (`cnc.sim.inputs`)
+        self.supervisor = CommandClient(session, keys.supervisor, {"sim/set": SimInput}, "supervisor", SUPERVISOR_TIMEOUT_S)
         self.uploaded: dict[str, tuple[str, str, Any]] = {}  # program hash -> (name, text, interpreted Program)
         # one worker per lane: a stop never waits behind a load, an upload (interpreting a big, or
         # endlessly looping, program takes seconds) or a history query
@@ -142,7 +145,7 @@ class Door:
             raise CommandRefused(str(exc)) from None
         who = request.caller.user + (f" at station {request.caller.station}" if request.caller.station else "")
         self._notice(f"simulator: {msg.input} set to {msg.value:g} by {who}")
-        reply = self._ask_supervisor("sim/set", msg)
+        reply = self.supervisor.request(msg)
         if not reply.ok:
             self._notice(f"simulator: {msg.input} not changed: {reply.reason}")
         return reply
@@ -159,13 +162,6 @@ class Door:
             simulated_only(self.config)
         except SimInputError as exc:
             raise CommandRefused(str(exc)) from None
-
-    def _ask_supervisor(self, what: str, msg: SimInput) -> Reply:
-        replies = list(self.session.get(self.keys.supervisor(what), payload=encode(msg),
-                                        encoding=zenoh.Encoding.APPLICATION_JSON, timeout=SUPERVISOR_TIMEOUT_S))
-        if not replies or replies[0].ok is None:
-            return Reply(False, f"no answer from the supervisor within {SUPERVISOR_TIMEOUT_S:g} s")
-        return decode(replies[0].ok.payload.to_bytes(), Reply)
 
     def _notice(self, detail: str) -> None:
         """An info entry in the alarm history (the control logic keeps it), stored before this returns."""
