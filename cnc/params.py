@@ -36,7 +36,7 @@ _OTHERS = (
     ("jet", "pierce_dwell_s", "planner", "idle", "the next program loaded"),
     ("jet", "off_delay_s", "planner", "idle", "the next program loaded"),
 )
-IDLE_STATES = ("IDLE", "HELD", "PAUSED", "JOGGING", "MOVING", "HOMING")  # planner states with no program running
+IDLE_STATES = ("IDLE", "HELD", "PAUSED", "JOGGING", "MOVING", "MDI", "HOMING")  # planner states with no program running
 
 
 class ParamError(ValueError):

@@ -68,6 +68,12 @@ def describe(msg: msgspec.Struct) -> str:
         return f"Load program {msg.name}"
     if isinstance(msg, m.ProcedureStart):
         return f"Start procedure {msg.id}"
+    if isinstance(msg, m.Mdi):
+        lines = [line.strip() for line in msg.text.splitlines() if line.strip()]
+        text = " / ".join(lines)
+        return f"MDI: {text if len(text) <= 60 else text[:57] + '...'}"
+    if isinstance(msg, m.DeleteProgram):
+        return f"Delete program {msg.name}"
     if isinstance(msg, m.SimInput):
         return f"Simulator: {msg.input.replace('_', ' ')} {msg.value:g}"
     fixed = _FIXED.get(type(msg))

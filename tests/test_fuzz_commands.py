@@ -18,7 +18,7 @@ from cnc.bus.messages import (
     LOGIC_COMMANDS, MAX_CYCLES, PLANNER_COMMANDS, Acknowledge, CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop,
     LoadProgram, LockRequest, LogSetting, LogStart, LogStop, Override, ProcedureConfirm, ProcedureEnd, ProcedureStart,
     ProcedureStop, Pump, Reset, Resume, SaveParams, SchemaVersionError, SetMode, SetParam, SimInput, Start, Stop, StopAll,
-    UploadProgram,
+    UploadProgram, Mdi, DeleteProgram,
     decode, encode,
 )
 
@@ -30,7 +30,7 @@ VALID: list[msgspec.Struct] = [  # one well-formed command of every kind a door 
     Jog("x", 5.0, 1.0), JogStop(), JogRefresh(), GoTo({"x": 10.0, "y": 20.0}, 50.0), LoadProgram("/programs/part.ngc"), Override(50.0),
     Pump(True, 1000.0), JetTest(False), Acknowledge(3), ProcedureStart("transport"), ProcedureConfirm(), ProcedureStop(),
     ProcedureEnd(), LockRequest(False), UploadProgram("part.ngc", "G0 X1\nM2\n"), SetParam(120.0), SaveParams(),
-    SimInput("doors_open", 1.0), StopAll("station x (local)"),
+    SimInput("doors_open", 1.0), StopAll("station x (local)"), Mdi("G0 X10 Y20\nG1 X30 F600"), DeleteProgram("part.ngc"),
     LogStart([LogSetting("x.following_error", "triggered", enable_when="jet")], "run"), LogStop(),
 ]
 KINDS = sorted({type(m) for m in VALID}, key=lambda k: k.__name__)

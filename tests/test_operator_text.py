@@ -27,13 +27,15 @@ def test_every_operator_command_kind_is_covered_here():
 
 
 def test_the_words_say_what_the_command_does():
-    from cnc.bus.messages import GoTo, Hold, Jog, LockRequest, Override
+    from cnc.bus.messages import DeleteProgram, GoTo, Hold, Jog, LockRequest, Mdi, Override
 
     assert describe(LockRequest(take=True)) == "Take the command lock"
     assert describe(Hold(why="")) == "Feed hold"
     assert describe(Jog("y", -50.0, 2.0)) == "Jog Y- 2 mm at 50 mm/s"
     assert describe(GoTo({"x": 10.0, "y": 20.5}, 50.0)) == "Go to X10 Y20.5"
     assert describe(Override(80.0)) == "Feed override 80 %"
+    assert describe(Mdi("G0 X10\nG1 X20 F600")) == "MDI: G0 X10 / G1 X20 F600"
+    assert describe(DeleteProgram("part.ngc")) == "Delete program part.ngc"
 
 
 def test_the_door_alarm_reads_as_what_is_wrong():

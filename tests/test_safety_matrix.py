@@ -52,6 +52,7 @@ class State:
     enter: Callable[[Rig], None]
     moving: bool
     cutting: bool = False
+    in_cycle: bool = True  # cutting in the automatic cycle (barriers armed), not by hand (MDI)
 
 
 def _cut(feed_mm_s: float) -> Callable[[Rig], None]:
@@ -61,6 +62,14 @@ def _cut(feed_mm_s: float) -> Callable[[Rig], None]:
         rig.run_until(lambda: rig.speed_mm_s() > 0.99 * feed_mm_s and rig.jet[-1], 5000, f"cutting at {feed_mm_s} mm/s")
         rig.step(20)
     return enter
+
+
+def _mdi_cut(rig: Rig) -> None:
+    """Cutting by hand (MDI in MANUAL): the pressure floor holds, the barriers are not armed."""
+    rig.set_command(pressure_floor_bar=FLOOR_BAR)
+    rig.run_program("M3\nG1 X1500 F30000\nM5\nM2\n")
+    rig.run_until(lambda: rig.speed_mm_s() > 0.99 * 500.0 and rig.jet[-1], 5000, "cutting by hand at 500 mm/s")
+    rig.step(20)
 
 
 def _held(rig: Rig) -> None:
@@ -98,6 +107,7 @@ def _loading(rig: Rig) -> None:
 STATES = [
     State("cutting 50 mm/s", CONFIG, _cut(50.0), True, cutting=True),
     State("cutting 500 mm/s", CONFIG, _cut(500.0), True, cutting=True),
+    State("MDI cutting 500 mm/s", CONFIG, _mdi_cut, True, cutting=True, in_cycle=False),
     State("held", CONFIG, _held, False),
     State("jet test", CONFIG, _jet_test, False),
     State("jogging", CONFIG, _jogging, True),
@@ -127,7 +137,7 @@ def _moving_only(state: State) -> str:
 
 
 def _cycle_only(state: State) -> str:
-    return "" if state.cutting else "armed only in the automatic cycle (the barriers guard the transport zone)"
+    return "" if state.cutting and state.in_cycle else "armed only in the automatic cycle (the barriers guard the transport zone)"
 
 
 def _jet_cut_only(state: State) -> str:

@@ -90,6 +90,16 @@ class Keys:
         return f"{self.root}/lock"
 
     @property
+    def programs(self) -> str:
+        """Query: the program library (`ProgramList`)."""
+        return f"{self.root}/programs"
+
+    @property
+    def program_preview(self) -> str:
+        """Query `?name=<percent-encoded name>`: a stored program's text and path (`ProgramInfo`)."""
+        return f"{self.root}/programs/preview"
+
+    @property
     def program(self) -> str:
         return f"{self.root}/program"
 

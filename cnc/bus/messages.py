@@ -15,6 +15,7 @@ import msgspec
 
 SCHEMA_VERSION = 1
 MAX_CYCLES = 1_000_000  # cycles one CycleStart may ask for (JSON integers are unbounded; 0 runs until stopped)
+MAX_MDI_CHARS = 20_000  # characters one MDI entry may hold: lines typed by hand, not a program (upload those)
 
 
 class SchemaVersionError(ValueError):
@@ -178,6 +179,45 @@ class ProgramInfo(msgspec.Struct, frozen=True):
     planned_s: float  # -1 while it is being planned
     text: str = ""
     path: ProgramPath | None = None
+    errors: list[ProgramDiagnostic] = msgspec.field(default_factory=list)  # a stored program's preview: why it is refused
+    version: int = SCHEMA_VERSION
+
+
+class ProgramEntry(msgspec.Struct, frozen=True):
+    """One program of the controller's program directory, as the library lists it. The figures come
+    from checking it as `waterjet check` does (in the background, once per version of the file):
+    -1 until then (`summary` "pending"), and when it is refused (`summary` "error", `error` says
+    where and why)."""
+
+    name: str
+    bytes: int
+    modified_ns: int
+    summary: str  # "ready", "pending" or "error"
+    lines: int = -1
+    segments: int = -1
+    cut_length_mm: float = -1.0
+    pierces: int = -1
+    planned_s: float = -1.0  # cycle time at 100 % override, from X0 Y0
+    error: str = ""
+    last_run_end_ns: int = 0  # when its last run ended (0: never run)
+    last_result: str = ""  # how it ended: DONE, ABORTED or FAULT
+    last_cycle_s: float = -1.0
+    loaded: bool = False  # the program the controller has loaded now
+
+
+class ProgramList(msgspec.Struct, frozen=True):
+    """Answer of `<root>/programs`: the program directory, by name."""
+
+    directory: str
+    max_bytes: int
+    entries: list[ProgramEntry]
+    version: int = SCHEMA_VERSION
+
+
+class DeleteProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Delete a program from the controller's program directory (not while it runs)."""
+
+    name: str
     version: int = SCHEMA_VERSION
 
 
@@ -553,6 +593,20 @@ class Home(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     version: int = SCHEMA_VERSION
 
 
+class Mdi(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Run G-code typed by hand (manual data input): one or more lines, in MANUAL mode, on a homed
+    machine. Checked as a program is (an error names its line and column) and against the travel
+    before anything moves; interpreted from where the head stands, each entry from the machine's
+    default modal state. The jet opens only where the lines ask for it (the jet-on M-code) and
+    only when the interlocks and the pump's pressure allow it; program stops (M0, M1, M60) are
+    refused: there is no cycle start in MANUAL to go on with."""
+
+    text: Annotated[str, msgspec.Meta(max_length=MAX_MDI_CHARS)]
+    stamp: Stamp | None = None
+    jet_refused: str = ""  # set by the commander: why the jet may not open now ("" it may); an operator's is replaced
+    version: int = SCHEMA_VERSION
+
+
 class ProgramDiagnostic(msgspec.Struct, frozen=True):
     """Where a program is wrong: its line and column (1-based) and what is wrong there."""
 
@@ -573,14 +627,14 @@ class Reply(msgspec.Struct, frozen=True):
 
 PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "load": LoadProgram, "start": Start, "hold": Hold, "resume": Resume, "stop": Stop, "override": Override,
-    "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo, "home": Home,
+    "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo, "home": Home, "mdi": Mdi,
 }
-MOTION_COMMANDS = (Start, Resume, Jog, JogRefresh, GoTo, Home)  # carried out only with the commander's Stamp
+MOTION_COMMANDS = (Start, Resume, Jog, JogRefresh, GoTo, Home, Mdi)  # carried out only with the commander's Stamp
 REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset", "stop_all")  # never queued behind slow work
 # Verbs whose handlers command motion or the jet: a bug met while serving one brings the machine to
 # its safe state (cnc.bus.service). A stop is among them: a stop that failed must still stop.
 MOTION_VERBS = frozenset({
-    "start", "resume", "jog", "jog_refresh", "goto", "home", "drives", "pump", "jet_test", "override",
+    "start", "resume", "jog", "jog_refresh", "goto", "home", "mdi", "drives", "pump", "jet_test", "override",
     "stop", "hold", "jog_stop", "reset", "procedure_start", "procedure_confirm", "procedure_stop", "stop_all",
 })
 LOCK_FREE_VERBS = frozenset({"stop_all"})  # any operator station, with or without the command lock
@@ -728,7 +782,7 @@ class Notice(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 LOGIC_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "mode": SetMode, "start": CycleStart, "hold": Hold, "resume": Resume, "stop": Stop, "reset": Reset,
     "drives": Drives, "home": Home, "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo,
-    "load": LoadProgram,
+    "mdi": Mdi, "load": LoadProgram,
     "override": Override, "pump": Pump, "jet_test": JetTest, "acknowledge": Acknowledge,
     "procedure_start": ProcedureStart, "procedure_confirm": ProcedureConfirm, "procedure_stop": ProcedureStop,
     "procedure_end": ProcedureEnd, "stop_all": StopAll,

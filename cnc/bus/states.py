@@ -27,6 +27,7 @@ class MachineState(enum.IntEnum):
     ESTOP = 6  # emergency stop or safety circuit open
     FAULT = 7  # a fatal or error alarm waits for reset
     JOGGING = 8  # manual motion: jog or go-to
+    MDI = 9  # G-code typed by hand runs (manual data input, MANUAL mode)
 
 
 class CyclePhase(enum.IntEnum):
@@ -66,6 +67,7 @@ class PlannerState(enum.IntEnum):
     HOMING = 6
     JOGGING = 7
     MOVING = 8  # go-to-position
+    MDI = 9  # G-code typed by hand (manual data input)
 
 
 class RunResult(enum.IntEnum):

@@ -28,6 +28,7 @@ import threading
 import time
 from pathlib import Path
 from typing import Any, Callable
+from urllib.parse import unquote
 
 import zenoh
 
@@ -37,14 +38,15 @@ from ..bus.access import Roles
 from ..bus.client import CommandClient
 from ..bus.keys import Keys
 from ..bus.messages import (
-    LOCK_FREE_VERBS, LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, Hold, JobPage, LoadProgram, LockRequest, Notice,
-    ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramPath, Reply, SimInput, SimInputs,
-    StopAll, UploadProgram, decode, encode,
+    LOCK_FREE_VERBS, LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, DeleteProgram, Hold, JobPage, LoadProgram,
+    LockRequest, Notice, ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramList, ProgramPath, Reply,
+    SimInput, SimInputs, StopAll, UploadProgram, decode, encode,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..bus.states import MachineState
 from ..config import MachineConfig
 from .jobs import JobHistory, jobs_path
+from .library import ProgramLibrary, library_path
 from .lock import OperatorLock, Token
 from ..logic.client import LogicClient
 from ..machine_dialect import dialect_for
@@ -73,6 +75,7 @@ class Door:
         self.history_path = history_path
         self.program_dir = Path(program_dir)
         self.programs = ProgramDirectory(self.program_dir, config.gcode.max_program_bytes)
+        self.library = ProgramLibrary(self.programs, library_path(history_path), jobs_path(history_path), config)
         self.machine_state, self.motion = machine_state, motion
         self.lock = OperatorLock()
         self.audit = AuditWriter(audit_path(history_path))
@@ -96,7 +99,8 @@ class Door:
             Route(what, key, self._read(answer), read=True, lane="query") for what, key, answer in (
                 ("history", keys.alarms_history, self._history), ("jobs", keys.jobs_history, self._jobs),
                 ("audit", keys.audit_history, self._audit), ("program", keys.program, self._program),
-                ("lock", keys.lock, lambda _params: self.lock.state()), ("procedures", keys.procedures, self._procedures))
+                ("lock", keys.lock, lambda _params: self.lock.state()), ("procedures", keys.procedures, self._procedures),
+                ("programs", keys.programs, self._library), ("program preview", keys.program_preview, self._preview))
         ]
         self.service.serve(
             *commands,
@@ -104,6 +108,8 @@ class Door:
             Route("program", keys.cmd_any("program"), self._upload, UploadProgram, role="operator", lock=True,
                   lane="upload", audit=True),
             Route("sim", keys.cmd_any("sim"), self._sim, SimInput, role="operator", lock=True, lane="cmd", audit=True),
+            Route("program_delete", keys.cmd_any("program_delete"), self._delete, DeleteProgram, role="operator", lock=True,
+                  lane="cmd", audit=True),
             Route("sim", keys.sim, self._read(lambda _params: self._sim_inputs()), read=True, lane="query"),
             *reads,
         )
@@ -120,14 +126,15 @@ class Door:
         self.lock_pub.undeclare()
         self.pinger.join(2.0)
         self.audit.close()
+        self.library.close()
 
     # -- commands ---------------------------------------------------------------------------
     def _forward(self, request: Request) -> Reply:
         """An operator's command to the control logic (a load by name, from the program directory only)."""
         command = request.message
         if isinstance(command, LoadProgram):
-            path, _ = self.programs.read(command.path)
-            command = LoadProgram(str(path))
+            path, data = self.programs.read(command.path)
+            return self._load_checked(Path(command.path).name, path, data)
         elif isinstance(command, StopAll):  # who asked, as the router and the service know it
             caller = request.caller
             command = StopAll(f"station {caller.station or '?'} ({caller.user or 'no user'})")
@@ -251,7 +258,7 @@ class Door:
         if self.config.gateway.on_operator_lost == "hold" and state == MachineState.RUNNING.name:
             reply = self.logic.request(Hold(why=f"{why}: feed hold"))
             log.warning("gateway: feed hold after the operator was lost: %s", "ok" if reply.ok else reply.reason)
-        elif state in (MachineState.JOGGING.name, MachineState.HOMING.name):
+        elif state in (MachineState.JOGGING.name, MachineState.HOMING.name, MachineState.MDI.name):
             reply = self.logic.request(Hold(why=f"{why}: the {state.lower()} stopped"))
             log.warning("gateway: %s stopped after the operator was lost: %s", state.lower(), "ok" if reply.ok else reply.reason)
 
@@ -275,23 +282,34 @@ class Door:
             return Reply(False, f"program: {msg.name}:{line}:{column}: {why}", [ProgramDiagnostic(line, column, why)])
         program, diagnostic = self._interpret(msg.name, data)
         if diagnostic is not None:
-            return Reply(False, f"program: {msg.name}:{diagnostic.line}:{diagnostic.column}: {diagnostic.message}",
-                         [diagnostic])
+            return _refused(msg.name, diagnostic)
         self.program_dir.mkdir(parents=True, exist_ok=True)
         path = self.program_dir / msg.name
         tmp = path.with_name(f".{msg.name}.part")
         tmp.write_bytes(data)
         os.replace(tmp, path)
+        self.library.changed()
+        return self._load_checked(msg.name, path, data, program)
+
+    def _load_checked(self, name: str, path: Path, data: bytes, program: Any = None) -> Reply:
+        """Load a program of the directory: interpreted here first (unless `program` is that), so
+        that a refusal carries its line and column and the preview its text and path; then by the
+        control logic and the planner, which check it against the machine."""
         digest = hashlib.sha256(data).hexdigest()
+        if program is None:
+            seen = self.uploaded.get(digest)
+            program, diagnostic = (seen[2], None) if seen is not None else self._interpret(name, data)
+            if diagnostic is not None:
+                return _refused(name, diagnostic)
         # the latest and the loaded one (its preview is served while it runs, also after a refused
         # upload), no others: programs can be large
         loaded = {h: p for h, p in self.uploaded.items() if h == self.motion()["program_hash"]}
-        self.uploaded = {**loaded, digest: (msg.name, msg.text, program)}
+        self.uploaded = {**loaded, digest: (name, data.decode("utf-8"), program)}
         command = LoadProgram(str(path))
         reply = self.logic.request(command, self._limit_for(command))
         if not reply.ok:
             return reply
-        return Reply(True, f"loaded {msg.name} ({len(data)} bytes, sha256 {digest[:12]})")
+        return Reply(True, f"loaded {name} ({len(data)} bytes, sha256 {digest[:12]})")
 
     def _limit_for(self, command) -> float | None:
         """A load waits as long as the logic waits for the planner to check and plan the program
@@ -318,6 +336,38 @@ class Door:
             lines=m["program_lines"], planned_s=m["planned_s"], text=text if want_text else "",
             path=program_path(program) if want_path and program is not None else None,
         )
+
+    def _library(self, _params: dict) -> ProgramList:
+        return self.library.listing(loaded=self.motion()["program_name"])
+
+    def _preview(self, params: dict) -> ProgramInfo:
+        """A stored program for the screen's preview: its text, and its path when it is valid (else
+        where and why it is refused), without loading it."""
+        if "name" not in params:
+            raise ValueError("parameter name=<program> is missing")
+        name = unquote(params["name"])
+        path, data = self.programs.read(name)
+        digest = hashlib.sha256(data).hexdigest()
+        seen = self.uploaded.get(digest)
+        program, diagnostic = (seen[2], None) if seen is not None else self._interpret(name, data)
+        summary = self.library.summary(Path(name).name)
+        return ProgramInfo(
+            name=path.name, hash=digest, bytes=len(data),
+            lines=program.stats.lines if program is not None else len(data.splitlines()),
+            planned_s=summary.planned_s if summary is not None else -1.0, text=data.decode("utf-8"),
+            path=program_path(program) if program is not None else None,
+            errors=[diagnostic] if diagnostic is not None else [],
+        )
+
+    def _delete(self, request: Request) -> Reply:
+        """Delete a stored program; not the one a cycle or a run is using now."""
+        name = request.message.name
+        m = self.motion()
+        if name == m["program_name"] and self.machine_state() in (MachineState.RUNNING.name, MachineState.HOLD.name):
+            raise CommandRefused(f"{name} is running: stop the cycle before deleting it")
+        self.library.delete(name)
+        kept = "; the controller keeps it loaded until another program is loaded" if name == m["program_name"] else ""
+        return Reply(True, f"deleted {name}{kept}")
 
     def _procedures(self, _params: dict) -> ProcedureCatalogue:
         return ProcedureCatalogue([ProcedureInfo(p.id, p.title, [s.text for s in p.step]) for p in self.config.procedure])
@@ -358,6 +408,10 @@ def program_path(program: Any) -> ProgramPath:
         end_x=seg["end"][:, 0].tolist(), end_y=seg["end"][:, 1].tolist(), center_x=seg["center"][:, 0].tolist(),
         center_y=seg["center"][:, 1].tolist(), cw=seg["cw"].astype(bool).tolist(), line=seg["line"].tolist(),
     )
+
+
+def _refused(name: str, diagnostic: ProgramDiagnostic) -> Reply:
+    return Reply(False, f"program: {name}:{diagnostic.line}:{diagnostic.column}: {diagnostic.message}", [diagnostic])
 
 
 def _as_sent(verb: str, payload: bytes) -> str:

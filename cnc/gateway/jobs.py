@@ -7,6 +7,7 @@ processes see each committed run).
 
 from __future__ import annotations
 
+import sqlite3
 from pathlib import Path
 
 from ..bus.messages import JobPage, JobRecord
@@ -52,6 +53,17 @@ class JobHistory:
         columns = _COLUMNS + (", planned_s" if self._has_planned() else "")
         rows, more = page_rows(self.db, "jobs", columns, offset, limit, newest_first, "program" if program else "", program)
         return JobPage([JobRecord(*r) for r in rows], more)
+
+    def last_runs(self) -> dict[str, JobRecord]:
+        """Each program's last run, by program name."""
+        columns = _COLUMNS + (", planned_s" if self._has_planned() else "")
+        try:
+            rows = self.db.execute(f"SELECT {columns} FROM jobs WHERE seq IN (SELECT MAX(seq) FROM jobs GROUP BY program)")
+        except sqlite3.OperationalError as exc:  # its writer has not created the table yet
+            if "no such table" in str(exc):
+                return {}
+            raise
+        return {r[1]: JobRecord(*r) for r in rows}
 
     def close(self) -> None:
         self.db.close()

@@ -42,7 +42,7 @@ from ..alarms.recorder import Recorder
 from ..bus.keys import Keys
 from ..bus.messages import (
     LOGIC_COMMANDS, MOTION_COMMANDS, MOTION_VERBS, AlarmEvent, GoTo, Hold, Home, InternalError, Jog, JogRefresh, JogStop,
-    LoadProgram, Notice, Override, Reply, Resume, Stamp, Stop, encode,
+    LoadProgram, Mdi, Notice, Override, Reply, Resume, Stamp, Stop, encode,
 )
 from ..bus.service import DEFERRED, CommandRefused, CommandService, Request, Route
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
@@ -64,9 +64,9 @@ from .states import CyclePhase, MachineState, Mode
 log = logging.getLogger(__name__)
 
 JET_BITS = int(DigitalOut.JET_VALVE | DigitalOut.ABRASIVE)
-_MANUAL_MOTION = (PlannerState.JOGGING, PlannerState.MOVING)
+_MANUAL_MOTION = (PlannerState.JOGGING, PlannerState.MOVING, PlannerState.MDI)
 _MOVING = (PlannerState.RUNNING, PlannerState.HOLDING, PlannerState.STOPPING, PlannerState.HOMING,
-           PlannerState.JOGGING, PlannerState.MOVING)
+           PlannerState.JOGGING, PlannerState.MOVING, PlannerState.MDI)
 PLC_RESET_PULSE_S = 0.5  # how long the PLC's reset coil stays on: several link cycles
 
 class Logic:
@@ -293,7 +293,8 @@ class Logic:
             raise CommandRefused(f"cannot {what} while alarms wait for reset: {alarms}")
 
     def _require_still(self, what: str) -> None:
-        if self.state in (MachineState.RUNNING, MachineState.HOLD, MachineState.HOMING, MachineState.JOGGING):
+        if self.state in (MachineState.RUNNING, MachineState.HOLD, MachineState.HOMING, MachineState.JOGGING,
+                          MachineState.MDI):
             raise CommandRefused(f"cannot {what} while {self.state.name}")
 
     def _cmd_mode(self, msg, snap, now, request) -> None:
@@ -345,6 +346,8 @@ class Logic:
             return None
         if self.cycle.active and snap.motion["state"] in (PlannerState.PAUSED, PlannerState.HELD, PlannerState.HOLDING):
             return self._forward(Resume(), request)  # a program stop (M0/M1) or a feed hold at override 0 %
+        if snap.motion["state"] == PlannerState.MDI:  # MDI held by the override at 0 % (the planner says if it is)
+            return self._forward(Resume(), request)
         raise CommandRefused(f"nothing to resume ({self.state.name})")
 
     def _cmd_stop(self, msg, snap, now, request) -> str | None:
@@ -432,6 +435,33 @@ class Logic:
         self._require_no_blocking("move")
         self.jet_test = False
         return self._forward(msg, request)
+
+    def _cmd_mdi(self, msg: Mdi, snap, now, request) -> str:
+        """G-code typed by hand, in MANUAL, on a homed machine at rest; the planner checks the lines
+        and the travel. Whether the jet may open is decided here, where the pressure is known: the
+        planner refuses lines that open it when it may not."""
+        self._require_mode(Mode.MANUAL, "MDI")
+        self._require_no_blocking("run MDI")
+        if self.state != MachineState.READY:
+            raise CommandRefused(f"cannot run MDI while {self.state.name}" + (
+                ": switch the drives on and home the machine" if self.state == MachineState.IDLE else ""))
+        if self.procedures.running:
+            raise CommandRefused(f"a procedure is running ({self.procedures.state().title}): end it first")
+        if self.jet_test:
+            raise CommandRefused("the jet test is on: switch it off before running MDI")
+        msg = msgspec.structs.replace(msg, jet_refused=self._jet_refused(snap))
+        return self._forward(msg, request)
+
+    def _jet_refused(self, snap: Snapshot) -> str:
+        """Why the jet may not open by hand now ("" when it may): what holds it closed in the tick,
+        or a pump below the pierce pressure."""
+        if snap.servo["stop_causes"]:
+            return f"the jet stays closed while {_causes_text(snap.servo['stop_causes'])}"
+        need = self.config.pump.pierce_pressure_bar - self.config.pump.tolerance_bar
+        pressure = self.reader.plc_value(snap, "pump_pressure")
+        if not self.outputs.has("pump_on") or pressure < need:
+            return f"the pump is at {pressure:.0f} bar and the jet needs at least {need:.0f} bar: switch the pump on first"
+        return ""
 
     def _cmd_load(self, msg: LoadProgram, snap, now, request) -> str:
         if self.cycle.phase == CyclePhase.CUTTING:
@@ -565,7 +595,7 @@ class Logic:
         hw, servo, plc = snap.hw, snap.servo, snap.plc
         has_plc = bool(self.config.plc.var)
         link_ok = snap.link_ok
-        cutting = self.cycle.phase == CyclePhase.CUTTING
+        cutting = self._cutting(snap)
         running = self.cycle.active and not self.cycle.held
         c: dict[str, str | None] = {}
         estop = []
@@ -668,11 +698,15 @@ class Logic:
             return None
         return self.pressure.fault(self.reader.plc_value(snap, "pump_pressure"), self.clock())
 
+    def _cutting(self, snap: Snapshot | None) -> bool:
+        """The jet may cut now: the cycle's cutting phase, or G-code typed by hand (MDI) running."""
+        return self.cycle.phase == CyclePhase.CUTTING or (snap is not None and snap.motion["state"] == PlannerState.MDI)
+
     def _pressure_floor(self) -> float:
         """The pressure the tick holds the pump to while the jet cuts (`PressureWatch.floor_bar`);
         from the state at the end of the scan, so a set point lowered for the next pierce lowers
         the floor in the same publication."""
-        return self.pressure.floor_bar() if self.cycle.phase == CyclePhase.CUTTING else 0.0
+        return self.pressure.floor_bar() if self._cutting(self.snap) else 0.0
 
     def _safe_stop(self, why: str) -> None:
         """Jet off first (the servo drops the bits within a tick), then a controlled stop on the path
@@ -759,6 +793,8 @@ class Logic:
         elif self.cycle.active:
             held = self.cycle.held or motion["state"] in (PlannerState.HELD, PlannerState.HOLDING, PlannerState.PAUSED)
             state = MachineState.HOLD if held else MachineState.RUNNING
+        elif motion["state"] == PlannerState.MDI:
+            state = MachineState.MDI
         elif motion["state"] in _MANUAL_MOTION:
             state = MachineState.JOGGING
         elif self.cycle.stopped:

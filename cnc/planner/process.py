@@ -50,7 +50,7 @@ from gcode.program import Program
 
 from ..bus.keys import Keys
 from ..bus.messages import (
-    MOTION_COMMANDS, MOTION_VERBS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Override, Reply,
+    MOTION_COMMANDS, MOTION_VERBS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Mdi, Override, ProgramDiagnostic, Reply,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..config import MachineConfig
@@ -68,6 +68,11 @@ from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
 from .sections import iter_steps, move_steps
 from .steps import ProgramTiming, StepSource
+
+MDI_NAME = "MDI"  # how an MDI entry's errors name it
+MDI_INTERPRET_S = 5.0  # an MDI entry still interpreting after this is refused (an endless loop typed by hand)
+_PROGRAM_STOPS = {"stop": "M0 (program stop)", "optional_stop": "M1 (optional stop)", "pallet": "M60 (pallet change)"}
+_PROGRAMS = (PlannerState.RUNNING, PlannerState.MDI)  # kinds of runner that run G-code: the override holds them
 from .timing_process import TimingProcess, remove_stale
 
 log = logging.getLogger(__name__)
@@ -493,7 +498,7 @@ class Planner:
     def _cmd_resume(self, _msg) -> None:
         if self.runner is None or self.runner.state not in (RunState.HOLDING, RunState.HELD, RunState.PAUSED):
             raise CommandRefused(f"nothing to resume ({self._state().name})")
-        if self.override <= 0.0 and self.runner_kind == PlannerState.RUNNING:
+        if self.override <= 0.0 and self.runner_kind in _PROGRAMS:
             raise CommandRefused("the feed override is 0 %: raise it before resuming")
         # the hold's last setpoints may still be running out: what resume adds follows them
         self._require_servo("resume", moving_ok=True)
@@ -515,7 +520,7 @@ class Planner:
         if not (math.isfinite(msg.percent) and 0.0 <= msg.percent <= 200.0):
             raise CommandRefused(f"override {msg.percent:g} % is out of range: 0 to 200 %")
         self.override = msg.percent / 100.0
-        if self.runner is not None and self.runner_kind == PlannerState.RUNNING:
+        if self.runner is not None and self.runner_kind in _PROGRAMS:
             held = self.runner.state
             self.runner.set_override(self.override)
             if self.runner.state != held and self.runner.state in (RunState.HOLDING, RunState.HELD):
@@ -605,6 +610,50 @@ class Planner:
             raise CommandRefused(f"feed {msg.feed_mm_s!r} mm/s must be positive")
         self._manual(here, end, feed, PlannerState.MOVING)
 
+    def _cmd_mdi(self, msg: Mdi) -> Reply:
+        """G-code typed by hand, run from where the head stands: on a homed machine, checked as a
+        program and against the travel before anything moves, the jet only where the lines ask for
+        it and the commander allows it (`jet_refused`), no program stops."""
+        self._require_idle("run MDI")
+        servo = self._require_servo("run MDI")
+        unhomed = [a.upper() for i, a in enumerate(self.config.axis_names) if not servo["homed_mask"] >> i & 1]
+        if unhomed:
+            raise CommandRefused(f"MDI needs a homed machine: home {', '.join(unhomed)} first")
+        if self.override <= 0.0:
+            raise CommandRefused("the feed override is 0 %: raise it before running MDI")
+        start = tuple(servo["commanded_mm"])
+        try:
+            program = self._on_helper(lambda: self._interpret_mdi(msg.text, start))
+        except GCodeError as exc:
+            return Reply(False, str(exc), [ProgramDiagnostic(exc.line, exc.column, exc.message,
+                                                                 (exc.source_line or "").rstrip("\r\n"))])
+        stops = [m for m in program.messages if m.kind in _PROGRAM_STOPS]
+        if stops:
+            raise CommandRefused(f"{MDI_NAME}:{stops[0].line}: {_PROGRAM_STOPS[stops[0].kind]} cannot run by hand: "
+                                 "there is no cycle start in MANUAL to go on with")
+        try:
+            preflight(program.segments, self.config, dict.fromkeys(self.config.axis_names, True), MDI_NAME)
+        except PreflightError as exc:
+            raise CommandRefused(str(exc)) from None
+        jet = program.segments["jet"]
+        if jet.any() and msg.jet_refused:
+            line = int(program.segments["line"][int(np.argmax(jet))])
+            raise CommandRefused(f"{MDI_NAME}:{line}: the jet would be open on this line, but {msg.jet_refused}")
+        if not len(program.segments):
+            return Reply(True, "nothing to move: the lines hold no motion or dwell")
+        self._begin(ProgramRunner(None, self.config, steps=StepSource(iter_steps(program, self.config))), PlannerState.MDI)
+        return Reply(True, f"running {program.stats.lines} line{'s' if program.stats.lines != 1 else ''} by hand"
+                     + (", the jet opens where they ask" if jet.any() else ""))
+
+    def _interpret_mdi(self, text: str, start: tuple) -> Program:
+        """An MDI entry interpreted from `start` with the machine's dialect; an endless loop typed by
+        hand is refused after MDI_INTERPRET_S, not the minutes a program may take."""
+        dialect = dataclasses.replace(dialect_for(self.config), start_position_mm=_xyz(self.config, start),
+                                      max_seconds=min(self.config.gcode.interpret_timeout_s, MDI_INTERPRET_S))
+        # lines typed by hand end where they end: the program end a file needs is implied (after
+        # an M2 of their own the interpreter reads no further)
+        return Interpreter(dialect, MDI_NAME).run((text.rstrip("\r\n") + "\nM2\n").encode("utf-8"))
+
     def _cmd_home(self, msg: Home) -> None:
         self._require_idle("home")
         self._require_servo("home")
@@ -627,7 +676,7 @@ class Planner:
         self._begin(ProgramRunner(None, self.config, steps=steps), kind)
 
     def _begin(self, runner: ProgramRunner, kind: PlannerState) -> None:
-        if kind == PlannerState.RUNNING:
+        if kind in _PROGRAMS:
             runner.set_override(self.override)
         self.runner, self.runner_kind = runner, kind
         self.motion_epoch = self.servo_r.read_dict()["motion_epoch"]
