@@ -7,6 +7,7 @@ import re
 import threading
 import time
 from collections.abc import Callable
+from urllib.parse import quote
 
 import msgspec
 import zenoh
@@ -15,8 +16,8 @@ from cnc.bus.certs import TlsFiles
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
     AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState,
-    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, Reply, SimInput, SimInputs, Status, StopAll,
-    decode,
+    ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, ProgramList, Reply, SimInput, SimInputs, Status,
+    StopAll, decode,
 )
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import LOCAL_USER, open_client
@@ -390,6 +391,14 @@ class Connection:
         if codes:
             params.append("code=" + ",".join(str(c) for c in codes))
         return self._query(f"{self.keys.alarms_history}?{';'.join(params)}", HistoryPage)
+
+    def programs(self) -> ProgramList:
+        """The controller's program library (blocking: off the GUI thread); NoAnswer when it does not answer."""
+        return self._query(self.keys.programs, ProgramList)
+
+    def preview(self, name: str) -> ProgramInfo:
+        """A stored program's text and path, without loading it (blocking); NoAnswer says why not."""
+        return self._query(f"{self.keys.program_preview}?name={quote(name, safe='')}", ProgramInfo)
 
     def _read(self, selector: str, kind: type[msgspec.Struct], apply: Callable[[msgspec.Struct], None]) -> None:
         apply(self._query(selector, kind))

@@ -15,7 +15,7 @@ from PySide6.QtCore import QEvent, QObject, Qt, QTimer, Signal
 from PySide6.QtGui import QKeyEvent
 from PySide6.QtWidgets import (
     QButtonGroup, QComboBox, QDoubleSpinBox, QFormLayout, QGridLayout, QGroupBox, QHBoxLayout, QLabel, QPushButton,
-    QSlider, QSpinBox, QVBoxLayout, QWidget,
+    QSlider, QSpinBox, QTabWidget, QVBoxLayout, QWidget,
 )
 
 from cnc.bus.messages import (
@@ -26,6 +26,8 @@ from cnc.bus.states import Mode
 
 from .adapter import ModelAdapter
 from .commands import CommandRunner, enable_while_commanding
+from .library import LibraryPanel, ProgramSource
+from .mdi import MdiPanel
 from .program import ProgramPanel
 
 JOG_STEPS_MM = (None, 0.01, 0.1, 1.0, 10.0, 100.0)  # None: continuous while held
@@ -224,7 +226,7 @@ class JogPad(QGroupBox):
 
 
 class ManualPage(QWidget):
-    """MANUAL mode: jog, home, drives, pump, jet test, go to a position, start a guided procedure."""
+    """MANUAL mode: jog, home, drives, pump, jet test, go to a position, MDI, start a guided procedure."""
 
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, vertical: bool = False,
                  parent: QWidget | None = None) -> None:
@@ -273,13 +275,15 @@ class ManualPage(QWidget):
         g = QHBoxLayout(guided)
         g.addWidget(self.procedures, 1)
         g.addWidget(self.procedure_start)
+        self.mdi: MdiPanel | None = None  # not in a narrow place beside a procedure
         if vertical:
             layout = QVBoxLayout(self)
             for w in (machine, self.jog, move, guided):
                 layout.addWidget(w)
         else:
             right = QVBoxLayout()
-            for w in (machine, move, guided):
+            self.mdi = MdiPanel(adapter, commands)
+            for w in (machine, move, self.mdi, guided):
                 right.addWidget(w)
             right.addStretch(1)
             layout = QHBoxLayout(self)
@@ -312,12 +316,20 @@ class ManualPage(QWidget):
 
 
 class AutoPage(QWidget):
-    """AUTO mode: the program (load, text, block being cut) and the cycle's buttons."""
+    """AUTO mode: the program (load, text, block being cut), the program library when the screen
+    can ask for it, and the cycle's buttons."""
 
-    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, parent: QWidget | None = None) -> None:
+    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, library: ProgramSource | None = None,
+                 parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.model, self.commands = adapter.model, commands
         self.program = ProgramPanel(adapter, commands)
+        self.library = LibraryPanel(adapter, commands, library) if library is not None else None
+        self.tabs = QTabWidget()
+        self.tabs.addTab(self.program, "Loaded program")
+        if self.library is not None:
+            self.tabs.addTab(self.library, "Program library")
+            self.tabs.currentChanged.connect(lambda i: self.library.refresh() if self.tabs.widget(i) is self.library else None)
         self.cycles = QSpinBox()
         self.cycles.setRange(0, 9999)
         self.cycles.setValue(1)
@@ -343,7 +355,7 @@ class AutoPage(QWidget):
             buttons.addWidget(b)
         buttons.addStretch(1)
         layout = QHBoxLayout(self)
-        layout.addWidget(self.program, 1)
+        layout.addWidget(self.tabs, 1)
         layout.addWidget(cycle)
         enable_while_commanding(adapter, [self.cycle_start, self.hold, self.resume, self.stop])
 

@@ -18,7 +18,7 @@ from .adapter import ModelAdapter
 from .model import PlcState
 from .style import BAD, OFF, OK, WARN, Lamp, duration, value_label
 
-RUNNING_STATES = tuple(s.name for s in (MachineState.RUNNING, MachineState.HOMING, MachineState.JOGGING))
+RUNNING_STATES = tuple(s.name for s in (MachineState.RUNNING, MachineState.HOMING, MachineState.JOGGING, MachineState.MDI))
 _PLANNER_AT_REST = tuple(s.name for s in (PlannerState.IDLE, PlannerState.HELD, PlannerState.PAUSED))
 PLC_COLOURS = {PlcState.STOPPED: OFF, PlcState.STARTED: WARN, PlcState.RUNNING: OK}
 

@@ -37,7 +37,7 @@ class OperatorScreen:
         self.commands = CommandRunner(self.connection)
         self.window = MainWindow(
             self.adapter, self.commands, ", ".join(endpoints), open_error=lambda: self.connection.last_open_error,
-            search_history=self.connection.search_history,
+            search_history=self.connection.search_history, library=self.connection,
             engineering=lambda parent: EngineeringWindow(self.adapter, self.tuning_adapter, self.commands,
                                                          self.connection, parent),
         )

@@ -16,7 +16,8 @@ from collections.abc import Callable
 from PySide6.QtCore import Qt, QTimer
 from PySide6.QtGui import QKeySequence, QShortcut
 from PySide6.QtWidgets import (
-    QApplication, QHBoxLayout, QLabel, QMainWindow, QScrollArea, QSplitter, QStackedWidget, QTabWidget, QVBoxLayout, QWidget,
+    QAbstractSpinBox, QApplication, QHBoxLayout, QLabel, QLineEdit, QMainWindow, QPlainTextEdit, QScrollArea, QSplitter,
+    QStackedWidget, QTabWidget, QVBoxLayout, QWidget,
 )
 
 from cnc.bus.messages import Reply
@@ -27,6 +28,7 @@ from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea, Search
 from .commands import JOG_HELD, CommandRunner
 from .contour import ContourView
 from .controls import STOP_ALL_KEY, AutoPage, CommandBar, JogPad, KeyJog, ManualPage
+from .library import ProgramSource
 from .sim_panel import SimPanel
 from .model import Screen
 from .panels import StatusPanels
@@ -103,9 +105,11 @@ class MainWindow(QMainWindow):
 
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, where: str = "the controller",
                  open_error: Callable[[], str] | None = None, search_history: Search | None = None,
-                 engineering: Callable[[QWidget], QWidget] | None = None, parent: QWidget | None = None) -> None:
+                 engineering: Callable[[QWidget], QWidget] | None = None, library: ProgramSource | None = None,
+                 parent: QWidget | None = None) -> None:
         """`open_error()` says why the controller cannot be reached ("" when unknown);
         `search_history` searches the controller's whole history (the history window's button);
+        `library` answers the program library's queries (its tab is left out without it);
         `engineering(parent)` builds the tuning and logging window (its button is hidden without it)."""
         super().__init__(parent)
         self.adapter, self.model, self.commands, self.where = adapter, adapter.model, commands, where
@@ -124,7 +128,7 @@ class MainWindow(QMainWindow):
         scroll.setMinimumWidth(440)
         self.pages: dict[Screen, QWidget] = {
             Screen.OFFLINE: OfflinePage(where), Screen.MANUAL: ManualPage(adapter, commands),
-            Screen.AUTO: AutoPage(adapter, commands), Screen.PROCEDURE: ProcedurePage(adapter, commands),
+            Screen.AUTO: AutoPage(adapter, commands, library), Screen.PROCEDURE: ProcedurePage(adapter, commands),
             Screen.FAULT: FaultPage(adapter, commands),
         }
         self.stack = QStackedWidget()
@@ -209,6 +213,10 @@ class MainWindow(QMainWindow):
         for signal in (self.adapter.connection, self.adapter.lock, self.adapter.error):
             signal.connect(self._show_banner)
         self.adapter.program.connect(self._show_program)
+        auto = self.pages[Screen.AUTO]
+        if auto.library is not None:  # a preview is drawn on the contour; the loaded program again when it is left
+            auto.library.previewed.connect(self._show_preview)
+            auto.tabs.currentChanged.connect(lambda i: self._show_program() if auto.tabs.widget(i) is auto.program else None)
         self.adapter.position.connect(self._show_position)
         self.adapter.status.connect(self._show_travel)
         self.adapter.status.connect(self._show_progress)  # a run's end comes with the status, not a position
@@ -222,8 +230,8 @@ class MainWindow(QMainWindow):
 
     def _active_pad(self) -> JogPad | None:
         """The jog pad the arrow keys drive now: the one on the page shown, while this window is active."""
-        if not self.isActiveWindow():
-            return None
+        if not self.isActiveWindow() or isinstance(QApplication.focusWidget(), (QPlainTextEdit, QLineEdit, QAbstractSpinBox)):
+            return None  # the arrow keys move the cursor in what is being typed (MDI, a number): they do not jog
         page = self.stack.currentWidget()
         if page is self.pages[Screen.MANUAL]:
             return page.jog
@@ -295,6 +303,15 @@ class MainWindow(QMainWindow):
             self.contour.fit()
             self._show_position()
 
+    def _show_preview(self, info) -> None:  # noqa: ANN001 - a ProgramInfo
+        """A stored program's path on the contour view, unless a program runs: the head and the cut
+        follow the loaded one then (the preview's text stays in the library)."""
+        st = self.model.status
+        if info.path is None or (st is not None and st.machine_state in ("RUNNING", "HOLD")):
+            return
+        self.contour.set_path(info.path)
+        self.contour.fit()
+
     def _show_position(self) -> None:
         pos = self.model.position
         if pos is not None and len(pos.position_mm) >= 2:
@@ -317,6 +334,9 @@ class MainWindow(QMainWindow):
             pad.stop_all()
         QApplication.instance().removeEventFilter(self._key_jog)
         self.history.shutdown()
+        library = self.pages[Screen.AUTO].library
+        if library is not None:
+            library.close_worker()
         if self.engineering is not None:
             self.engineering.close()
         super().closeEvent(event)

@@ -389,3 +389,97 @@ def test_stop_all_is_enabled_without_the_lock_and_its_key_stops_everything(qtbot
     assert raised.detail.startswith("stop all from station ") and "(local)" in raised.detail
     other.close()
     other_session.close()
+
+
+def home_from_the_screen(qtbot, screen: OperatorScreen) -> None:
+    w, model = screen.window, screen.model
+    take_lock(qtbot, screen)
+    click(qtbot, screen, w.bar.reset)
+    qtbot.waitUntil(lambda: all(a.drive_enabled for a in model.status.axes), timeout=WAIT_MS)
+    click(qtbot, screen, w.pages[Screen.MANUAL].home_all)
+    qtbot.waitUntil(lambda: model.status.machine_state == "READY" and model.status.planner_state == "IDLE",
+                    timeout=WAIT_MS)
+
+
+def test_mdi_typed_on_the_manual_page_runs_and_a_refusal_points_at_its_column(qtbot, plc_controller, screen):
+    """Lines typed in the MDI box run with Ctrl+Enter; the arrow keys move the cursor there, they
+    do not jog; a refused entry shows why, its line highlighted and the cursor at the column."""
+    w, model = screen.window, screen.model
+    home_from_the_screen(qtbot, screen)
+    mdi = w.pages[Screen.MANUAL].mdi
+    sent: list[str] = []
+    screen.commands.replied.connect(lambda label, reply: sent.append(label))
+    w.activateWindow()
+    qtbot.waitUntil(w.isActiveWindow, timeout=WAIT_MS)
+    mdi.editor.setFocus()
+    qtbot.waitUntil(mdi.editor.hasFocus, timeout=WAIT_MS)
+    qtbot.keyClicks(mdi.editor, "G0 X50 Y45")
+    qtbot.keyClick(mdi.editor, Qt.Key.Key_Left)
+    qtbot.keyClick(mdi.editor, Qt.Key.Key_Up)
+    with qtbot.waitSignal(mdi.answered, timeout=WAIT_MS) as blocker:
+        qtbot.keyClick(mdi.editor, Qt.Key.Key_Return, Qt.KeyboardModifier.ControlModifier)
+    assert blocker.args[0].ok, blocker.args[0].reason
+    assert not any(label.startswith("Jog") for label in sent), f"the arrow keys jogged while typing: {sent}"
+    assert "MDI: G0 X50 Y45" in sent
+    qtbot.waitUntil(lambda: model.status.machine_state == "READY" and model.status.planner_state == "IDLE"
+                    and abs(model.status.axes[0].commanded_mm - 50.0) < 1e-6
+                    and abs(model.status.axes[1].commanded_mm - 45.0) < 1e-6, timeout=WAIT_MS)
+    assert mdi.recent.itemData(1) == "G0 X50 Y45", "the entry is kept to run again"
+
+    mdi.editor.setPlainText("G0 X60\nG1 X70 Q5 F100")
+    with qtbot.waitSignal(mdi.answered, timeout=WAIT_MS) as blocker:
+        qtbot.mouseClick(mdi.run, Qt.MouseButton.LeftButton)
+    assert not blocker.args[0].ok
+    assert mdi.error.isVisible() and mdi.error.text().startswith("MDI:2:8:")
+    assert mdi.error_position() == (2, 8) and len(mdi.editor.extraSelections()) == 1
+    assert abs(model.status.axes[0].commanded_mm - 50.0) < 1e-6, "nothing moved"
+    shot(w, "manual_mdi_refused")
+
+
+def test_the_program_library_lists_previews_loads_and_deletes_from_the_screen(qtbot, plc_controller, screen, tmp_path):
+    sup, w, model = plc_controller, screen.window, screen.model
+    programs = tmp_path / "programs"  # the controller's program directory, beside its history
+    programs.mkdir(exist_ok=True)
+    (programs / "square.ngc").write_text(PART)
+    (programs / "broken.ngc").write_text(BAD_PART)
+    take_lock(qtbot, screen)
+    click(qtbot, screen, w.bar.auto)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.AUTO, timeout=WAIT_MS)
+    auto = w.pages[Screen.AUTO]
+    library = auto.library
+    auto.tabs.setCurrentWidget(library)
+
+    def listed() -> dict[str, list[str]]:
+        return {library.table.item(r, 0).data(Qt.ItemDataRole.UserRole):
+                [library.table.item(r, c).text() for c in range(library.table.columnCount())]
+                for r in range(library.table.rowCount())}
+    qtbot.waitUntil(lambda: set(listed()) == {"square.ngc", "broken.ngc"}
+                    and all("checking…" not in row for row in listed().values()), timeout=120000)
+    square = listed()["square.ngc"]
+    assert square[2] == "11" and square[3].endswith(" m") and ":" in square[4] and square[5] == "never", square
+    assert listed()["broken.ngc"][2] == "refused"
+
+    assert library.select("square.ngc")
+    with qtbot.waitSignal(library.previewed, timeout=WAIT_MS):
+        qtbot.mouseClick(library.preview_button, Qt.MouseButton.LeftButton)
+    assert library.text.toPlainText() == PART and library.info.text().startswith("Preview of square.ngc (not loaded)")
+    assert w.contour.path_bounds() is not None, "the preview's path is drawn"
+    assert sup.motion()["program_name"] == "", "a preview loads nothing"
+
+    assert library.select("broken.ngc")
+    with qtbot.waitSignal(library.previewed, timeout=WAIT_MS):
+        library.preview_selected()
+    assert "refused at line 3, column 12" in library.info.text()
+    shot(w, "auto_library_preview_refused")
+
+    assert library.select("square.ngc")
+    click(qtbot, screen, library.load_button)
+    qtbot.waitUntil(lambda: model.program is not None and model.program.name == "square.ngc", timeout=WAIT_MS)
+    qtbot.waitUntil(lambda: listed().get("square.ngc", [""])[0] == "square.ngc  (loaded)", timeout=WAIT_MS)
+
+    library.confirm = lambda name: name == "broken.ngc"  # the operator says yes to this one
+    assert library.select("broken.ngc")
+    click(qtbot, screen, library.delete_button)
+    qtbot.waitUntil(lambda: set(listed()) == {"square.ngc"}, timeout=WAIT_MS)
+    assert not (programs / "broken.ngc").exists()
+    shot(w, "auto_library")
