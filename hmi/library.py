@@ -23,6 +23,7 @@ from PySide6.QtWidgets import (
 )
 
 from cnc.bus.messages import DeleteProgram, LoadProgram, ProgramEntry, ProgramInfo, ProgramList, Reply
+from cnc.bus.states import ProgramCheck
 
 from .adapter import ModelAdapter
 from .commands import CommandRunner, enable_while_commanding
@@ -191,14 +192,14 @@ class LibraryPanel(QWidget):
                         item.setFont(font)
                 if col > 0:
                     item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
-                if e.summary == "error":
+                if e.summary == ProgramCheck.REFUSED:
                     item.setForeground(QColor("#b00020"))
                 self.table.setItem(row, col, item)
         if keep:
             self.select(keep)
         if not self.preview:
             self.info.setText(f"{len(listing.entries)} programs in {listing.directory}")
-        if any(e.summary == "pending" for e in listing.entries):
+        if any(e.summary == ProgramCheck.PENDING for e in listing.entries):
             self._pending.start()
         self.listed.emit(listing)
 
@@ -227,11 +228,11 @@ class LibraryPanel(QWidget):
 
 def _cells(e: ProgramEntry) -> tuple[str, ...]:
     """One row of the table: what is known of the program, '…' while it is being checked."""
-    checking = e.summary == "pending"
+    checking = e.summary == ProgramCheck.PENDING
     known = lambda value, text: "checking…" if checking else ("-" if value < 0 else text)  # noqa: E731
     name = e.name + ("  (loaded)" if e.loaded else "")
     size = f"{e.bytes / 1024:.1f} KiB" if e.bytes >= 1024 else f"{e.bytes} B"
-    if e.summary == "error":
+    if e.summary == ProgramCheck.REFUSED:
         lines, cut, planned = "refused", "-", "-"
     else:
         lines = known(e.lines, f"{e.lines}")

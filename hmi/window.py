@@ -21,7 +21,7 @@ from PySide6.QtWidgets import (
 )
 
 from cnc.bus.messages import Reply
-from cnc.bus.states import Mode
+from cnc.bus.states import MachineState, Mode
 
 from .adapter import ModelAdapter
 from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea, Search
@@ -307,7 +307,7 @@ class MainWindow(QMainWindow):
         """A stored program's path on the contour view, unless a program runs: the head and the cut
         follow the loaded one then (the preview's text stays in the library)."""
         st = self.model.status
-        if info.path is None or (st is not None and st.machine_state in ("RUNNING", "HOLD")):
+        if info.path is None or (st is not None and st.machine_state in (MachineState.RUNNING.name, MachineState.HOLD.name)):
             return
         self.contour.set_path(info.path)
         self.contour.fit()

@@ -99,15 +99,15 @@ def test_every_program_is_listed_with_what_check_finds_or_why_it_is_refused(libr
     assert (nest.lines, nest.segments, nest.pierces) == (program.stats.lines, program.stats.segments, 2)
     assert nest.cut_length_mm == pytest.approx(program.stats.cut_length_mm)
     assert nest.planned_s == pytest.approx(planned) and planned > 1.0, "the cycle time waterjet check plans"
-    assert found["broken.ngc"].summary == "error" and found["broken.ngc"].error.startswith("broken.ngc:3:")
-    assert found["image.ngc"].summary == "error" and "not text" in found["image.ngc"].error
+    assert found["broken.ngc"].summary == "refused" and found["broken.ngc"].error.startswith("broken.ngc:3:")
+    assert found["image.ngc"].summary == "refused" and "not text" in found["image.ngc"].error
     assert found["nest.ngc"].last_result == "" and found["nest.ngc"].last_run_end_ns == 0, "never run"
 
 
 def test_a_changed_file_is_checked_again_and_the_last_run_is_shown(library):
     root = library.programs.root
     (root / "part.ngc").write_text(BROKEN)
-    assert wait_for("the first check", lambda: all_checked(library))["part.ngc"].summary == "error"
+    assert wait_for("the first check", lambda: all_checked(library))["part.ngc"].summary == "refused"
     made = library.summaries_made
     (root / "part.ngc").write_text(NEST)
     os.utime(root / "part.ngc", ns=(1, 1))  # another version of the file, whatever the clock's resolution

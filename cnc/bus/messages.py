@@ -186,13 +186,13 @@ class ProgramInfo(msgspec.Struct, frozen=True):
 class ProgramEntry(msgspec.Struct, frozen=True):
     """One program of the controller's program directory, as the library lists it. The figures come
     from checking it as `waterjet check` does (in the background, once per version of the file):
-    -1 until then (`summary` "pending"), and when it is refused (`summary` "error", `error` says
-    where and why)."""
+    -1 until then (`summary` pending), and when it is refused (`summary` refused, `error` says
+    where and why: `cnc.bus.states.ProgramCheck`)."""
 
     name: str
     bytes: int
     modified_ns: int
-    summary: str  # "ready", "pending" or "error"
+    summary: str  # a ProgramCheck: "ready", "pending" or "refused"
     lines: int = -1
     segments: int = -1
     cut_length_mm: float = -1.0

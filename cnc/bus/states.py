@@ -70,6 +70,14 @@ class PlannerState(enum.IntEnum):
     MDI = 9  # G-code typed by hand (manual data input)
 
 
+class ProgramCheck(enum.StrEnum):
+    """How far the program library got with a stored program (`ProgramEntry.summary`)."""
+
+    PENDING = "pending"  # not checked yet: new, or changed since
+    READY = "ready"  # valid: the figures are its own
+    REFUSED = "refused"  # it would be refused: the entry's `error` says where and why
+
+
 class RunResult(enum.IntEnum):
     """How the last program run ended."""
 

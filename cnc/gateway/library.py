@@ -6,7 +6,7 @@ would be refused; beside them its last run and how that ended (the job history).
 cost an interpretation and a timing of the whole program (seconds for a large one), so they are
 made once per version of a file (its size and modification time) by a child process at low
 priority (`cnc.gateway.summary`), in the background, and kept in a small SQLite index beside
-the alarm history; a listing never waits for them: a program not yet checked is "pending".
+the alarm history; a listing never waits for them: a program not yet checked is pending.
 Programs copied into the directory by hand are found at the next listing like uploaded ones.
 
 The gateway is the index's one writer (the summariser thread and the delete command, under one
@@ -28,6 +28,7 @@ from pathlib import Path
 
 from ..bus.messages import JobRecord, ProgramEntry, ProgramList
 from ..bus.service import CommandRefused
+from ..bus.states import ProgramCheck
 from ..config import MachineConfig
 from ..programs import ProgramDirectory
 from .jobs import JobHistory
@@ -115,7 +116,7 @@ class ProgramLibrary:
             run = runs.get(name)
             entries.append(ProgramEntry(
                 name=name, bytes=size, modified_ns=modified,
-                summary="pending" if not fresh else "error" if s.error else "ready",
+                summary=ProgramCheck.PENDING if not fresh else ProgramCheck.REFUSED if s.error else ProgramCheck.READY,
                 lines=s.lines if fresh else -1, segments=s.segments if fresh else -1,
                 cut_length_mm=s.cut_mm if fresh else -1.0, pierces=s.pierces if fresh else -1,
                 planned_s=s.planned_s if fresh else -1.0, error=s.error if fresh else "",
