@@ -108,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
         ("log", "the data logger: list, start and stop log runs, export one to MATLAB or CSV", "cnc.logger.logcli"),
         ("sim", "the simulated machine's inputs: list them, or change one (a door, the e-stop, the transport button...)",
          "cnc.simcli"),
+        ("materials", "the material library: cut charts by thickness and quality, speed-ladder calibration",
+         "cnc.materialscli"),
         ("hmi", "the operator screen (Qt): connects to a controller over Zenoh", "hmi.app"),
     ):
         module = importlib.import_module(module_name)
