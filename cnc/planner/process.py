@@ -70,7 +70,7 @@ from .sections import iter_steps, move_steps
 from .steps import ProgramTiming, StepSource
 
 MDI_NAME = "MDI"  # how an MDI entry's errors name it
-MDI_INTERPRET_S = 5.0  # an MDI entry still interpreting after this is refused (an endless loop typed by hand)
+MDI_INTERPRET_S = 2.0  # an MDI entry still interpreting after this is refused (an endless loop typed by hand)
 _PROGRAM_STOPS = {"stop": "M0 (program stop)", "optional_stop": "M1 (optional stop)", "pallet": "M60 (pallet change)"}
 _PROGRAMS = (PlannerState.RUNNING, PlannerState.MDI)  # kinds of runner that run G-code: the override holds them
 from .timing_process import TimingProcess, remove_stale
