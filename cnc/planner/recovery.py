@@ -1,0 +1,238 @@
+"""Starting a program elsewhere than at its beginning: continuing a cut where the jet stopped,
+starting at part N of a nest, running from a line.
+
+All three work on the interpreted program's segments. Those are in machine coordinates with every
+modal state already applied (units, work offsets, G92, kerf compensation, feed, corner tolerance,
+the outputs in force), so starting inside them needs no modal state rebuilt: interpreting the
+whole program first is what gives that (LinuxCNC's run-from-line re-executes the program's
+preamble for it, and loses what a loop computed). What starts is a new program: a rapid from
+where the head stands, jet closed, to where the restart begins, then the rest of the program from
+there, the first segment cut short when the restart begins inside it. Where the jet is to be
+open there, the planner pierces (the machine file's on delay and pierce dwell) before the head
+moves on, as at any jet-on transition.
+
+Continuing backs up along the cut by an overlap so that the joined cut has no gap (the jet was
+closing while the head stopped), but never past the pierce of that cut: the overlap ends at the
+cut's start. A line inside an O-word loop or subroutine ran several times; its segments are
+those of every pass, and `run_from_line` takes the first pass and says so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from gcode.arcs import arc_length, sweep
+from gcode.canon import ARC, DWELL, RAPID
+from gcode.program import Message, Program, Statistics
+
+_TWO_PI = 2.0 * math.pi
+
+
+class RecoveryError(ValueError):
+    """Where a program cannot be restarted, and why (with what to do instead)."""
+
+
+@dataclass(frozen=True)
+class Restart:
+    """A program that starts where asked: `program`'s first segment is the rapid to `at`."""
+
+    program: Program
+    segment: int  # the original program's segment the restart begins in
+    into_mm: float  # how far into it
+    line: int
+    at: tuple[float, float, float]
+    description: str
+
+
+# -- geometry of one segment ------------------------------------------------------------------
+def segment_length(s: np.void) -> float:
+    """Path length of one segment (0 for a dwell)."""
+    kind = int(s["kind"])
+    if kind == DWELL:
+        return 0.0
+    (x0, y0, z0), (x1, y1, z1) = s["start"], s["end"]
+    if kind == ARC:
+        cx, cy = s["center"]
+        swept = sweep(x0, y0, x1, y1, cx, cy, bool(s["cw"]), int(s["turns"]))
+        return arc_length(math.hypot(x0 - cx, y0 - cy), swept, z1 - z0)
+    return math.sqrt((x1 - x0) ** 2 + (y1 - y0) ** 2 + (z1 - z0) ** 2)
+
+
+def point_at(s: np.void, into_mm: float) -> tuple[float, float, float]:
+    """The point `into_mm` along one segment from its start."""
+    length = segment_length(s)
+    f = 0.0 if length <= 0.0 else min(max(into_mm / length, 0.0), 1.0)
+    (x0, y0, z0), (x1, y1, z1) = s["start"], s["end"]
+    if int(s["kind"]) == ARC:
+        cx, cy = s["center"]
+        swept = sweep(x0, y0, x1, y1, cx, cy, bool(s["cw"]), int(s["turns"]))
+        r = math.hypot(x0 - cx, y0 - cy)
+        a = math.atan2(y0 - cy, x0 - cx) + swept * f
+        return (float(cx + r * math.cos(a)), float(cy + r * math.sin(a)), float(z0 + (z1 - z0) * f))
+    return (float(x0 + (x1 - x0) * f), float(y0 + (y1 - y0) * f), float(z0 + (z1 - z0) * f))
+
+
+def locate(s: np.void, point: tuple[float, ...]) -> float:
+    """How far along one segment the point nearest `point` (x, y) lies, in mm (an arc of several
+    turns: within its first turn)."""
+    (x0, y0, z0), (x1, y1, z1) = s["start"], s["end"]
+    px, py = float(point[0]), float(point[1])
+    length = segment_length(s)
+    if length <= 0.0:
+        return 0.0
+    if int(s["kind"]) == ARC:
+        cx, cy = s["center"]
+        swept = sweep(x0, y0, x1, y1, cx, cy, bool(s["cw"]), int(s["turns"]))
+        rel = math.atan2(py - cy, px - cx) - math.atan2(y0 - cy, x0 - cx)
+        rel = (-rel if swept < 0 else rel) % _TWO_PI
+        f = rel / abs(swept)
+        if f > 1.0:  # beyond the arc's end: the nearer of its two ends
+            f = 1.0 if rel - abs(swept) < _TWO_PI - rel else 0.0
+        return f * length
+    dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
+    planar = dx * dx + dy * dy
+    if planar <= 0.0:
+        return 0.0
+    t = ((px - x0) * dx + (py - y0) * dy) / planar
+    return min(max(t, 0.0), 1.0) * length
+
+
+def _cut_short(s: np.void, into_mm: float) -> np.void:
+    """The segment from `into_mm` to its end (the same segment when `into_mm` is 0)."""
+    out = s.copy()
+    if into_mm <= 0.0:
+        return out
+    start = point_at(s, into_mm)
+    if int(s["kind"]) == ARC:
+        (x0, y0, _), (x1, y1, _) = s["start"], s["end"]
+        cx, cy = s["center"]
+        swept = sweep(x0, y0, x1, y1, cx, cy, bool(s["cw"]), int(s["turns"]))
+        remaining = abs(swept) * (1.0 - into_mm / segment_length(s))
+        out["turns"] = max(int(math.ceil(remaining / _TWO_PI - 1e-9)) - 1, 0)
+    out["start"] = start
+    return out
+
+
+# -- the restarts -----------------------------------------------------------------------------
+def continue_at(program: Program, segment: int, point: tuple[float, ...], overlap_mm: float,
+                head: tuple[float, float, float]) -> Restart:
+    """Continue a cut stopped at `point` on `segment` (where the jet was last open), backed up by
+    `overlap_mm` along the cut (not past its pierce); the head now at `head`."""
+    seg = program.segments
+    if not 0 <= segment < len(seg):
+        raise RecoveryError(f"segment {segment} is not in {program.name} (it has {len(seg)})")
+    if not (math.isfinite(overlap_mm) and overlap_mm >= 0.0):
+        raise RecoveryError(f"overlap {overlap_mm!r} mm must be 0 or more")
+    s = seg[segment]
+    if not s["jet"] or int(s["kind"]) in (RAPID, DWELL):
+        raise RecoveryError(f"{program.name}:{int(s['line'])}: the jet was not cutting there; start at the next part instead")
+    k, into = segment, locate(s, point)
+    back = overlap_mm
+    while back > 1e-12:
+        if into >= back:
+            into -= back
+            break
+        back -= into
+        prev = seg[k - 1] if k > 0 else None
+        if prev is None or not prev["jet"] or int(prev["kind"]) in (RAPID, DWELL):
+            into = 0.0  # the cut's pierce: the overlap ends here
+            break
+        k -= 1
+        into = segment_length(seg[k])
+    if into >= segment_length(seg[k]) - 1e-9 and k + 1 < len(seg):  # at a segment's very end: the next one
+        k, into = k + 1, 0.0
+    line = int(seg[k]["line"])
+    return _from(program, k, into, head, f"continue the cut of line {line}, {overlap_mm:g} mm back from where it stopped")
+
+
+def start_at_part(program: Program, n: int, head: tuple[float, float, float]) -> Restart:
+    """Start at part `n` (1-based): at the beginning of its cut, the `n`-th pierce of the program
+    (its own pierce dwell, if it has one, included)."""
+    starts = cut_starts(program)
+    if not 1 <= n <= len(starts):
+        raise RecoveryError(f"{program.name} has {len(starts)} part{'s' if len(starts) != 1 else ''} (pierces): "
+                            f"there is no part {n}")
+    k = starts[n - 1]
+    return _from(program, k, 0.0, head, f"start at part {n} of {len(starts)} (line {int(program.segments[k]['line'])})")
+
+
+def run_from_line(program: Program, line: int, head: tuple[float, float, float]) -> Restart:
+    """Run from the first segment of source line `line` (or the first after it, for a line that
+    moves nothing); a line inside a loop or subroutine: its first pass."""
+    seg = program.segments
+    lines = seg["line"]
+    at = np.flatnonzero(lines >= line) if len(seg) else np.zeros(0, dtype=np.int64)
+    if not len(at):
+        raise RecoveryError(f"{program.name}: nothing moves at or after line {line}")
+    k = int(at[0])
+    passes = int(np.count_nonzero(lines == int(lines[k])))
+    note = f" (line {int(lines[k])} runs {passes} times in a loop or subroutine: from its first pass)" if passes > 1 else ""
+    return _from(program, k, 0.0, head, f"run from line {int(lines[k])}{note}")
+
+
+def cut_starts(program: Program) -> list[int]:
+    """The segment where each cut begins: the first of a run of jet-on segments (a pierce dwell
+    included) that contains a cutting move."""
+    seg = program.segments
+    starts, run_start, cuts = [], None, False
+    for k in range(len(seg)):
+        on = bool(seg[k]["jet"]) and int(seg[k]["kind"]) != RAPID
+        if on and run_start is None:
+            run_start, cuts = k, False
+        if on and int(seg[k]["kind"]) != DWELL:
+            cuts = True
+        if not on and run_start is not None:
+            if cuts:
+                starts.append(run_start)
+            run_start = None
+    if run_start is not None and cuts:
+        starts.append(run_start)
+    return starts
+
+
+def _from(program: Program, k: int, into: float, head: tuple[float, float, float], description: str) -> Restart:
+    """The program from `into` mm into segment `k`, after a rapid from `head` to there."""
+    seg = program.segments
+    first = _cut_short(seg[k], into)
+    at = tuple(float(v) for v in first["start"])
+    rapid = np.zeros(1, dtype=seg.dtype)
+    rapid["kind"], rapid["start"], rapid["end"] = RAPID, head, at
+    rapid["feed"], rapid["dwell"], rapid["line"] = math.nan, 0.0, int(first["line"])
+    rapid["tolerance"] = first["tolerance"]
+    body = [first[None]] if into <= 0.0 or segment_length(first) > 1e-9 else []
+    segments = np.concatenate([rapid, *body, seg[k + 1:]])
+    shift = 1 + len(body) - (k + 1)  # old segment j > k is new j + shift
+    # a message shown before segment k still shows when the restart begins at k's start
+    messages = [Message(m.line, m.segment + shift, m.kind, m.text, m.data) for m in program.messages
+                if m.segment > k or (m.segment == k and into <= 0.0)]
+    restarted = Program(program.name, segments, messages, _statistics(segments, program.stats.lines), program.units_final)
+    return Restart(restarted, k, float(into), int(first["line"]), at, description)
+
+
+def _statistics(segments: np.ndarray, lines: int) -> Statistics:
+    """The figures of a restarted program (its path lengths, pierces and dwell)."""
+    st = Statistics(lines=lines, segments=len(segments))
+    jet_was_on = False
+    for s in segments:
+        kind = int(s["kind"])
+        if kind in (DWELL, RAPID) and not s["jet"]:
+            jet_was_on = False  # the jet was closed: the next cutting move pierces
+        if kind == DWELL:
+            st.dwell_s += float(s["dwell"])
+            continue
+        length = segment_length(s)
+        if kind == RAPID:
+            st.rapid_length_mm += length
+            continue
+        st.feed_length_mm += length
+        if s["jet"]:
+            st.cut_length_mm += length
+            st.pierces += not jet_was_on
+        jet_was_on = bool(s["jet"])
+    if len(segments):
+        pts = np.concatenate((segments["start"], segments["end"]))
+        st.bounds_min, st.bounds_max = tuple(pts.min(axis=0)), tuple(pts.max(axis=0))
+    return st

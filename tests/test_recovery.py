@@ -1,0 +1,176 @@
+"""Restarting a program inside it (`cnc.planner.recovery`): continuing a cut where the jet stopped,
+backed up by the overlap and never past the cut's pierce; starting at part N; running from a line.
+The joined cut is compared with the program's: no gap, no more overlap than asked."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cnc.planner.preflight import preflight
+from cnc.planner.recovery import (
+    RecoveryError, continue_at, cut_starts, locate, point_at, run_from_line, segment_length, start_at_part,
+)
+from cnc.planner.steps import ProgramTiming
+from cnc.machine_dialect import dialect_for
+from gcode.canon import ARC, DWELL, RAPID
+from gcode.interp import Interpreter
+
+from .conftest import machine_config
+
+CONFIG = machine_config()
+NEST = """(three parts: kerf compensated squares with a rounded corner, a full circle, a pierce dwell each)
+G21 G90 G64 P0.05 F1200 T1 M6
+G0 X20 Y20
+M3
+G4 P0.5
+G41 D1 G1 X30 Y20
+G1 X80
+G1 Y60
+G3 X70 Y70 R10
+G1 X30
+G1 Y20
+G40 G1 X20 Y20
+M5
+G0 X120 Y20
+M3
+G4 P0.5
+G1 X160 Y20
+G1 Y60
+G1 X120
+G1 Y20
+M5
+G0 X250 Y40
+M3
+G2 X250 Y40 I20 J0 P2
+M5
+G0 X10 Y10
+M2
+"""
+HEAD = (5.0, 5.0, 0.0)
+
+
+def program(text: str = NEST):
+    return Interpreter(dialect_for(CONFIG), "nest.ngc").run(text.encode())
+
+
+def cut_path(prog, step_mm: float = 0.5) -> list[tuple[float, float]]:
+    """Points every `step_mm` along the program's cutting moves (jet on, not rapids or dwells)."""
+    pts = []
+    for s in prog.segments:
+        if not s["jet"] or int(s["kind"]) in (RAPID, DWELL):
+            continue
+        length = segment_length(s)
+        for d in np.arange(0.0, length + 1e-9, step_mm):
+            pts.append(point_at(s, float(d))[:2])
+    return pts
+
+
+def cut_length(prog) -> float:
+    return sum(segment_length(s) for s in prog.segments if s["jet"] and int(s["kind"]) not in (RAPID, DWELL))
+
+
+def test_a_cut_continues_an_overlap_before_where_the_jet_stopped_and_runs_the_rest():
+    prog = program()
+    k = next(i for i, s in enumerate(prog.segments) if s["jet"] and tuple(s["end"][:2]) == pytest.approx((79.875, 60.0)))
+    stop = point_at(prog.segments[k], 25.0)  # 25 mm up the square's right side
+    r = continue_at(prog, k, stop, 5.0, HEAD)
+    assert r.segment == k and r.into_mm == pytest.approx(20.0)
+    assert r.at == pytest.approx(point_at(prog.segments[k], 20.0)), "5 mm before the stop"
+    first = r.program.segments[0]
+    assert int(first["kind"]) == RAPID and tuple(first["start"]) == HEAD and not first["jet"], "a rapid, jet closed"
+    assert r.program.segments[1]["jet"] and tuple(r.program.segments[1]["start"]) == pytest.approx(r.at)
+    done_before = sum(segment_length(s) for s in prog.segments[:k] if s["jet"] and int(s["kind"]) not in (RAPID, DWELL))
+    assert cut_length(r.program) == pytest.approx(cut_length(prog) - (done_before + 25.0) + 5.0), "the rest and the overlap"
+    assert r.program.stats.pierces == prog.stats.pierces - 1 + 1, "this cut pierces again, the others as before"
+    assert "continue the cut of line" in r.description
+
+
+def test_the_overlap_backs_up_across_segments_but_never_past_the_pierce():
+    prog = program()
+    seg = prog.segments
+    corner = next(i for i, s in enumerate(seg) if s["jet"] and int(s["kind"]) == ARC and not s["turns"])
+    r = continue_at(prog, corner, point_at(seg[corner], 2.0), 6.0, HEAD)  # 2 mm into the rounded corner, 6 mm back
+    assert r.segment == corner - 1 and r.into_mm == pytest.approx(segment_length(seg[corner - 1]) - 4.0)
+    lead_in = cut_starts(prog)[0] + 1  # after the part's pierce dwell: its lead-in
+    r = continue_at(prog, lead_in, point_at(seg[lead_in], 3.0), 50.0, HEAD)
+    assert (r.segment, r.into_mm) == (lead_in, 0.0), "the overlap ends at the cut's pierce"
+    with pytest.raises(RecoveryError, match="the jet was not cutting there; start at the next part instead"):
+        continue_at(prog, 0, (20.0, 20.0), 5.0, HEAD)
+
+
+@settings(max_examples=80, deadline=None)
+@given(where=st.floats(0.0, 1.0), overlap=st.floats(0.0, 30.0))
+def test_the_joined_cut_has_no_gap_and_no_more_overlap_than_asked(where, overlap):
+    """Stop anywhere on any cut: what was cut before the stop and what the restart cuts cover the
+    program's cut, and they share exactly the overlap (less only where the cut began closer)."""
+    prog = program()
+    seg = prog.segments
+    cutting = [i for i, s in enumerate(seg) if s["jet"] and int(s["kind"]) not in (RAPID, DWELL)]
+    lengths = np.array([segment_length(seg[i]) for i in cutting])
+    target = where * lengths.sum()
+    j = min(int(np.searchsorted(np.cumsum(lengths), target, side="right")), len(cutting) - 1)
+    into = min(target - (np.cumsum(lengths)[j] - lengths[j]), lengths[j])
+    k = cutting[j]
+    r = continue_at(prog, k, point_at(seg[k], float(into)), overlap, HEAD)
+    # the program's cut length from the start of this cut to the stop point
+    start = max(s for s in cut_starts(prog) if s <= k)
+    since_pierce = sum(segment_length(seg[i]) for i in range(start, k) if int(seg[i]["kind"]) != DWELL) + locate(
+        seg[k], point_at(seg[k], float(into)))
+    done = sum(segment_length(seg[i]) for i in cutting if i < k) + locate(seg[k], point_at(seg[k], float(into)))
+    used = min(overlap, since_pierce)
+    assert cut_length(r.program) == pytest.approx(cut_length(prog) - done + used, abs=1e-6)
+    assert math.dist(r.at[:2], point_at(seg[r.segment], r.into_mm)[:2]) < 1e-9
+
+
+def test_an_arc_of_several_turns_stopped_in_its_first_turn_keeps_the_turns_left():
+    prog = program()
+    seg = prog.segments
+    k = next(i for i, s in enumerate(seg) if int(s["kind"]) == ARC and s["turns"] == 1)
+    full = segment_length(seg[k])
+    assert full == pytest.approx(2 * 2 * math.pi * 20.0)
+    r = continue_at(prog, k, point_at(seg[k], 30.0), 0.0, HEAD)
+    rest = r.program.segments[1]
+    assert int(rest["turns"]) == 1 and segment_length(rest) == pytest.approx(full - 30.0)
+    assert locate(seg[k], point_at(seg[k], 30.0)) == pytest.approx(30.0)
+
+
+def test_a_nest_starts_at_part_n_and_from_a_line_and_the_planner_runs_each():
+    prog = program()
+    starts = cut_starts(prog)
+    assert len(starts) == 3 == prog.stats.pierces
+    r = start_at_part(prog, 2, HEAD)
+    assert int(r.program.segments[1]["kind"]) == DWELL and r.program.segments[1]["jet"], "its own pierce dwell first"
+    assert r.program.stats.pierces == 2 and r.line == 16
+    with pytest.raises(RecoveryError, match="has 3 parts \\(pierces\\): there is no part 4"):
+        start_at_part(prog, 4, HEAD)
+    r3 = run_from_line(prog, 23, HEAD)  # M3 moves nothing: from the arc after it
+    assert r3.line == 24 and int(r3.program.segments[1]["kind"]) == ARC
+    with pytest.raises(RecoveryError, match="nothing moves at or after line 99"):
+        run_from_line(prog, 99, HEAD)
+    for restart in (r, r3, continue_at(prog, starts[0] + 3, point_at(prog.segments[starts[0] + 3], 10.0), 2.0, HEAD)):
+        preflight(restart.program.segments, CONFIG, dict.fromkeys(CONFIG.axis_names, True), "restart")
+        timing = ProgramTiming.of(restart.program, CONFIG)
+        assert timing.failure is None and timing.total_ticks > 0
+
+
+def test_a_line_in_a_loop_starts_at_its_first_pass_and_says_so():
+    prog = program("G21 G90 F600\n#1=0\nO100 while [#1 LT 3]\nM3\nG1 X[10+#1*10] Y10\nM5\nG0 Y0\n#1=[#1+1]\n"
+                   "O100 endwhile\nM2\n")
+    r = run_from_line(prog, 5, HEAD)
+    assert "runs 3 times in a loop or subroutine: from its first pass" in r.description
+    assert r.program.segments[1]["end"][0] == pytest.approx(10.0)
+
+
+def test_a_restarted_programs_figures_are_counted_as_the_interpreter_counts_them():
+    from cnc.planner.recovery import _statistics
+
+    prog = program()
+    st = _statistics(prog.segments, prog.stats.lines)
+    assert (st.pierces, st.segments) == (prog.stats.pierces, prog.stats.segments)
+    for name in ("cut_length_mm", "feed_length_mm", "rapid_length_mm", "dwell_s"):
+        assert getattr(st, name) == pytest.approx(getattr(prog.stats, name)), name
