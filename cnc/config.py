@@ -364,6 +364,10 @@ class CycleConfig:
     transport_procedure: str = opt("transport", doc="procedure walked before the first transport phase")
     transport_timeout_s: float = opt(60.0, "s", "longest the PLC may take to feed material and close the gripper", 0.1, 3600.0)
     unload_timeout_s: float = opt(60.0, "s", "longest the PLC may take to open the gripper and unload", 0.1, 3600.0)
+    recovery_overlap_mm: float = opt(2.0, "mm", "continuing an interrupted cut starts this far back along it (not "
+                                     "before its pierce), so that the joined cut has no gap", 0.0, 100.0)
+    recovery_save_mm: float = opt(5.0, "mm", "while cutting, where the jet is is written to the job record at "
+                                  "least this often (and at every stop), for continuing after a restart", 0.5, 1000.0)
 
 
 @dataclass(frozen=True)

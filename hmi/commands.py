@@ -72,6 +72,10 @@ def describe(msg: msgspec.Struct) -> str:
         lines = [line.strip() for line in msg.text.splitlines() if line.strip()]
         text = " / ".join(lines)
         return f"MDI: {text if len(text) <= 60 else text[:57] + '...'}"
+    if isinstance(msg, m.Recover):
+        if msg.kind == "continue":
+            return "Continue the interrupted cut" + (f", {msg.overlap_mm:g} mm back" if msg.overlap_mm is not None else "")
+        return f"Start at {msg.kind} {msg.number}"
     if isinstance(msg, m.DeleteProgram):
         return f"Delete program {msg.name}"
     if isinstance(msg, m.SimInput):

@@ -298,7 +298,7 @@ def test_with_access_control_only_authenticated_operators_command_the_running_co
 def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_allow_it(controller, session, keys):
     from cnc.bus.messages import (
         Acknowledge, DeleteProgram, Drives, GoTo, Hold, Jog, JogRefresh, JogStop, JetTest, LoadProgram, Mdi, Override,
-        ProcedureConfirm, ProcedureEnd, ProcedureStart, ProcedureStop, Pump, Resume, SimInput, Stop,
+        ProcedureConfirm, Recover, ProcedureEnd, ProcedureStart, ProcedureStop, Pump, Resume, SimInput, Stop,
     )
     from cnc.bus.operator import OPERATOR_COMMANDS
 
@@ -318,6 +318,7 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
         "jog_refresh": (JogRefresh(), "no continuous jog to refresh"),
         "goto": (GoTo({"x": 100.0}), "drives"),
         "mdi": (Mdi("G0 X10"), "switch the drives on and home the machine"),
+        "recover": (Recover("continue"), "wrong operation mode: continuing a cut needs AUTO"),
         "program_delete": (DeleteProgram("../credentials"), "plain name"),
         "load": (LoadProgram("/nonexistent/part.ngc"), "outside the program directory"),
         "override": (Override(250.0), "out of range: 0 to 200"),

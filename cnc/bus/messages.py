@@ -516,10 +516,24 @@ class LoadProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     version: int = SCHEMA_VERSION
 
 
+class RestartAt(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Where a run starts when not at the program's beginning (`cnc.planner.recovery`): "continue"
+    the cut stopped on `segment` at (`x_mm`, `y_mm`), backed up by `overlap_mm`; "part" `number`
+    (its Nth pierce); or "line" `number`."""
+
+    kind: str
+    number: int = 0
+    segment: int = -1
+    x_mm: float = 0.0
+    y_mm: float = 0.0
+    overlap_mm: float = 0.0
+
+
 class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Run the loaded program from its beginning (cycle start)."""
+    """Run the loaded program from its beginning (cycle start), or from `restart`."""
 
     stamp: Stamp | None = None
+    restart: RestartAt | None = None
     version: int = SCHEMA_VERSION
 
 
@@ -634,7 +648,7 @@ REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset", "stop_all"
 # Verbs whose handlers command motion or the jet: a bug met while serving one brings the machine to
 # its safe state (cnc.bus.service). A stop is among them: a stop that failed must still stop.
 MOTION_VERBS = frozenset({
-    "start", "resume", "jog", "jog_refresh", "goto", "home", "mdi", "drives", "pump", "jet_test", "override",
+    "start", "resume", "jog", "jog_refresh", "goto", "home", "mdi", "recover", "drives", "pump", "jet_test", "override",
     "stop", "hold", "jog_stop", "reset", "procedure_start", "procedure_confirm", "procedure_stop", "stop_all",
 })
 LOCK_FREE_VERBS = frozenset({"stop_all"})  # any operator station, with or without the command lock
@@ -666,6 +680,18 @@ class CycleStart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Start the automatic cycle for `cycles` cycles (0: until stopped)."""
 
     cycles: Annotated[int, msgspec.Meta(le=MAX_CYCLES)] = 1  # the logic refuses a negative count
+    version: int = SCHEMA_VERSION
+
+
+class Recover(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Start the automatic cycle inside the loaded program, with the material already in place (no
+    transport): `kind` "continue" the cut interrupted last (where the jet last cut, backed up by
+    `overlap_mm`, default `[cycle] recovery_overlap_mm`), "part" `number` (1-based), or "line"
+    `number`. The rest of the program runs, then the cycle unloads as after any cut."""
+
+    kind: str
+    number: int = 0
+    overlap_mm: float | None = None
     version: int = SCHEMA_VERSION
 
 
@@ -782,7 +808,7 @@ class Notice(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 LOGIC_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "mode": SetMode, "start": CycleStart, "hold": Hold, "resume": Resume, "stop": Stop, "reset": Reset,
     "drives": Drives, "home": Home, "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo,
-    "mdi": Mdi, "load": LoadProgram,
+    "mdi": Mdi, "recover": Recover, "load": LoadProgram,
     "override": Override, "pump": Pump, "jet_test": JetTest, "acknowledge": Acknowledge,
     "procedure_start": ProcedureStart, "procedure_confirm": ProcedureConfirm, "procedure_stop": ProcedureStop,
     "procedure_end": ProcedureEnd, "stop_all": StopAll,

@@ -1,4 +1,5 @@
-"""Job history: every program run (program, hash, start, end, result, cycle time, planned cycle time) in SQLite.
+"""Job history: every program run (program, hash, start, end, result, cycle time, planned cycle time)
+in SQLite, and where the jet last cut in each program whose run did not end (`CutPoints`).
 
 Written by the control logic when a run ends, read by the gateway for `<root>/jobs/history`.
 It lives beside the alarm history, in its own file (WAL mode: one writer, readers in other
@@ -8,6 +9,8 @@ processes see each committed run).
 from __future__ import annotations
 
 import sqlite3
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..bus.messages import JobPage, JobRecord
@@ -17,6 +20,55 @@ _TABLE = ("CREATE TABLE IF NOT EXISTS jobs (seq INTEGER PRIMARY KEY AUTOINCREMEN
           "hash TEXT NOT NULL, start_ns INTEGER NOT NULL, end_ns INTEGER NOT NULL, result TEXT NOT NULL, "
           "cycle_time_s REAL NOT NULL, planned_s REAL NOT NULL DEFAULT -1)")
 _COLUMNS = "seq, program, hash, start_ns, end_ns, result, cycle_time_s"
+
+
+_CUTS = ("CREATE TABLE IF NOT EXISTS cut_points (hash TEXT PRIMARY KEY, program TEXT NOT NULL, segment INTEGER NOT NULL, "
+         "x_mm REAL NOT NULL, y_mm REAL NOT NULL, line INTEGER NOT NULL, updated_ns INTEGER NOT NULL)")
+
+
+@dataclass(frozen=True)
+class CutPoint:
+    """Where the jet last cut in a program (by its hash): the segment and the head's position."""
+
+    hash: str
+    program: str
+    segment: int
+    x_mm: float
+    y_mm: float
+    line: int
+    updated_ns: int = 0
+
+
+class CutPoints:
+    """The last cut point of each program whose run did not end: what "continue" continues, also
+    after the controller was restarted or lost its power. Beside the job history, in its file."""
+
+    def __init__(self, path: str | Path, readonly: bool = False) -> None:
+        self.db = open_store(Path(path), _CUTS, "job history (cut points)", readonly)
+
+    def save(self, p: CutPoint) -> None:
+        self.db.execute("INSERT OR REPLACE INTO cut_points (hash, program, segment, x_mm, y_mm, line, updated_ns) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?)", (p.hash, p.program, p.segment, p.x_mm, p.y_mm, p.line,
+                                                         p.updated_ns or time.time_ns()))
+        self.db.commit()
+
+    def clear(self, hash: str) -> None:
+        """The program ran to its end: nothing of it is left to continue."""
+        self.db.execute("DELETE FROM cut_points WHERE hash = ?", (hash,))
+        self.db.commit()
+
+    def get(self, hash: str) -> CutPoint | None:
+        try:
+            row = self.db.execute("SELECT hash, program, segment, x_mm, y_mm, line, updated_ns FROM cut_points WHERE hash = ?",
+                                  (hash,)).fetchone()
+        except sqlite3.OperationalError as exc:  # a store whose writer has not created the table yet
+            if "no such table" in str(exc):
+                return None
+            raise
+        return CutPoint(*row) if row else None
+
+    def close(self) -> None:
+        self.db.close()
 
 
 def jobs_path(history_path: str | Path) -> Path:

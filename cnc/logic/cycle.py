@@ -15,13 +15,16 @@ clock (the PLC lives in wall time) and stand still while the cycle is held.
   `pierce_at_low_pressure` the pressure set point follows the jet: low while the jet is off and
   during its on delay and pierce dwell, then the cutting pressure.
 - UNLOAD: `unload` (gripper opens, pieces to the output section) until `unload_done`.
+
+A start inside the program (continuing an interrupted cut, a part, a line: `RestartAt`) finds
+the material in place: it begins at PRESSURE, and its first CUTTING runs from there.
 """
 
 from __future__ import annotations
 
 from typing import Protocol
 
-from ..bus.messages import Hold, Reply, Resume, Start, Stop
+from ..bus.messages import Hold, Reply, RestartAt, Resume, Start, Stop
 from ..config import MachineConfig
 from ..data.layout import PlannerState, RunResult
 from .signals import PlcOutputs, Snapshot
@@ -62,14 +65,22 @@ class AutoCycle:
         self.run_seq = -1  # the planner's run_seq before our start
         self.start_reply: Reply | None = None
         self.jet_since: float | None = None
+        self.restart: RestartAt | None = None  # the first cut of this start begins inside the program
 
     @property
     def active(self) -> bool:
         return self.phase != CyclePhase.NONE
 
     # -- operator ---------------------------------------------------------------------------
-    def start(self, cycles: int, now: float) -> None:
+    def start(self, cycles: int, now: float, restart: RestartAt | None = None) -> None:
+        """Start `cycles` cycles (0: until stopped); with `restart`, the first begins inside the
+        program with the material already in place (no procedure, no transport: the pump, then the
+        cut from there, then the unload as always)."""
         self.target, self.done, self.held, self.stopping, self.stopped = cycles, 0, False, False, False
+        self.restart = restart
+        if restart is not None:
+            self._enter_pressure(now)
+            return
         proc = self.config.cycle.transport_procedure
         if proc and any(p.id == proc for p in self.config.procedure):
             self._enter(CyclePhase.PROCEDURE, "walk", now, 0.0)
@@ -98,7 +109,7 @@ class AutoCycle:
         self.deadline += now - self.held_at  # timeouts stand still while held
         if self.phase == CyclePhase.CUTTING and self.sub in ("start", "restart"):
             self.sub, self.start_reply = "start", None
-            self.host.send_planner(Start(), self._on_start)
+            self.host.send_planner(Start(restart=self.restart), self._on_start)
         elif self.phase == CyclePhase.CUTTING:
             self.host.send_planner(Resume(), self._on_planner)
 
@@ -159,7 +170,7 @@ class AutoCycle:
             self._enter(CyclePhase.CUTTING, "start", now, 0.0)
             self.host.outputs.set("cnc_cutting", 1)
             self.run_seq, self.start_reply, self.jet_since = snap.motion["run_seq"], None, None
-            self.host.send_planner(Start(), self._on_start)
+            self.host.send_planner(Start(restart=self.restart), self._on_start)
 
     def _on_planner(self, reply: Reply) -> None:
         """The planner refused a hold or a resume: it is not doing what the cycle believes."""
@@ -184,6 +195,7 @@ class AutoCycle:
                     self.host.fault("program_error", self.start_reply.reason)
                 return
             self.sub = "run"
+            self.restart = None  # it runs: the next cycle cuts the whole program
         self._follow_jet(snap, now)
         m = snap.motion
         if m["run_seq"] > self.run_seq and m["state"] == PlannerState.IDLE:

@@ -29,6 +29,7 @@ drives change; stop and hold are always forwarded, whatever the planner runs.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import secrets
 import time
@@ -42,7 +43,7 @@ from ..alarms.recorder import Recorder
 from ..bus.keys import Keys
 from ..bus.messages import (
     LOGIC_COMMANDS, MOTION_COMMANDS, MOTION_VERBS, AlarmEvent, GoTo, Hold, Home, InternalError, Jog, JogRefresh, JogStop,
-    LoadProgram, Mdi, Notice, Override, Reply, Resume, Stamp, Stop, encode,
+    LoadProgram, Mdi, Notice, Override, Recover, Reply, RestartAt, Resume, Stamp, Stop, encode,
 )
 from ..bus.service import DEFERRED, CommandRefused, CommandService, Request, Route
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
@@ -50,7 +51,7 @@ from ..data.dataserver import SharedArea
 from ..data.injection import injected_bugs
 from ..hw.board import AxisIn, DigitalOut
 from ..interlock import StopCause
-from ..gateway.jobs import JobHistory, jobs_path
+from ..gateway.jobs import CutPoint, CutPoints, JobHistory, jobs_path
 from ..data.layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..safety import fault_alarm
 from .cycle import AutoCycle
@@ -110,6 +111,7 @@ class Logic:
         if missing:
             raise ValueError(f"{config.source}: the control logic needs an [[alarm]] catalogue with: {', '.join(missing)}")
         self.history = AlarmHistory(history_path)
+        self.history_path = history_path
         self.book = AlarmBook(Catalogue(config), self.history, publish=self._publish_alarm, recorder=self.recorder)
         self.recorder.committed_seq = self.book.last_seq
         self.book.prune(config.logic.history_keep_days)
@@ -130,6 +132,9 @@ class Logic:
             Route("notice", self.keys.logic("notice"), self._noticed, Notice),
         )
         self.jobs = JobHistory(jobs_path(history_path))
+        self.cuts = CutPoints(jobs_path(history_path))  # written by the recorder thread only
+        self.cut_point: CutPoint | None = None  # where the jet last cut (for "continue")
+        self.cut_saved: CutPoint | None = None  # ... as last handed to the recorder
         self.run_seen = (-1, -1)  # (run_seq, run_result) of the last run recorded or seen starting
         self.run_started_ns = 0
         self.token = session.liveliness().declare_token(self.keys.alive("logic"))
@@ -199,6 +204,7 @@ class Logic:
         self._drives_after_stop_all(snap)
         self._program_events(snap)
         self._record_jobs(snap)
+        self._track_cut(snap)
         self.cycle.step(snap, now)
         if self.procedures.scan(signals, now):
             self._publish_procedure()
@@ -215,6 +221,7 @@ class Logic:
         self.service.close()
         self.jobs.close()
         self.recorder.close()  # what is queued is stored and published first
+        self.cuts.close()
         self.alarm_pub.undeclare()
         self.procedure_pub.undeclare()
         self.token.undeclare()
@@ -327,6 +334,42 @@ class Logic:
         self.jet_test = False
         self.inhibit_release = True
         self.cycle.start(msg.cycles, now)
+
+    def _cmd_recover(self, msg: Recover, snap, now, request) -> Reply:
+        """Start the cycle inside the loaded program with the material in place: continue the cut
+        interrupted last, or a part, or a line (`cnc.planner.recovery`; the planner checks the
+        rest). Refused with the reason where it cannot start."""
+        self._require_mode(Mode.AUTO, "continuing a cut")
+        if msg.kind not in ("continue", "part", "line"):
+            raise CommandRefused(f"kind {msg.kind!r} is not one of: continue, part, line")
+        self._require_no_blocking("continue")
+        if self.state not in (MachineState.READY, MachineState.STOPPED):
+            raise CommandRefused(f"cannot start while {self.state.name}" + (
+                ": switch the drives on and home the machine" if self.state == MachineState.IDLE else ""))
+        m = snap.motion
+        if not m["program_name"]:
+            raise CommandRefused("no program is loaded")
+        if self.procedures.running:
+            raise CommandRefused(f"a procedure is running ({self.procedures.state().title}): end it first")
+        overlap = self.config.cycle.recovery_overlap_mm if msg.overlap_mm is None else msg.overlap_mm
+        if not (math.isfinite(overlap) and 0.0 <= overlap <= 100.0):
+            raise CommandRefused(f"overlap_mm {overlap:g} is out of range: 0 to 100 mm")
+        if msg.kind == "continue":
+            point = self._cut_point_for(m["program_hash"])
+            if point is None:
+                raise CommandRefused(f"no interrupted cut of {m['program_name']} is known (it ran to its end, or never "
+                                     "cut): start at a part or from a line instead")
+            restart = RestartAt("continue", segment=point.segment, x_mm=point.x_mm, y_mm=point.y_mm, overlap_mm=overlap)
+            what = f"continuing {m['program_name']} at line {point.line}, {overlap:g} mm back"
+        else:
+            if msg.number < 1:
+                raise CommandRefused(f"number {msg.number} must be the part (from 1) or the line to start at")
+            restart = RestartAt(msg.kind, number=msg.number)
+            what = f"starting {m['program_name']} at {msg.kind} {msg.number}"
+        self.jet_test = False
+        self.inhibit_release = True
+        self.cycle.start(1, now, restart)
+        return Reply(True, what + ": pressure, then the cut (no transport: the material is in place)")
 
     def _cmd_hold(self, msg, snap, now, request) -> str | None:
         """Hold is always passed on: a program holds on its path; a jog, go-to or homing stops."""
@@ -872,10 +915,46 @@ class Logic:
         if m["run_seq"] != self.run_seen[0]:
             self.run_started_ns = time.time_ns()
         self.run_seen = seen
+        if m["run_result"] == RunResult.DONE and self.cut_point is not None and self.cut_point.hash == m["program_hash"]:
+            done = m["program_hash"]
+            self.cut_point = self.cut_saved = None  # cut to its end: nothing left to continue
+            self.recorder.submit(lambda: self.cuts.clear(done))
         if m["run_result"] != RunResult.NONE:
             ticks = max(0, m["run_end_tick"] - m["run_start_tick"])
             self.jobs.append(m["program_name"], m["program_hash"], self.run_started_ns or time.time_ns(), time.time_ns(),
                              RunResult(m["run_result"]).name, ticks * self.config.timing.period_s, float(m["planned_s"]))
+
+    def _track_cut(self, snap: Snapshot) -> None:
+        """Where the jet cuts, kept for "continue": in memory every scan, in the job record (by the
+        recorder, after this scan's outputs) every `[cycle] recovery_save_mm` of cut and whenever the
+        jet closes; never in the way of a reaction, which comes first in the scan."""
+        m = snap.motion
+        if snap.jet_on and m["state"] == PlannerState.RUNNING and m["segment"] >= 0 and m["program_hash"]:
+            pos = snap.servo["commanded_mm"]
+            x = float(pos[self.names.index("x")]) if "x" in self.names else 0.0
+            y = float(pos[self.names.index("y")]) if "y" in self.names else 0.0
+            self.cut_point = CutPoint(m["program_hash"], m["program_name"], int(m["segment"]), x, y, int(m["line"]))
+            saved = self.cut_saved
+            if saved is None or saved.hash != self.cut_point.hash or math.hypot(
+                    x - saved.x_mm, y - saved.y_mm) >= self.config.cycle.recovery_save_mm:
+                self._save_cut()
+        elif self.cut_point is not None and self.cut_point is not self.cut_saved:
+            self._save_cut()  # the jet closed (a stop, a fault, the end of a part): where it was
+
+    def _save_cut(self) -> None:
+        point = self.cut_saved = self.cut_point
+        self.recorder.submit(lambda: self.cuts.save(point))
+
+    def _cut_point_for(self, program_hash: str) -> CutPoint | None:
+        """The last cut point of the program with this hash: this run's, or one the job record kept
+        (a restarted controller, the program loaded again)."""
+        if self.cut_point is not None and self.cut_point.hash == program_hash:
+            return self.cut_point
+        stored = CutPoints(jobs_path(self.history_path), readonly=True)
+        try:
+            return stored.get(program_hash)
+        finally:
+            stored.close()
 
     def _note(self, text: str) -> None:
         self.message = text

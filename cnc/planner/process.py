@@ -50,7 +50,8 @@ from gcode.program import Program
 
 from ..bus.keys import Keys
 from ..bus.messages import (
-    MOTION_COMMANDS, MOTION_VERBS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Mdi, Override, ProgramDiagnostic, Reply,
+    MOTION_COMMANDS, MOTION_VERBS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Mdi, Override,
+    ProgramDiagnostic, Reply, RestartAt,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..config import MachineConfig
@@ -66,6 +67,7 @@ from ..runtime.rt import collector_paused, give_back_memory, leave_realtime
 from .preflight import PreflightError, preflight
 from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
+from .recovery import Restart, RecoveryError, continue_at, run_from_line, start_at_part
 from .sections import iter_steps, move_steps
 from .steps import ProgramTiming, StepSource
 
@@ -165,6 +167,7 @@ class Planner:
         remove_stale()  # a predecessor killed while it timed a program leaves its files
         self.runner: ProgramRunner | None = None
         self.runner_kind = PlannerState.IDLE  # RUNNING (a program), JOGGING or MOVING
+        self.restart: Restart | None = None  # the run under way starts inside the program
         self.homing = None
         self.homing_obj: Homing | None = None
         self.waiting_for: tuple | None = None  # homing: ("drain",) or ("reference", seq)
@@ -472,14 +475,42 @@ class Planner:
             self._check_stamp(msg)  # a stop may have come while it was prepared
             servo = self._require_servo("start")
         homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
-        try:
-            preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
-        except PreflightError as exc:
-            raise CommandRefused(str(exc)) from None
-        runner = ProgramRunner(None, self.config, steps=self.loaded.source(), timing=self.loaded.timing)
+        restart = None
+        if msg.restart is not None:
+            runner, restart = self._restart_runner(msg.restart, _xyz(self.config, servo["commanded_mm"]), homed)
+        else:
+            try:
+                preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
+            except PreflightError as exc:
+                raise CommandRefused(str(exc)) from None
+            runner = ProgramRunner(None, self.config, steps=self.loaded.source(), timing=self.loaded.timing)
         self._begin(runner, PlannerState.RUNNING)
+        self.restart = restart  # its segments are numbered as the loaded program's (`_push`)
         self._set(run_seq=self.out.get("run_seq") + 1, run_result=int(RunResult.NONE),
                   run_start_tick=self.hw_r.read_dict()["tick"])
+
+    def _restart_runner(self, at: RestartAt, head: tuple[float, float, float], homed: dict) -> tuple[ProgramRunner, Restart]:
+        """A run of the loaded program from inside it (`recovery.py`): the restart checked against
+        the travel like any program; timed at once when short (else its ETA is unknown)."""
+        program = self.loaded.program
+        try:
+            if at.kind == "continue":
+                restart = continue_at(program, at.segment, (at.x_mm, at.y_mm), at.overlap_mm, head)
+            elif at.kind == "part":
+                restart = start_at_part(program, at.number, head)
+            elif at.kind == "line":
+                restart = run_from_line(program, at.number, head)
+            else:
+                raise RecoveryError(f"restart kind {at.kind!r} is not one of: continue, part, line")
+            preflight(restart.program.segments, self.config, homed, self.loaded.name)
+        except (RecoveryError, PreflightError) as exc:
+            raise CommandRefused(str(exc)) from None
+        timing = ProgramTiming(self.dt)
+        if len(restart.program.segments) <= TIMED_AT_LOAD_SEGMENTS:
+            timing.compute(iter_steps(restart.program, self.config))
+        log.info("planner: %s: %s", self.loaded.name, restart.description)
+        self._event("restart", restart.description, restart.line)
+        return ProgramRunner(None, self.config, steps=StepSource(iter_steps(restart.program, self.config)), timing=timing), restart
 
     def _cmd_hold(self, _msg) -> Reply:
         """A feed hold of a program; a jog, go-to or homing (which cannot continue) stops."""
@@ -676,6 +707,7 @@ class Planner:
         self._begin(ProgramRunner(None, self.config, steps=steps), kind)
 
     def _begin(self, runner: ProgramRunner, kind: PlannerState) -> None:
+        self.restart = None
         if kind in _PROGRAMS:
             runner.set_override(self.override)
         self.runner, self.runner_kind = runner, kind
@@ -691,7 +723,7 @@ class Planner:
             self._set(run_result=int(result), run_end_tick=self.hw_r.read_dict()["tick"], eta_s=0.0)
             if result == RunResult.DONE:  # the last setpoints sampled may end short of the path's last mm
                 self._set(done_mm=self.out.get("total_mm"))
-        self.runner, self.runner_kind = None, PlannerState.IDLE
+        self.runner, self.runner_kind, self.restart = None, PlannerState.IDLE, None
         self._set(state=int(PlannerState.IDLE))
 
     def _fail(self, why: str, report: bool = True) -> None:
@@ -758,6 +790,8 @@ class Planner:
         if not len(records):
             return
         records["epoch"] = self.motion_epoch & 0xFFFF_FFFF
+        if self.restart is not None:  # a run from inside the program: its segments as the program's
+            records["segment"] = self.restart.original_segment(records["segment"])
         head = self.fifo.head()
         taken = self.fifo.push(records)
         if taken != len(records):  # cannot happen: bursts never exceed the room left

@@ -45,6 +45,11 @@ class Restart:
     line: int
     at: tuple[float, float, float]
     description: str
+    offset: int = 0  # the restart's segment j >= 1 is the original program's j + offset (0 is the rapid)
+
+    def original_segment(self, j: np.ndarray) -> np.ndarray:
+        """The original program's segment indices of the restart's `j` (the rapid counts as the first)."""
+        return np.where(j >= 1, j + self.offset, self.segment)
 
 
 # -- geometry of one segment ------------------------------------------------------------------
@@ -123,12 +128,12 @@ def continue_at(program: Program, segment: int, point: tuple[float, ...], overla
     `overlap_mm` along the cut (not past its pierce); the head now at `head`."""
     seg = program.segments
     if not 0 <= segment < len(seg):
-        raise RecoveryError(f"segment {segment} is not in {program.name} (it has {len(seg)})")
+        raise RecoveryError(f"segment {segment} is not in {_name(program)} (it has {len(seg)})")
     if not (math.isfinite(overlap_mm) and overlap_mm >= 0.0):
         raise RecoveryError(f"overlap {overlap_mm!r} mm must be 0 or more")
     s = seg[segment]
     if not s["jet"] or int(s["kind"]) in (RAPID, DWELL):
-        raise RecoveryError(f"{program.name}:{int(s['line'])}: the jet was not cutting there; start at the next part instead")
+        raise RecoveryError(f"{_name(program)}:{int(s['line'])}: the jet was not cutting there; start at the next part instead")
     k, into = segment, locate(s, point)
     back = overlap_mm
     while back > 1e-12:
@@ -153,7 +158,7 @@ def start_at_part(program: Program, n: int, head: tuple[float, float, float]) ->
     (its own pierce dwell, if it has one, included)."""
     starts = cut_starts(program)
     if not 1 <= n <= len(starts):
-        raise RecoveryError(f"{program.name} has {len(starts)} part{'s' if len(starts) != 1 else ''} (pierces): "
+        raise RecoveryError(f"{_name(program)} has {len(starts)} part{'s' if len(starts) != 1 else ''} (pierces): "
                             f"there is no part {n}")
     k = starts[n - 1]
     return _from(program, k, 0.0, head, f"start at part {n} of {len(starts)} (line {int(program.segments[k]['line'])})")
@@ -166,7 +171,7 @@ def run_from_line(program: Program, line: int, head: tuple[float, float, float])
     lines = seg["line"]
     at = np.flatnonzero(lines >= line) if len(seg) else np.zeros(0, dtype=np.int64)
     if not len(at):
-        raise RecoveryError(f"{program.name}: nothing moves at or after line {line}")
+        raise RecoveryError(f"{_name(program)}: nothing moves at or after line {line}")
     k = int(at[0])
     passes = int(np.count_nonzero(lines == int(lines[k])))
     note = f" (line {int(lines[k])} runs {passes} times in a loop or subroutine: from its first pass)" if passes > 1 else ""
@@ -193,6 +198,11 @@ def cut_starts(program: Program) -> list[int]:
     return starts
 
 
+def _name(program: Program) -> str:
+    """The program's file name, as an operator knows it."""
+    return program.name.replace("\\", "/").rsplit("/", 1)[-1]
+
+
 def _from(program: Program, k: int, into: float, head: tuple[float, float, float], description: str) -> Restart:
     """The program from `into` mm into segment `k`, after a rapid from `head` to there."""
     seg = program.segments
@@ -209,7 +219,7 @@ def _from(program: Program, k: int, into: float, head: tuple[float, float, float
     messages = [Message(m.line, m.segment + shift, m.kind, m.text, m.data) for m in program.messages
                 if m.segment > k or (m.segment == k and into <= 0.0)]
     restarted = Program(program.name, segments, messages, _statistics(segments, program.stats.lines), program.units_final)
-    return Restart(restarted, k, float(into), int(first["line"]), at, description)
+    return Restart(restarted, k, float(into), int(first["line"]), at, description, offset=-shift)
 
 
 def _statistics(segments: np.ndarray, lines: int) -> Statistics:

@@ -1,0 +1,127 @@
+"""Cut recovery in the whole controller (the PLC simulator over a real pty, the virtual clock): a cut
+interrupted by a door fault continues, after the reset, from where the jet stopped, backed up by
+the overlap, with the material in place (no transport); the job record keeps where the jet was;
+a part and a line can be started too; what cannot be continued is refused with the reason."""
+
+from __future__ import annotations
+
+import math
+
+from cnc.bus.messages import CycleStart, Recover, Reset, Stop
+from cnc.data.layout import PlannerState, RunResult, ServoState
+from cnc.gateway.jobs import CutPoints, jobs_path
+from cnc.logic.states import CyclePhase, MachineState
+from cnc.runtime.supervisor import Supervisor
+
+from .conftest import logic, press_button_when_asked
+from .test_logic_process import command, jet_open, ready_in_auto, refusal
+
+# one long straight cut along X at Y100 (100 mm/s), then a second part: the door opens on the first
+LONG = """(two parts)
+G21 G90 G64 P0.05 F6000
+G0 X100 Y100
+M3
+G1 X300
+M5
+G0 X100 Y150
+M3
+G1 X140
+G1 Y190
+G1 X100
+G1 Y150
+M5
+G0 X60 Y60
+M2
+"""
+
+
+def head_xy(sup: Supervisor) -> tuple[float, float]:
+    x, y = sup.servo()["commanded_mm"][:2]
+    return float(x), float(y)
+
+
+def step_until(sup: Supervisor, condition, limit: int, what: str) -> int:
+    """Advance the paused virtual clock a tick at a time until `condition()`; the tick it held at."""
+    for _ in range(limit):
+        tick = sup.run_ticks(1)
+        if condition():
+            return tick
+    raise AssertionError(f"{what}: not within {limit} ticks")
+
+
+def test_a_cut_stopped_by_a_door_continues_an_overlap_back_from_where_the_jet_stopped(plc_controller, tmp_path):
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, LONG)
+    assert "no interrupted cut of nest.ngc is known" in refusal(sup, Recover("continue"))
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 250.0, 60.0, "the first cut under way")
+    sup.pause_virtual_clock()
+    sup.set_sim(doors_open=1)
+    step_until(sup, lambda: not jet_open(sup), 50, "the jet to close at the door")
+    stopped_at = head_xy(sup)  # the jet closed here (the axes still run out their stop)
+    sup.resume_virtual_clock()
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] == MachineState.FAULT, 30.0,
+                   "the door fault")
+    sup.wait_until(lambda: _stored(sup) is not None, 10.0, "the cut point in the job record")
+    stored = _stored(sup)
+    assert stored.program == "nest.ngc" and stored.line == 5
+    assert abs(stored.y_mm - 100.0) < 1e-6 and 0.0 <= stopped_at[0] - stored.x_mm <= 1.0, (stored, stopped_at)
+
+    sup.set_sim(doors_open=0)
+    sup.wait_until(lambda: "Safety door" not in command(sup, Reset()), 10.0, "the door alarm to reset")
+    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
+    assert "overlap_mm 500 is out of range" in refusal(sup, Recover("continue", overlap_mm=500.0))
+    assert "continuing nest.ngc at line 5, 2 mm back" in command(sup, Recover("continue"))
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 30.0, "the pump, then the cut (no transport)")
+    sup.pause_virtual_clock()
+    step_until(sup, lambda: jet_open(sup), 20000, "the jet to open again")
+    resumed_at = head_xy(sup)
+    sup.resume_virtual_clock()
+    overlap = sup.config.cycle.recovery_overlap_mm
+    assert abs(resumed_at[1] - 100.0) < 1e-6 and abs(resumed_at[0] - (stored.x_mm - overlap)) < 1e-6, resumed_at
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.UNLOAD or logic(sup)["phase"] == CyclePhase.NONE, 120.0,
+                   "the rest of the program")
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 60.0,
+                   "the unload")
+    m = sup.motion()
+    assert m["run_result"] == RunResult.DONE and m["state"] == PlannerState.IDLE
+    sup.wait_until(lambda: _stored(sup) is None, 10.0, "the cut point cleared once the program ran to its end")
+    assert "no interrupted cut" in refusal(sup, Recover("continue"))
+
+
+def test_a_part_or_a_line_starts_the_cycle_there_and_impossible_starts_are_refused(plc_controller, tmp_path):
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, LONG)
+    command(sup, CycleStart(cycles=1))  # the material fed and gripped, then the operator stops the cut
+    press_button_when_asked(sup, lambda: jet_open(sup), 60.0, "the first cut under way")
+    command(sup, Stop())
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.STOPPED, 30.0,
+                   "the stopped cycle")
+    assert "has 2 parts (pierces): there is no part 3" in _planner_refusal(sup, Recover("part", 3))
+    assert "must be the part (from 1) or the line" in refusal(sup, Recover("part", 0))
+    assert "kind 'resume' is not one of" in refusal(sup, Recover("resume"))
+    command(sup, Recover("part", 2))
+    sup.wait_until(lambda: jet_open(sup), 60.0, "part 2 cutting")
+    x, y = head_xy(sup)
+    assert math.isclose(y, 150.0) and 100.0 <= x <= 140.0, "the second part, not the first"
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
+                   "part 2 to its end and the unload")
+    assert sup.motion()["run_result"] == RunResult.DONE
+
+
+def _planner_refusal(sup: Supervisor, msg) -> str:
+    """A start the planner refuses arrives as the cycle's program error: its detail says why."""
+    command(sup, msg)
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT, 30.0, "the refused start")
+    detail = logic(sup)["message"]
+    command(sup, Reset())
+    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready again")
+    return detail
+
+
+def _stored(sup: Supervisor):
+    points = CutPoints(jobs_path(sup.history_path), readonly=True)
+    try:
+        return points.get(sup.motion()["program_hash"])
+    finally:
+        points.close()
