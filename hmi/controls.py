@@ -20,7 +20,7 @@ from PySide6.QtWidgets import (
 
 from cnc.bus.messages import (
     CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop, LockRequest, Override, ProcedureStart, Pump,
-    Reset, Resume, SetMode, Stop, StopAll,
+    Recover, Reset, Resume, SetMode, Stop, StopAll,
 )
 from cnc.bus.states import Mode
 
@@ -317,7 +317,7 @@ class ManualPage(QWidget):
 
 class AutoPage(QWidget):
     """AUTO mode: the program (load, text, block being cut), the program library when the screen
-    can ask for it, and the cycle's buttons."""
+    can ask for it, and the cycle's buttons (with continuing a cut, starting at a part or a line)."""
 
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, library: ProgramSource | None = None,
                  parent: QWidget | None = None) -> None:
@@ -344,6 +344,20 @@ class AutoPage(QWidget):
         self.resume.clicked.connect(lambda: self.commands.send(Resume()))
         self.stop = _button("Stop cycle")
         self.stop.clicked.connect(lambda: self.commands.send(Stop()))
+        # starting inside the program, the material in place: after a fault, a stop or a restart
+        self.continue_cut = _button("Continue cut", "Continue the interrupted cut from where the jet stopped, a little "
+                                    "back along it (the machine file's overlap); no transport: the material is in place")
+        self.continue_cut.clicked.connect(lambda: self.commands.send(Recover("continue")))
+        self.part = QSpinBox()
+        self.part.setRange(1, 1_000_000)
+        self.part.setPrefix("part ")
+        self.start_part = _button("Start at", "Start the cycle at this part (its pierce), the material in place")
+        self.start_part.clicked.connect(lambda: self.commands.send(Recover("part", self.part.value())))
+        self.line = QSpinBox()
+        self.line.setRange(1, 100_000_000)
+        self.line.setPrefix("line ")
+        self.start_line = _button("Run from", "Start the cycle at this program line, the material in place")
+        self.start_line.clicked.connect(lambda: self.commands.send(Recover("line", self.line.value())))
         cycle = QGroupBox("Automatic cycle")
         buttons = QVBoxLayout(cycle)
         row = QHBoxLayout()
@@ -353,11 +367,19 @@ class AutoPage(QWidget):
         for b in (self.cycle_start, self.hold, self.resume, self.stop):
             b.setMinimumHeight(34)
             buttons.addWidget(b)
+        buttons.addSpacing(12)
+        buttons.addWidget(self.continue_cut)
+        for spin, button in ((self.part, self.start_part), (self.line, self.start_line)):
+            row = QHBoxLayout()
+            row.addWidget(button)
+            row.addWidget(spin, 1)
+            buttons.addLayout(row)
         buttons.addStretch(1)
         layout = QHBoxLayout(self)
         layout.addWidget(self.tabs, 1)
         layout.addWidget(cycle)
-        enable_while_commanding(adapter, [self.cycle_start, self.hold, self.resume, self.stop])
+        enable_while_commanding(adapter, [self.cycle_start, self.hold, self.resume, self.stop, self.continue_cut,
+                                          self.start_part, self.start_line])
 
 
 class KeyJog(QObject):

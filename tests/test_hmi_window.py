@@ -483,3 +483,20 @@ def test_the_program_library_lists_previews_loads_and_deletes_from_the_screen(qt
     qtbot.waitUntil(lambda: set(listed()) == {"square.ngc"}, timeout=WAIT_MS)
     assert not (programs / "broken.ngc").exists()
     shot(w, "auto_library")
+
+
+def test_continue_cut_part_and_line_are_sent_from_the_auto_page_and_a_refusal_says_why(qtbot, plc_controller, screen):
+    w = screen.window
+    take_lock(qtbot, screen)
+    click(qtbot, screen, w.bar.auto)
+    qtbot.waitUntil(lambda: w.current_screen is Screen.AUTO, timeout=WAIT_MS)
+    auto = w.pages[Screen.AUTO]
+    reply = click(qtbot, screen, auto.continue_cut, ok=False)
+    assert "cannot start while IDLE: switch the drives on and home the machine" in reply.reason
+    assert w.command_line.text().startswith("✖ Continue the interrupted cut")
+    auto.part.setValue(3)
+    click(qtbot, screen, auto.start_part, ok=False)
+    assert w.command_line.text().startswith("✖ Start at part 3")
+    auto.line.setValue(120)
+    click(qtbot, screen, auto.start_line, ok=False)
+    assert w.command_line.text().startswith("✖ Start at line 120")
