@@ -6,6 +6,10 @@ a part and a line can be started too; what cannot be continued is refused with t
 from __future__ import annotations
 
 import math
+import os
+import signal
+
+import pytest
 
 from cnc.bus.messages import CycleStart, Recover, Reset, Stop
 from cnc.data.layout import PlannerState, RunResult, ServoState
@@ -49,26 +53,29 @@ def step_until(sup: Supervisor, condition, limit: int, what: str) -> int:
     raise AssertionError(f"{what}: not within {limit} ticks")
 
 
-def test_a_cut_stopped_by_a_door_continues_an_overlap_back_from_where_the_jet_stopped(plc_controller, tmp_path):
+@pytest.mark.parametrize("fault, cleared", [({"doors_open": 1}, {"doors_open": 0}),
+                                           ({"estop_pressed": 1}, {"estop_pressed": 0})], ids=["door", "e-stop"])
+def test_a_cut_stopped_by_a_fault_continues_an_overlap_back_from_where_the_jet_stopped(plc_controller, tmp_path, fault,
+                                                                                         cleared):
     sup = plc_controller
     ready_in_auto(sup, tmp_path, LONG)
     assert "no interrupted cut of nest.ngc is known" in refusal(sup, Recover("continue"))
     command(sup, CycleStart(cycles=1))
     press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 250.0, 60.0, "the first cut under way")
     sup.pause_virtual_clock()
-    sup.set_sim(doors_open=1)
-    step_until(sup, lambda: not jet_open(sup), 50, "the jet to close at the door")
+    sup.set_sim(**fault)
+    step_until(sup, lambda: not jet_open(sup), 50, "the jet to close at the fault")
     stopped_at = head_xy(sup)  # the jet closed here (the axes still run out their stop)
     sup.resume_virtual_clock()
-    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] == MachineState.FAULT, 30.0,
-                   "the door fault")
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] in (
+        MachineState.FAULT, MachineState.ESTOP), 30.0, "the fault")
     sup.wait_until(lambda: _stored(sup) is not None, 10.0, "the cut point in the job record")
     stored = _stored(sup)
     assert stored.program == "nest.ngc" and stored.line == 5
     assert abs(stored.y_mm - 100.0) < 1e-6 and 0.0 <= stopped_at[0] - stored.x_mm <= 1.0, (stored, stopped_at)
 
-    sup.set_sim(doors_open=0)
-    sup.wait_until(lambda: "Safety door" not in command(sup, Reset()), 10.0, "the door alarm to reset")
+    sup.set_sim(**cleared)
+    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
     sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
     assert "overlap_mm 500 is out of range" in refusal(sup, Recover("continue", overlap_mm=500.0))
     assert "continuing nest.ngc at line 5, 2 mm back" in command(sup, Recover("continue"))
@@ -125,3 +132,46 @@ def _stored(sup: Supervisor):
         return points.get(sup.motion()["program_hash"])
     finally:
         points.close()
+
+
+def test_after_a_power_loss_the_job_record_continues_the_cut_once_the_program_is_loaded_again(tmp_path):
+    """Every process killed mid-cut (a power loss): a new controller, the same program loaded
+    again, the material in place, continues from the cut point the job record kept (at most
+    `recovery_save_mm` behind where the jet was, plus the overlap)."""
+    from .conftest import NEAR_HOME, full_controller, machine_config
+
+    config = machine_config(**NEAR_HOME)
+    history = tmp_path / "history.sqlite"
+    with full_controller(config, history) as sup:
+        ready_in_auto(sup, tmp_path, LONG)
+        command(sup, CycleStart(cycles=1))
+        press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 250.0, 60.0, "the cut under way")
+        sup.pause_virtual_clock()
+        cut_to = head_xy(sup)
+        program_hash = sup.motion()["program_hash"]
+        for child in sup.children.values():  # the power goes: nothing is written any more
+            os.kill(child.process.pid, signal.SIGKILL)
+    points = CutPoints(jobs_path(history), readonly=True)
+    stored = points.get(program_hash)
+    points.close()
+    assert stored is not None and stored.line == 5, "written while it cut"
+    assert 0.0 <= cut_to[0] - stored.x_mm <= config.cycle.recovery_save_mm + 1.0, (stored, cut_to)
+
+    with full_controller(config, history) as sup:
+        ready_in_auto(sup, tmp_path, LONG)  # the operator loads the same program again
+        assert "no material in place" in refusal(sup, Recover("continue")), "the new PLC has no material yet"
+        command(sup, CycleStart(cycles=1))  # feed and grip the material, then stop before the cut
+        press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.PRESSURE, 60.0, "the material in place")
+        command(sup, Stop())
+        sup.wait_until(lambda: logic(sup)["state"] == MachineState.STOPPED and not jet_open(sup), 30.0, "stopped")
+        assert "continuing nest.ngc at line 5" in command(sup, Recover("continue"))
+        sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 30.0, "the cut")
+        sup.pause_virtual_clock()
+        step_until(sup, lambda: jet_open(sup), 20000, "the jet to open")
+        resumed_at = head_xy(sup)
+        sup.resume_virtual_clock()
+        assert abs(resumed_at[1] - 100.0) < 1e-6
+        assert abs(resumed_at[0] - (stored.x_mm - config.cycle.recovery_overlap_mm)) < 1e-6, (resumed_at, stored)
+        sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY,
+                       180.0, "the rest of the program and the unload")
+        assert sup.motion()["run_result"] == RunResult.DONE

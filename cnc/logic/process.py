@@ -366,6 +366,13 @@ class Logic:
                 raise CommandRefused(f"number {msg.number} must be the part (from 1) or the line to start at")
             restart = RestartAt(msg.kind, number=msg.number)
             what = f"starting {m['program_name']} at {msg.kind} {msg.number}"
+        signals = self.reader.signals(snap, self.state.name, self.mode.name)
+        if signals.get("plc.material_in_place") is False:
+            raise CommandRefused("the PLC reports no material in place: a cut inside the program needs the material "
+                                 "it was cutting; start a normal cycle")
+        broken = [b for b in ("front", "rear") if signals.get(f"plc.barrier_{b}_ok") is False]
+        if broken:
+            raise CommandRefused(f"the {' and '.join(broken)} light barrier{'s are' if len(broken) > 1 else ' is'} interrupted")
         self.jet_test = False
         self.inhibit_release = True
         self.cycle.start(1, now, restart)
