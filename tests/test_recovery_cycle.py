@@ -53,6 +53,17 @@ def step_until(sup: Supervisor, condition, limit: int, what: str) -> int:
     raise AssertionError(f"{what}: not within {limit} ticks")
 
 
+def continue_and_pierce(sup: Supervisor, answer: str) -> tuple[float, float]:
+    """Continue the interrupted cut (the reply saying `answer`); where the head is when the jet opens."""
+    assert answer in command(sup, Recover("continue"))
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 30.0, "the pump, then the cut (no transport)")
+    sup.pause_virtual_clock()
+    step_until(sup, lambda: jet_open(sup), 20000, "the jet to open again")
+    at = head_xy(sup)
+    sup.resume_virtual_clock()
+    return at
+
+
 @pytest.mark.parametrize("fault, cleared", [({"doors_open": 1}, {"doors_open": 0}),
                                            ({"estop_pressed": 1}, {"estop_pressed": 0})], ids=["door", "e-stop"])
 def test_a_cut_stopped_by_a_fault_continues_an_overlap_back_from_where_the_jet_stopped(plc_controller, tmp_path, fault,
@@ -78,12 +89,7 @@ def test_a_cut_stopped_by_a_fault_continues_an_overlap_back_from_where_the_jet_s
     sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
     sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
     assert "overlap_mm 500 is out of range" in refusal(sup, Recover("continue", overlap_mm=500.0))
-    assert "continuing nest.ngc at line 5, 2 mm back" in command(sup, Recover("continue"))
-    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 30.0, "the pump, then the cut (no transport)")
-    sup.pause_virtual_clock()
-    step_until(sup, lambda: jet_open(sup), 20000, "the jet to open again")
-    resumed_at = head_xy(sup)
-    sup.resume_virtual_clock()
+    resumed_at = continue_and_pierce(sup, "continuing nest.ngc at line 5, 2 mm back")
     overlap = sup.config.cycle.recovery_overlap_mm
     assert abs(resumed_at[1] - 100.0) < 1e-6 and abs(resumed_at[0] - (stored.x_mm - overlap)) < 1e-6, resumed_at
     sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.UNLOAD or logic(sup)["phase"] == CyclePhase.NONE, 120.0,
@@ -164,12 +170,7 @@ def test_after_a_power_loss_the_job_record_continues_the_cut_once_the_program_is
         press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.PRESSURE, 60.0, "the material in place")
         command(sup, Stop())
         sup.wait_until(lambda: logic(sup)["state"] == MachineState.STOPPED and not jet_open(sup), 30.0, "stopped")
-        assert "continuing nest.ngc at line 5" in command(sup, Recover("continue"))
-        sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 30.0, "the cut")
-        sup.pause_virtual_clock()
-        step_until(sup, lambda: jet_open(sup), 20000, "the jet to open")
-        resumed_at = head_xy(sup)
-        sup.resume_virtual_clock()
+        resumed_at = continue_and_pierce(sup, "continuing nest.ngc at line 5")
         assert abs(resumed_at[1] - 100.0) < 1e-6
         assert abs(resumed_at[0] - (stored.x_mm - config.cycle.recovery_overlap_mm)) < 1e-6, (resumed_at, stored)
         sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY,
