@@ -49,7 +49,7 @@ def run_mdi(sup: Supervisor, text: str) -> list[int]:
     return seen
 
 
-def test_mdi_runs_typed_lines_from_where_the_head_stands_absolute_and_incremental(plc_controller):
+def test_mdi_runs_typed_lines_from_where_the_head_stands_and_stop_and_hold_end_it_on_the_path(plc_controller):
     sup = plc_controller
     homed_in_manual(sup)
     seen = run_mdi(sup, "G21 G90 G0 X50 Y40\nG1 X60 F3000")
@@ -58,6 +58,14 @@ def test_mdi_runs_typed_lines_from_where_the_head_stands_absolute_and_incrementa
     run_mdi(sup, "G91 G1 X-5 Y7.5 F3000")  # incremental from where the head now is
     assert head(sup) == (55.0, 47.5)
     assert sup.motion()["run_result"] == 0, "an MDI is not a program run: nothing for the job history"
+    for stop, target in ((Stop(), 1000.0), (Hold(), 1500.0)):
+        start = head(sup)[0]
+        command(sup, Mdi(f"G1 X{target:g} F3000"))
+        sup.wait_until(lambda: abs(sup.servo()["commanded_mm"][0] - start) > 5.0, 30.0, "the MDI to move")
+        command(sup, stop)
+        sup.wait_until(lambda: at_rest(sup), 30.0, f"the MDI to end after a {type(stop).__name__.lower()}")
+        assert abs(head(sup)[0] - target) > 1.0 and abs(head(sup)[0] - start) > 5.0, "ended on the way, not at the end"
+        assert sup.servo()["fault"] == ServoFault.NONE, "a controlled stop, no trip"
 
 
 def test_mdi_is_refused_with_the_reason_and_nothing_moves(plc_controller):
@@ -85,7 +93,7 @@ def test_mdi_is_refused_with_the_reason_and_nothing_moves(plc_controller):
     assert command(sup, Mdi("G21 G90 (nothing to move)")).startswith("nothing to move")
 
 
-def test_mdi_opens_the_jet_only_where_the_lines_ask_and_the_pump_allows(plc_controller):
+def test_mdi_opens_the_jet_only_where_the_lines_ask_and_the_pump_allows_and_the_override_holds_it(plc_controller):
     sup = plc_controller
     homed_in_manual(sup)
     jetted = "G0 X40 Y40\nM3\nG1 X60 F1200\nM5\nG0 X30"
@@ -105,20 +113,25 @@ def test_mdi_opens_the_jet_only_where_the_lines_ask_and_the_pump_allows(plc_cont
 
     run_mdi(sup, "G0 X45 Y45")
     assert not jet_open(sup), "lines that do not ask for the jet never open it"
+
+    # the feed override at 0 % holds a cut by hand and closes the jet; resume pierces and finishes it
+    y = head(sup)[1]
+    command(sup, Mdi("M3\nG1 X200 F2400\nM5\nG0 X50"))
+    sup.wait_until(lambda: jet_open(sup) and sup.servo()["commanded_mm"][0] > 40.0, 30.0, "cutting by hand")
+    command(sup, Override(0.0))
+    sup.wait_until(lambda: not jet_open(sup) and sup.servo()["state"] == ServoState.HOLDING
+                   and max(map(abs, sup.servo()["commanded_velocity_mm_s"])) == 0.0, 30.0, "held, the jet closed")
+    held_at = head(sup)[0]
+    assert 40.0 < held_at < 200.0 and logic(sup)["state"] == MachineState.MDI
+    assert "0 %" in refusal(sup, Resume())
+    command(sup, Override(100.0))
+    command(sup, Resume())
+    sup.wait_until(lambda: at_rest(sup), 60.0, "the MDI to finish")
+    assert head(sup) == (50.0, y) and not jet_open(sup)
+    command(sup, Override(0.0))
+    assert "0 %" in refusal(sup, Mdi("G0 X60"))
+    command(sup, Override(100.0))
     command(sup, Pump(False))
-
-
-def test_stop_and_hold_end_an_mdi_on_the_path(plc_controller):
-    sup = plc_controller
-    homed_in_manual(sup)
-    for stop, target in ((Stop(), 1000.0), (Hold(), 1500.0)):
-        start = head(sup)[0]
-        command(sup, Mdi(f"G1 X{target:g} F3000"))
-        sup.wait_until(lambda: abs(sup.servo()["commanded_mm"][0] - start) > 5.0, 30.0, "the MDI to move")
-        command(sup, stop)
-        sup.wait_until(lambda: at_rest(sup), 30.0, f"the MDI to end after a {type(stop).__name__.lower()}")
-        assert abs(head(sup)[0] - target) > 1.0 and abs(head(sup)[0] - start) > 5.0, "ended on the way, not at the end"
-        assert sup.servo()["fault"] == ServoFault.NONE, "a controlled stop, no trip"
 
 
 def test_a_door_opened_during_an_mdi_with_the_jet_closes_it_in_the_tick(plc_controller):
@@ -147,25 +160,3 @@ def test_a_door_opened_during_an_mdi_with_the_jet_closes_it_in_the_tick(plc_cont
     command(sup, Reset())
     sup.wait_until(lambda: at_rest(sup), 20.0, "READY after the reset")
     events.close()
-
-
-def test_override_zero_holds_an_mdi_cutting_closes_the_jet_and_resume_finishes_it(plc_controller):
-    sup = plc_controller
-    homed_in_manual(sup)
-    pump_at_pressure(sup)
-    y = head(sup)[1]
-    command(sup, Mdi("M3\nG1 X200 F2400\nM5\nG0 X50"))
-    sup.wait_until(lambda: jet_open(sup) and sup.servo()["commanded_mm"][0] > 40.0, 30.0, "cutting by hand")
-    command(sup, Override(0.0))
-    sup.wait_until(lambda: not jet_open(sup) and sup.servo()["state"] == ServoState.HOLDING
-                   and max(map(abs, sup.servo()["commanded_velocity_mm_s"])) == 0.0, 30.0, "held, the jet closed")
-    held_at = head(sup)[0]
-    assert 40.0 < held_at < 200.0 and logic(sup)["state"] == MachineState.MDI
-    assert "0 %" in refusal(sup, Resume())
-    command(sup, Override(100.0))
-    command(sup, Resume())
-    sup.wait_until(lambda: at_rest(sup), 60.0, "the MDI to finish")
-    assert head(sup) == (50.0, y) and not jet_open(sup)
-    command(sup, Override(0.0))
-    assert "0 %" in refusal(sup, Mdi("G0 X60"))
-    command(sup, Override(100.0))

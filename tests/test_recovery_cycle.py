@@ -64,42 +64,41 @@ def continue_and_pierce(sup: Supervisor, answer: str) -> tuple[float, float]:
     return at
 
 
-@pytest.mark.parametrize("fault, cleared", [({"doors_open": 1}, {"doors_open": 0}),
-                                           ({"estop_pressed": 1}, {"estop_pressed": 0})], ids=["door", "e-stop"])
-def test_a_cut_stopped_by_a_fault_continues_an_overlap_back_from_where_the_jet_stopped(plc_controller, tmp_path, fault,
-                                                                                         cleared):
+def test_a_cut_stopped_by_a_door_or_the_e_stop_continues_an_overlap_back_from_where_the_jet_stopped(plc_controller,
+                                                                                                  tmp_path):
     sup = plc_controller
     ready_in_auto(sup, tmp_path, LONG)
     assert "no interrupted cut of nest.ngc is known" in refusal(sup, Recover("continue"))
-    command(sup, CycleStart(cycles=1))
-    press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 250.0, 60.0, "the first cut under way")
-    sup.pause_virtual_clock()
-    sup.set_sim(**fault)
-    step_until(sup, lambda: not jet_open(sup), 50, "the jet to close at the fault")
-    stopped_at = head_xy(sup)  # the jet closed here (the axes still run out their stop)
-    sup.resume_virtual_clock()
-    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] in (
-        MachineState.FAULT, MachineState.ESTOP), 30.0, "the fault")
-    sup.wait_until(lambda: _stored(sup) is not None, 10.0, "the cut point in the job record")
-    stored = _stored(sup)
-    assert stored.program == "nest.ngc" and stored.line == 5
-    assert abs(stored.y_mm - 100.0) < 1e-6 and 0.0 <= stopped_at[0] - stored.x_mm <= 1.0, (stored, stopped_at)
+    for fault, cleared in (({"doors_open": 1}, {"doors_open": 0}), ({"estop_pressed": 1}, {"estop_pressed": 0})):
+        command(sup, CycleStart(cycles=1))
+        press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 250.0, 60.0, "the first cut under way")
+        sup.pause_virtual_clock()
+        sup.set_sim(**fault)
+        step_until(sup, lambda: not jet_open(sup), 50, "the jet to close at the fault")
+        stopped_at = head_xy(sup)  # the jet closed here (the axes still run out their stop)
+        sup.resume_virtual_clock()
+        sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] in (
+            MachineState.FAULT, MachineState.ESTOP), 30.0, "the fault")
+        sup.wait_until(lambda: _stored(sup) is not None, 10.0, "the cut point in the job record")
+        stored = _stored(sup)
+        assert stored.program == "nest.ngc" and stored.line == 5
+        assert abs(stored.y_mm - 100.0) < 1e-6 and 0.0 <= stopped_at[0] - stored.x_mm <= 1.0, (stored, stopped_at)
 
-    sup.set_sim(**cleared)
-    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
-    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
-    assert "overlap_mm 500 is out of range" in refusal(sup, Recover("continue", overlap_mm=500.0))
-    resumed_at = continue_and_pierce(sup, "continuing nest.ngc at line 5, 2 mm back")
-    overlap = sup.config.cycle.recovery_overlap_mm
-    assert abs(resumed_at[1] - 100.0) < 1e-6 and abs(resumed_at[0] - (stored.x_mm - overlap)) < 1e-6, resumed_at
-    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.UNLOAD or logic(sup)["phase"] == CyclePhase.NONE, 120.0,
-                   "the rest of the program")
-    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 60.0,
-                   "the unload")
-    m = sup.motion()
-    assert m["run_result"] == RunResult.DONE and m["state"] == PlannerState.IDLE
-    sup.wait_until(lambda: _stored(sup) is None, 10.0, "the cut point cleared once the program ran to its end")
-    assert "no interrupted cut" in refusal(sup, Recover("continue"))
+        sup.set_sim(**cleared)
+        sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
+        sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
+        assert "overlap_mm 500 is out of range" in refusal(sup, Recover("continue", overlap_mm=500.0))
+        resumed_at = continue_and_pierce(sup, "continuing nest.ngc at line 5, 2 mm back")
+        overlap = sup.config.cycle.recovery_overlap_mm
+        assert abs(resumed_at[1] - 100.0) < 1e-6 and abs(resumed_at[0] - (stored.x_mm - overlap)) < 1e-6, resumed_at
+        sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.UNLOAD or logic(sup)["phase"] == CyclePhase.NONE, 120.0,
+                       "the rest of the program")
+        sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 60.0,
+                       "the unload")
+        m = sup.motion()
+        assert m["run_result"] == RunResult.DONE and m["state"] == PlannerState.IDLE
+        sup.wait_until(lambda: _stored(sup) is None, 10.0, "the cut point cleared once the program ran to its end")
+        assert "no interrupted cut" in refusal(sup, Recover("continue"))
 
 
 def test_a_part_or_a_line_starts_the_cycle_there_and_impossible_starts_are_refused(plc_controller, tmp_path):
