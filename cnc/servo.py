@@ -51,6 +51,7 @@ log = logging.getLogger(__name__)
 
 _IN_MOTION = int(SetpointFlag.IN_MOTION)
 _JET_BITS = int(DigitalOut.JET_VALVE | DigitalOut.ABRASIVE)
+_JET_VALVE = int(DigitalOut.JET_VALVE)
 _LIMITS = int(AxisIn.LIMIT_MIN | AxisIn.LIMIT_MAX)
 _LIMIT_MIN, _LIMIT_MAX = int(AxisIn.LIMIT_MIN), int(AxisIn.LIMIT_MAX)
 _READY = int(AxisIn.DRIVE_READY)
@@ -216,6 +217,10 @@ class Servo:
             state = self._close_loop(hw, actual, tick, steps)
 
         self._outputs(cmd, causes, state)
+        if v[I["digital_out"]] & _JET_VALVE:  # where the jet cuts, exact to the tick (cnc.planner.recovery)
+            v[I["jet_on_ticks"]] += 1
+            v[I["jet_on_mm"]] = v[I["commanded_mm"]]
+            v[I["jet_on_segment"]], v[I["jet_on_line"]] = v[I["setpoint_segment"]], v[I["setpoint_line"]]
         v[I["stop_causes"]] = causes
         v[I["state"]] = state
         v[I["tick"]] = tick

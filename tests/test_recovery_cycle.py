@@ -74,15 +74,18 @@ def test_a_cut_stopped_by_a_door_or_the_e_stop_continues_an_overlap_back_from_wh
         press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 250.0, 60.0, "the first cut under way")
         sup.pause_virtual_clock()
         sup.set_sim(**fault)
-        step_until(sup, lambda: not jet_open(sup), 50, "the jet to close at the fault")
-        stopped_at = head_xy(sup)  # the jet closed here (the axes still run out their stop)
+        last_cut = [head_xy(sup)]  # the setpoint of the last tick with the jet open
+        step_until(sup, lambda: not jet_open(sup) or last_cut.append(head_xy(sup)), 50, "the jet to close at the fault")
+        stopped_at = last_cut[-1]
         sup.resume_virtual_clock()
         sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] in (
             MachineState.FAULT, MachineState.ESTOP), 30.0, "the fault")
-        sup.wait_until(lambda: _stored(sup) is not None, 10.0, "the cut point in the job record")
+        # written every few mm while it cut, and once more where the jet closed: wait for that one
+        sup.wait_until(lambda: _stored_x(sup) >= stopped_at[0] - 0.2, 10.0, "where the jet closed, in the job record")
         stored = _stored(sup)
         assert stored.program == "nest.ngc" and stored.line == 5
-        assert abs(stored.y_mm - 100.0) < 1e-6 and 0.0 <= stopped_at[0] - stored.x_mm <= 1.0, (stored, stopped_at)
+        # where the jet last cut, to the tick (the board's read-back of the valve lags the servo by one: 0.1 mm here)
+        assert stored.y_mm == pytest.approx(100.0) and -1e-6 <= stopped_at[0] - stored.x_mm <= 0.1 + 1e-6, (stored, stopped_at)
 
         sup.set_sim(**cleared)
         sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
@@ -131,6 +134,12 @@ def _planner_refusal(sup: Supervisor, msg) -> str:
     return detail
 
 
+def _stored_x(sup: Supervisor) -> float:
+    """X of the cut point the job record holds for the loaded program (-inf when none)."""
+    stored = _stored(sup)
+    return stored.x_mm if stored is not None else -math.inf
+
+
 def _stored(sup: Supervisor):
     points = CutPoints(jobs_path(sup.history_path), readonly=True)
     try:
@@ -160,7 +169,9 @@ def test_after_a_power_loss_the_job_record_continues_the_cut_once_the_program_is
     stored = points.get(program_hash)
     points.close()
     assert stored is not None and stored.line == 5, "written while it cut"
-    assert 0.0 <= cut_to[0] - stored.x_mm <= config.cycle.recovery_save_mm + 1.0, (stored, cut_to)
+    # written every recovery_save_mm while it cut; the logic scans in wall time while the virtual clock
+    # runs ahead of it on a busy host: a few mm more, never ahead of the head
+    assert 0.0 <= cut_to[0] - stored.x_mm <= config.cycle.recovery_save_mm + 5.0, (stored, cut_to)
 
     with full_controller(config, history) as sup:
         ready_in_auto(sup, tmp_path, LONG)  # the operator loads the same program again

@@ -123,6 +123,10 @@ def servo_layout(n: int) -> BlockLayout:
             F("motion_epoch", "Q"),  # +1 whenever the motion under way is void: setpoints of another epoch are dropped
             F("stale_dropped", "Q"),  # setpoints dropped because their epoch was not the servo's
             F("commander_token", "Q"),  # the commander whose reset_seq the servo follows
+            F("jet_on_ticks", "Q"),  # ticks the jet valve was open; +1 at each
+            F("jet_on_mm", "d", n),  # where the jet last cut: the setpoint of the last tick it was open ...
+            F("jet_on_segment", "I"),  # ... its program segment and line (what "continue" continues from)
+            F("jet_on_line", "i"),
         ],
     )
 

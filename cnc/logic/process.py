@@ -66,6 +66,7 @@ log = logging.getLogger(__name__)
 
 JET_BITS = int(DigitalOut.JET_VALVE | DigitalOut.ABRASIVE)
 _MANUAL_MOTION = (PlannerState.JOGGING, PlannerState.MOVING, PlannerState.MDI)
+_PROGRAM_RUNS = (PlannerState.RUNNING, PlannerState.HOLDING, PlannerState.HELD, PlannerState.PAUSED, PlannerState.STOPPING)
 _MOVING = (PlannerState.RUNNING, PlannerState.HOLDING, PlannerState.STOPPING, PlannerState.HOMING,
            PlannerState.JOGGING, PlannerState.MOVING, PlannerState.MDI)
 PLC_RESET_PULSE_S = 0.5  # how long the PLC's reset coil stays on: several link cycles
@@ -135,6 +136,8 @@ class Logic:
         self.cuts = CutPoints(jobs_path(history_path))  # written by the recorder thread only
         self.cut_point: CutPoint | None = None  # where the jet last cut (for "continue")
         self.cut_saved: CutPoint | None = None  # ... as last handed to the recorder
+        self.cutting_program = False  # the jet's ticks belong to a program run (not to a jog, an MDI, ...)
+        self.jet_ticks_seen = -1  # the servo's jet_on_ticks at the last scan (-1: none yet)
         self.run_seen = (-1, -1)  # (run_seq, run_result) of the last run recorded or seen starting
         self.run_started_ns = 0
         self.token = session.liveliness().declare_token(self.keys.alive("logic"))
@@ -932,21 +935,30 @@ class Logic:
                              RunResult(m["run_result"]).name, ticks * self.config.timing.period_s, float(m["planned_s"]))
 
     def _track_cut(self, snap: Snapshot) -> None:
-        """Where the jet cuts, kept for "continue": in memory every scan, in the job record (by the
-        recorder, after this scan's outputs) every `[cycle] recovery_save_mm` of cut and whenever the
-        jet closes; never in the way of a reaction, which comes first in the scan."""
-        m = snap.motion
-        if snap.jet_on and m["state"] == PlannerState.RUNNING and m["segment"] >= 0 and m["program_hash"]:
-            pos = snap.servo["commanded_mm"]
+        """Where the jet cuts in the program, kept for "continue": the servo notes it every tick the
+        jet is open (`jet_on_*`, exact to the tick, also the last one before a fault closed it);
+        this takes it every scan while a program runs (and once more after the run ended, for its
+        last ticks), and has the recorder write it to the job record every `[cycle]
+        recovery_save_mm` of cut and whenever the jet closes: never in the way of a reaction, which
+        comes first in the scan."""
+        m, sv = snap.motion, snap.servo
+        if m["state"] in _PROGRAM_RUNS:
+            self.cutting_program = True
+        elif m["state"] != PlannerState.IDLE:  # a jog, go-to, MDI or homing: its jet is no cut of the program
+            self.cutting_program = False
+        ticks, self.jet_ticks_seen = self.jet_ticks_seen, sv["jet_on_ticks"]
+        if self.cutting_program and sv["jet_on_ticks"] != ticks and m["program_hash"] and ticks >= 0:
+            pos = sv["jet_on_mm"]
             x = float(pos[self.names.index("x")]) if "x" in self.names else 0.0
             y = float(pos[self.names.index("y")]) if "y" in self.names else 0.0
-            self.cut_point = CutPoint(m["program_hash"], m["program_name"], int(m["segment"]), x, y, int(m["line"]))
+            self.cut_point = CutPoint(m["program_hash"], m["program_name"], int(sv["jet_on_segment"]), x, y,
+                                      int(sv["jet_on_line"]))
             saved = self.cut_saved
             if saved is None or saved.hash != self.cut_point.hash or math.hypot(
                     x - saved.x_mm, y - saved.y_mm) >= self.config.cycle.recovery_save_mm:
                 self._save_cut()
-        elif self.cut_point is not None and self.cut_point is not self.cut_saved:
-            self._save_cut()  # the jet closed (a stop, a fault, the end of a part): where it was
+        if not snap.jet_on and self.cut_point is not None and self.cut_point is not self.cut_saved:
+            self._save_cut()  # the jet closed (a stop, a fault, the end of a part): where it last cut
 
     def _save_cut(self) -> None:
         point = self.cut_saved = self.cut_point
