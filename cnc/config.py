@@ -404,6 +404,8 @@ class GatewayConfig:
     program_dir: str = opt(
         "", doc="where uploaded programs are kept (relative to the machine file); empty: beside the alarm history"
     )
+    library_checks: bool = opt(True, doc="check each stored program in the background (a child process at low priority) "
+                               "for the program library's figures; off: they stay pending")
     station_ping_ms: float = opt(1000.0, "ms", "how often the gateway asks the lock holder's station for an answer", 100.0, 10000.0)
     station_lost_ms: float = opt(
         6000.0, "ms", "no answer from the lock holder's station for this long: it is lost (as when its token goes)",

@@ -37,8 +37,11 @@ MID_TRAVEL = {"sim.axes.x.start_position_mm": 800.0, "sim.axes.y.start_position_
 
 def machine_config(**overrides) -> MachineConfig:
     """The shipped machine on its own loopback port, the table switched on in the middle of its
-    travel (tests have room to move either way), with optional dotted-key overrides."""
-    return load_machine(MACHINE_FILE, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **overrides})
+    travel (tests have room to move either way), with optional dotted-key overrides. The program
+    library's background checks are off (child processes competing for the 2 cores with the
+    controller under test): the library's tests switch them on."""
+    return load_machine(MACHINE_FILE, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL,
+                                       "gateway.library_checks": False, **overrides})
 
 
 # The whole controller with the PLC simulator: a plant that moves fast, the table switched on near
@@ -165,6 +168,13 @@ def _qt_garbage_collected_on_the_gui_thread():
 def plc_controller(tmp_path):
     """The whole controller, PLC link and PLC simulator included, with a plant that moves fast."""
     with full_controller(machine_config(**NEAR_HOME), tmp_path / "history.sqlite") as sup:
+        yield sup
+
+
+@pytest.fixture
+def library_controller(tmp_path):
+    """The whole controller as `plc_controller`, with the program library's background checks on."""
+    with full_controller(machine_config(**NEAR_HOME, **{"gateway.library_checks": True}), tmp_path / "history.sqlite") as sup:
         yield sup
 
 

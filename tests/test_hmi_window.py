@@ -71,6 +71,15 @@ def screen(qtbot, plc_controller):
     s.close()
 
 
+@pytest.fixture
+def library_screen(qtbot, library_controller):
+    """A screen on a controller whose program library checks the stored programs."""
+    s = open_screen(qtbot, library_controller.config)
+    qtbot.waitUntil(lambda: s.model.reachable and s.model.catalogue != [], timeout=WAIT_MS)
+    yield s
+    s.close()
+
+
 def take_lock(qtbot, screen: OperatorScreen) -> None:
     click(qtbot, screen, screen.window.bar.lock_button)
     qtbot.waitUntil(lambda: screen.model.holds_lock and screen.window.banner_text == "", timeout=WAIT_MS)
@@ -436,8 +445,10 @@ def test_mdi_typed_on_the_manual_page_runs_and_a_refusal_points_at_its_column(qt
     shot(w, "manual_mdi_refused")
 
 
-def test_the_program_library_lists_previews_loads_and_deletes_from_the_screen(qtbot, plc_controller, screen, tmp_path):
-    sup, w, model = plc_controller, screen.window, screen.model
+def test_the_program_library_lists_previews_loads_and_deletes_from_the_screen(qtbot, library_controller, library_screen,
+                                                                              tmp_path):
+    sup, screen = library_controller, library_screen
+    w, model = screen.window, screen.model
     programs = tmp_path / "programs"  # the controller's program directory, beside its history
     programs.mkdir(exist_ok=True)
     (programs / "square.ngc").write_text(PART)

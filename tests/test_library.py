@@ -147,13 +147,13 @@ def test_deleting_removes_the_program_and_nothing_outside_the_directory(library,
     assert outside.exists() and (root / "sub" / "deep.ngc").exists()
 
 
-def test_the_library_over_zenoh_lists_previews_loads_and_deletes(plc_controller, tmp_path):
+def test_the_library_over_zenoh_lists_previews_loads_and_deletes(library_controller, tmp_path):
     """An observer lists and previews; the lock holder loads from the list and deletes; the
     loaded program is marked, a preview loads nothing, a refused program's preview says where."""
     from cnc.bus.keys import Keys
     from cnc.bus.session import open_client
 
-    sup = plc_controller
+    sup = library_controller
     keys = Keys(sup.config.zenoh.key_prefix, sup.config.machine.name)
     programs = tmp_path / "programs"
     programs.mkdir(exist_ok=True)

@@ -75,7 +75,8 @@ class Door:
         self.history_path = history_path
         self.program_dir = Path(program_dir)
         self.programs = ProgramDirectory(self.program_dir, config.gcode.max_program_bytes)
-        self.library = ProgramLibrary(self.programs, library_path(history_path), jobs_path(history_path), config)
+        self.library = ProgramLibrary(self.programs, library_path(history_path), jobs_path(history_path), config,
+                                      summarise=config.gateway.library_checks)
         self.machine_state, self.motion = machine_state, motion
         self.lock = OperatorLock()
         self.audit = AuditWriter(audit_path(history_path))
