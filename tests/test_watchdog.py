@@ -9,7 +9,7 @@ import pytest
 
 from cnc.data.fifo import SetpointFlag
 from cnc.hw.board import AxisIn, DigitalOut
-from cnc.data.layout import ServoFault, ServoState
+from cnc.data.layout import Proc, ServoFault, ServoState
 from cnc.runtime.supervisor import DIRECT_FEED, Supervisor
 
 from .conftest import enable_and_hold, machine_config
@@ -30,8 +30,9 @@ def test_killing_the_servo_trips_the_watchdog_within_the_configured_ticks(clock)
         sup.wait_until(lambda: sup.hw()["watchdog_tripped"], 10.0, "the watchdog")
         hw = sup.hw()
         # the servo's last tick, read once it is surely dead (a killed process may still run a few
-        # ticks while the kernel tears it down): its block keeps it until a new servo starts, seconds later
-        last_servo_tick = sup.servo()["tick"]
+        # ticks while the kernel tears it down): its heartbeat, which it sets to the tick at the end
+        # of each (its block may have been torn by the kill, and a torn block reads as defaults)
+        last_servo_tick = int(sup.area.blocks["heartbeat"].array[0]["beat"][Proc.SERVO])
         ticks_to_trip = hw["watchdog_trip_tick"] - last_servo_tick
         assert 1 <= ticks_to_trip <= config.timing.watchdog_missed_ticks + 1, ticks_to_trip
         assert all(not a & AxisIn.DRIVE_ENABLED for a in hw["axis_inputs"]), "drives disabled"
