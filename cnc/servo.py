@@ -219,7 +219,7 @@ class Servo:
         self._outputs(cmd, causes, state)
         if v[I["digital_out"]] & _JET_VALVE:  # where the jet cuts, exact to the tick (cnc.planner.recovery)
             v[I["jet_on_ticks"]] += 1
-            v[I["jet_on_mm"]] = v[I["commanded_mm"]]
+            v[I["jet_on_mm"]] = list(v[I["commanded_mm"]])  # a copy: a homing reference shifts commanded in place
             v[I["jet_on_segment"]], v[I["jet_on_line"]] = v[I["setpoint_segment"]], v[I["setpoint_line"]]
         v[I["stop_causes"]] = causes
         v[I["state"]] = state

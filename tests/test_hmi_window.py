@@ -63,21 +63,23 @@ def click(qtbot, screen: OperatorScreen, button: QPushButton, ok: bool = True):
     return reply
 
 
-@pytest.fixture
-def screen(qtbot, plc_controller):
-    s = open_screen(qtbot, plc_controller.config)
+def _screen_on(qtbot, sup):
+    """A screen on `sup`'s controller, once it is reachable and has the procedure catalogue."""
+    s = open_screen(qtbot, sup.config)
     qtbot.waitUntil(lambda: s.model.reachable and s.model.catalogue != [], timeout=WAIT_MS)
     yield s
     s.close()
+
+
+@pytest.fixture
+def screen(qtbot, plc_controller):
+    yield from _screen_on(qtbot, plc_controller)
 
 
 @pytest.fixture
 def library_screen(qtbot, library_controller):
     """A screen on a controller whose program library checks the stored programs."""
-    s = open_screen(qtbot, library_controller.config)
-    qtbot.waitUntil(lambda: s.model.reachable and s.model.catalogue != [], timeout=WAIT_MS)
-    yield s
-    s.close()
+    yield from _screen_on(qtbot, library_controller)
 
 
 def take_lock(qtbot, screen: OperatorScreen) -> None:
