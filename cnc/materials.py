@@ -17,6 +17,8 @@ One TOML file per material under `machines/materials/` (the id is the file name)
     [quality]
     fractions = [1.0, f2, f3, f4, f5]  # optional: quality 1 (separation) to 5 (finest) as fractions of
                                        # the separation speed; rows may give their own speeds instead
+    corner_mm = [e1, e2, e3, e4, e5]   # optional: how far the bottom of the cut may stray from the
+                                       # path in corners and arcs at each quality (`cutmodel.py`)
 
     [[chart]]                          # one row per thickness, thinnest first
     thickness_mm = 6.0
@@ -24,6 +26,8 @@ One TOML file per material under `machines/materials/` (the id is the file name)
     pierce_s = 2.5
     kerf_mm = 0.9
     quality_mm_min = [q1, q2, q3, q4, q5]   # optional: the speeds judged right per quality (calibration)
+    lag_mm = [l1, l2, l3, l4, l5]      # optional: the jet's trail-back (how far the bottom of the cut
+                                       # runs behind the top) measured at each quality's speed
 
 The controller ships no number it cannot cite: a material no source covers (the paper's leather
 and textiles) ships without chart rows, and the speed-ladder calibration (`ladder_program`,
@@ -67,6 +71,7 @@ class ChartRow:
     pierce_s: float
     kerf_mm: float
     quality_mm_min: tuple[float, ...] = ()  # the five quality speeds, when calibrated
+    lag_mm: tuple[float, ...] = ()  # the trail-back at each quality's speed, when measured
 
 
 @dataclass(frozen=True)
@@ -76,6 +81,8 @@ class CutPoint:
     speed_mm_min: float
     pierce_s: float
     kerf_mm: float
+    lag_mm: float | None = None  # the trail-back at this speed, when the chart has it
+
 
 
 @dataclass(frozen=True)
@@ -88,6 +95,7 @@ class Material:
     fractions: tuple[float, ...]  # quality 1..5 as fractions of the separation speed; () when the rows give speeds
     chart: tuple[ChartRow, ...]
     path: str = ""
+    corner_mm: tuple[float, ...] = ()  # per quality: the bottom edge's allowed deviation in corners and arcs
 
     @property
     def calibrated(self) -> bool:
@@ -115,11 +123,14 @@ class Material:
         a, b = rows[max(k - 1, 0)], rows[k]
         speed_a, speed_b = self._speed(a, quality, where), self._speed(b, quality, where)
         if a is b or abs(b.thickness_mm - thickness_mm) < 1e-9:
-            return CutPoint(speed_b, b.pierce_s, b.kerf_mm)
+            return CutPoint(speed_b, b.pierce_s, b.kerf_mm, b.lag_mm[quality - 1] if b.lag_mm else None)
         w = (thickness_mm - a.thickness_mm) / (b.thickness_mm - a.thickness_mm)
         wl = (math.log(thickness_mm) - math.log(a.thickness_mm)) / (math.log(b.thickness_mm) - math.log(a.thickness_mm))
         speed = math.exp(math.log(speed_a) + wl * (math.log(speed_b) - math.log(speed_a)))
-        return CutPoint(speed, a.pierce_s + w * (b.pierce_s - a.pierce_s), a.kerf_mm + w * (b.kerf_mm - a.kerf_mm))
+        lag = None  # measured on both rows, or not known between them
+        if a.lag_mm and b.lag_mm:
+            lag = a.lag_mm[quality - 1] + w * (b.lag_mm[quality - 1] - a.lag_mm[quality - 1])
+        return CutPoint(speed, a.pierce_s + w * (b.pierce_s - a.pierce_s), a.kerf_mm + w * (b.kerf_mm - a.kerf_mm), lag)
 
     def _speed(self, row: ChartRow, quality: int, where: str) -> float:
         if row.quality_mm_min:
@@ -173,8 +184,9 @@ def parse_material(raw: dict, ident: str, shown: str) -> Material:
     q = raw.get("quality", {})
     if not isinstance(q, dict):
         raise err("quality", "", "expected a table")
-    _only(q, ("fractions",), lambda k: err("quality", k, "unknown key (known: fractions)"))
+    _only(q, ("fractions", "corner_mm"), lambda k: err("quality", k, "unknown key (known: corner_mm, fractions)"))
     fractions = _five(q, "quality", "fractions", err, 0.0, 1.0) if "fractions" in q else ()
+    corner = _five(q, "quality", "corner_mm", err, 0.0, 50.0) if "corner_mm" in q else ()
     rows_raw = raw.get("chart", [])
     if not isinstance(rows_raw, list):
         raise err("chart", "", "expected an array of tables [[chart]]")
@@ -185,13 +197,14 @@ def parse_material(raw: dict, ident: str, shown: str) -> Material:
             f"{shown}: material {ident!r}: [[chart]] #{n}{' ' + k if k else ''}: {why}")
         if not isinstance(r, dict):
             raise row_err(table, "", "expected a table")
-        rkeys = ("thickness_mm", "separation_mm_min", "pierce_s", "kerf_mm", "quality_mm_min")
+        rkeys = ("thickness_mm", "separation_mm_min", "pierce_s", "kerf_mm", "quality_mm_min", "lag_mm")
         _only(r, rkeys, lambda k, e=row_err: e("", k, f"unknown key (known: {', '.join(rkeys)})"))
         speeds = _five(r, table, "quality_mm_min", row_err, 1.0, 100000.0) if "quality_mm_min" in r else ()
+        lags = _five(r, table, "lag_mm", row_err, 0.0, 100.0) if "lag_mm" in r else ()
         row = ChartRow(_number(r, table, "thickness_mm", row_err, 0.01, 1000.0),
                        _number(r, table, "separation_mm_min", row_err, 1.0, 100000.0),
                        _number(r, table, "pierce_s", row_err, 0.0, 600.0), _number(r, table, "kerf_mm", row_err, 0.01, 10.0),
-                       speeds)
+                       speeds, lags)
         if speeds and speeds[0] > row.separation_mm_min * (1.0 + 1e-9):
             raise row_err(table, "quality_mm_min", f"quality 1 at {speeds[0]:g} mm/min is faster than the separation "
                                                    f"speed {row.separation_mm_min:g}: the jet would not cut through")
@@ -200,12 +213,21 @@ def parse_material(raw: dict, ident: str, shown: str) -> Material:
         if rows and row.separation_mm_min > rows[-1].separation_mm_min:
             raise row_err(table, "separation_mm_min", f"{row.separation_mm_min:g} mm/min is faster than the thinner "
                                                       f"row's {rows[-1].separation_mm_min:g}: a thicker cut is slower")
+        if lags and speeds:
+            for q in range(1, len(QUALITIES)):
+                if speeds[q] == speeds[q - 1] and lags[q] != lags[q - 1]:
+                    raise row_err(table, "lag_mm", f"qualities {q} and {q + 1} run at the same speed but give different "
+                                                   "trail-backs: the lag depends on the speed only")
         rows.append(row)
+    if any(r.lag_mm for r in rows) and not all(r.lag_mm for r in rows):
+        bare = next(r for r in rows if not r.lag_mm)
+        raise MaterialError(f"{shown}: material {ident!r}: [[chart]] {bare.thickness_mm:g} mm: lag_mm: missing while other "
+                            "rows give it: measure the trail-back on every row or on none")
     if rows and not fractions and not all(r.quality_mm_min for r in rows):
         bare = next(r for r in rows if not r.quality_mm_min)
         raise MaterialError(f"{shown}: material {ident!r}: [quality] fractions: missing, and the {bare.thickness_mm:g} mm "
                             "row gives no quality_mm_min: one of them must say the speed of each quality")
-    return Material(ident, name, kind, source, head, tuple(fractions), tuple(rows), shown)
+    return Material(ident, name, kind, source, head, tuple(fractions), tuple(rows), shown, tuple(corner))
 
 
 def load_library(directory: str | Path) -> dict[str, Material]:
@@ -271,13 +293,20 @@ def render_material(m: Material) -> str:
     if m.head is not None:
         lines += ["[head]", f"orifice_mm = {num(m.head.orifice_mm)}", f"mixing_tube_mm = {num(m.head.mixing_tube_mm)}",
                   f"pressure_bar = {num(m.head.pressure_bar)}", f"abrasive_kg_min = {num(m.head.abrasive_kg_min)}", ""]
-    if m.fractions:
-        lines += ["[quality]", f"fractions = [{', '.join(num(f) for f in m.fractions)}]", ""]
+    if m.fractions or m.corner_mm:
+        lines.append("[quality]")
+        if m.fractions:
+            lines.append(f"fractions = [{', '.join(num(f) for f in m.fractions)}]")
+        if m.corner_mm:
+            lines.append(f"corner_mm = [{', '.join(num(e) for e in m.corner_mm)}]")
+        lines.append("")
     for r in m.chart:
         lines += ["[[chart]]", f"thickness_mm = {num(r.thickness_mm)}", f"separation_mm_min = {num(r.separation_mm_min)}",
                   f"pierce_s = {num(r.pierce_s)}", f"kerf_mm = {num(r.kerf_mm)}"]
         if r.quality_mm_min:
             lines.append(f"quality_mm_min = [{', '.join(num(s) for s in r.quality_mm_min)}]")
+        if r.lag_mm:
+            lines.append(f"lag_mm = [{', '.join(num(x) for x in r.lag_mm)}]")
         lines.append("")
     return "\n".join(lines)
 
@@ -344,14 +373,15 @@ def ladder_program(material: Material, ladder: Ladder, jet_on: int = 3, jet_off:
 
 
 def record_calibration(path: str | Path, thickness_mm: float, separation_mm_min: float, quality_mm_min: list[float],
-                       pierce_s: float, kerf_mm: float, who: str = "") -> Material:
+                       pierce_s: float, kerf_mm: float, who: str = "", lag_mm: list[float] | None = None) -> Material:
     """Write what a speed ladder showed into the material file at `path`: the row of `thickness_mm`
     (replaced when it exists) with the separation speed and the speed judged right per quality; the
-    source line says who calibrated. Checked before the file is replaced (never half written)."""
+    source line says who calibrated; `lag_mm`, when given, the trail-back measured on each quality's rung.
+    Checked before the file is replaced (never half written)."""
     path = Path(path)
     m = load_material(path)
     row = ChartRow(float(thickness_mm), float(separation_mm_min), float(pierce_s), float(kerf_mm),
-                   tuple(float(s) for s in quality_mm_min))
+                   tuple(float(s) for s in quality_mm_min), tuple(float(x) for x in lag_mm or ()))
     updated = with_row(m, row)
     if who:
         note = f"calibrated {thickness_mm:g} mm by {who}"

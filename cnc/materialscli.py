@@ -18,7 +18,8 @@ import sys
 from pathlib import Path
 
 from .config import DEFAULT_MACHINE, ConfigError, load_machine
-from .materials import MATERIALS_DIR, QUALITIES, Ladder, MaterialError, ladder_program, load_library, record_calibration
+from .cutmodel import library_of
+from .materials import QUALITIES, Ladder, MaterialError, ladder_program, load_library, record_calibration
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,6 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     record.add_argument("--pierce", type=float, required=True, metavar="S", help="pierce time that went through")
     record.add_argument("--kerf", type=float, required=True, metavar="MM", help="kerf width measured")
     record.add_argument("--who", default="", help="who calibrated (kept in the file's source line)")
+    record.add_argument("--lag", default="", metavar="L1,L2,L3,L4,L5",
+                        help="trail-back measured on each quality's rung, mm (the corner and arc model, cnc.cutmodel)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"waterjet materials: {exc}", file=sys.stderr)
         return 2
-    directory = Path(config.source).parent / MATERIALS_DIR
+    directory = library_of(config)
     try:
         library = load_library(directory)
         action = args.action or "list"
@@ -81,8 +84,12 @@ def run(args: argparse.Namespace) -> int:
         if len(speeds) != len(QUALITIES):
             print("waterjet materials: --quality takes five speeds, quality 1 to 5", file=sys.stderr)
             return 2
+        lags = [float(x) for x in args.lag.split(",")] if args.lag else None
+        if lags is not None and len(lags) != len(QUALITIES):
+            print("waterjet materials: --lag takes five trail-backs, quality 1 to 5", file=sys.stderr)
+            return 2
         m = record_calibration(directory / f"{material.id}.toml", args.thickness, args.separation, speeds, args.pierce,
-                               args.kerf, args.who)
+                               args.kerf, args.who, lags)
         lo, hi = m.thickness_range
         print(f"{m.path}: {args.thickness:g} mm recorded; the chart covers " + (f"{lo:g} to {hi:g} mm" if hi > lo else f"{lo:g} mm"))
         return 0
@@ -122,11 +129,17 @@ def _show(m) -> int:  # noqa: ANN001 - a Material
     if not m.chart:
         print("  no chart yet: calibrate it (waterjet materials ladder / record)")
         return 0
-    print("  thickness mm  separation mm/min  pierce s  kerf mm  speed mm/min at quality 1..5")
+    print("  thickness mm  separation mm/min  pierce s  kerf mm  speed mm/min at quality 1..5"
+          + ("      trail-back mm at quality 1..5" if any(r.lag_mm for r in m.chart) else ""))
     for r in m.chart:
         speeds = [m.cut(r.thickness_mm, q).speed_mm_min for q in QUALITIES]
         print(f"  {r.thickness_mm:12g}  {r.separation_mm_min:17g}  {r.pierce_s:8g}  {r.kerf_mm:7g}  "
-              + " ".join(f"{s:7.0f}" for s in speeds))
+              + " ".join(f"{s:7.0f}" for s in speeds) + ("  " + " ".join(f"{x:6.3g}" for x in r.lag_mm) if r.lag_mm else ""))
+    if m.corner_mm:
+        print("  corners and arcs: the bottom edge within " + ", ".join(f"{e:g}" for e in m.corner_mm)
+              + " mm at quality 1..5")
+    else:
+        print("  corners and arcs: no corner_mm in [quality]: cut at the straight speed (no jet-lag slow-down)")
     return 0
 
 
