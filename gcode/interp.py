@@ -27,6 +27,7 @@ from typing import Callable
 from . import modal
 from .arcs import centre_from_radius
 from .canon import ARC, LINE, RAPID, Event, Move
+from .cutcomments import cut_comment_kind, parse_cut_comment
 from .dialect import AUX_BITS, Dialect
 from .errors import GCodeError
 from .fastpath import FastPath
@@ -562,7 +563,7 @@ class Interpreter:
     def _run_block(self, b: Block, w: dict, gg: dict, mm: dict) -> None:
         g, m = gg.get, mm.get
         for text in b.comments:
-            self._comment(text, b.line)
+            self._comment(text, b.line, b.text.find(text) + 1 if text else 1)
         fm = g(5)
         if fm is not None:
             self.inverse_time = fm == 930
@@ -636,9 +637,12 @@ class Interpreter:
             self._stop(stop, b.line)
 
     # -- comments, M codes, outputs --------------------------------------------------------
-    def _comment(self, text: str, line: int) -> None:
+    def _comment(self, text: str, line: int, column: int = 1) -> None:
         head = text.lstrip()[:6].lower()
-        if head.startswith("msg,"):
+        if cut_comment_kind(text):
+            kind, data = parse_cut_comment(text, self.units, line, max(column, 1))
+            self._event(kind, line, text=text.strip(), **data)
+        elif head.startswith("msg,"):
             self._event("message", line, text=text.lstrip()[4:])
         elif head.startswith("debug,"):
             self._event("message", line, text=self._substitute(text.lstrip()[6:]))
