@@ -252,6 +252,15 @@ class JetConfig:
     close_on_hold: bool = opt(True, doc="close the jet while motion is held or paused (it re-pierces on resume)")
 
 
+@dataclass(frozen=True)
+class CuttingConfig:
+    """The cutting model (`cnc.cutmodel`): where the material library is."""
+
+    materials_dir: str = opt(
+        "materials", doc="the material library: one TOML file per material (relative to the machine file, or absolute)"
+    )
+
+
 PLC_VAR_KINDS = ("discrete_input", "input_register", "coil", "holding_register")
 PLC_VAR_TYPES = ("bool", "uint16", "int16")
 MAX_PLC_VARS = 64  # per direction: the shared-memory images hold this many values
@@ -472,6 +481,7 @@ class MachineConfig:
     nozzle: list[NozzleConfig] = field(default_factory=list, metadata={"array_of": NozzleConfig})
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     jet: JetConfig = field(default_factory=JetConfig)
+    cutting: CuttingConfig = field(default_factory=CuttingConfig)
     plc: PlcConfig = field(default_factory=PlcConfig)
     pump: PumpConfig = field(default_factory=PumpConfig)
     cycle: CycleConfig = field(default_factory=CycleConfig)

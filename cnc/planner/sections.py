@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
@@ -28,6 +28,9 @@ from .limits import (
 )
 from .profile import Zones, rough_duration_s
 from .path import Element, blend_corners, blends, iter_elements
+
+if TYPE_CHECKING:
+    from .quality import CutPlan
 
 RUN_PIECE = 64  # a run of elements is made into sections in pieces of at least this many (`iter_steps`)
 REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and the next one's start
@@ -97,18 +100,22 @@ def output_flags(jet: bool, aux: int, outputs: int) -> int:
     return bits
 
 
-def program_steps(program: Program, config: MachineConfig) -> list[Step]:
+def program_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = None) -> list[Step]:
     """The program's sections and pauses, in order, all of them (`iter_steps` makes them as needed)."""
-    return list(iter_steps(program, config))
+    return list(iter_steps(program, config, cut))
 
 
-def iter_steps(program: Program, config: MachineConfig) -> Iterator[Step]:
+def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = None) -> Iterator[Step]:
     """The program's sections and pauses, in order, each made when it is asked for: only the run of
     elements between two hard stops (jet or outputs switching, a dwell, a program stop) is held
     while its sections are made, so the cost and memory of the next step do not grow with the
     program. A long run is made in pieces of about `RUN_PIECE` elements, each ending at a corner
     that is a section boundary whatever the planner decides (no blend can span it, the head
-    stops there: `_boundary`), so the pieces' sections are exactly the whole run's."""
+    stops there: `_boundary`), so the pieces' sections are exactly the whole run's. `cut`: the
+    cutting model's speed caps (`quality.py`), taken as the feed wherever they are lower, in its
+    "quality" mode."""
+    if cut is not None and not cut.applies:
+        cut = None
     stops = {m.segment: m for m in program.messages if m.kind in STOP_KINDS}
     notes = {}
     for m in program.messages:
@@ -123,7 +130,7 @@ def iter_steps(program: Program, config: MachineConfig) -> Iterator[Step]:
     def close_run() -> Iterator[Step]:
         nonlocal offset, run, made_any, where_last
         if run:
-            for section in _sections_of(run, config, offset, notes):
+            for section in _sections_of(run, config, offset, notes, cut):
                 offset += section.length_mm
                 made_any, where_last = True, section.end
                 yield section
@@ -183,13 +190,13 @@ def _flags(e: Element) -> int:
     return output_flags(e.jet, e.aux, e.outputs)
 
 
-def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes: dict) -> list[Section]:
+def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes: dict, cut=None) -> list[Section]:  # noqa: ANN001
     """Sections of a run of elements between hard stops, each corner blended or stopped at,
     whichever is faster."""
-    first = _split(blend_corners(run), config, offset, notes, choose_jerk=False)
+    first = _split(blend_corners(run), config, offset, notes, choose_jerk=False, cut=cut)
     stops = _corners_to_stop(first, config)
     if stops:
-        return _split(blend_corners(run, frozenset(stops)), config, offset, notes)
+        return _split(blend_corners(run, frozenset(stops)), config, offset, notes, cut=cut)
     for section in first:  # the same path and sections: only the share of jerk is still to choose
         section.limits = _fastest_limits(
             section.path, section.limits.v_feed, section.limits.rapid, min(e.tolerance_mm for e in section.elements),
@@ -264,14 +271,15 @@ def _axis_jerk(config: MachineConfig) -> float:
     return smoothing_for(config, 0.0, False, False, False).jerk_path
 
 
-def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True) -> list[Section]:
+def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True,
+           cut=None) -> list[Section]:  # noqa: ANN001 - a CutPlan
     """Cut a blended run of elements at every corner that is neither tangent nor a small kink."""
     motion = [e for e in path if e.kind != DWELL and e.length_mm > 1e-9]  # blends may leave a line of length 0
     out: list[Section] = []
     start = 0
     for i in range(1, len(motion) + 1):
         if i == len(motion) or _stops_between(motion[i - 1], motion[i]):
-            out.append(_section(motion[start:i], config, offset, notes, choose_jerk))
+            out.append(_section(motion[start:i], config, offset, notes, choose_jerk, cut))
             offset += out[-1].length_mm
             start = i
     return out
@@ -284,9 +292,12 @@ def _stops_between(a: Element, b: Element) -> bool:
     return abs(turn) > KINK_MAX_RAD or z_turn or (a.jet, a.aux) != (b.jet, b.aux)
 
 
-def _section(elements: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True) -> Section:
+def _section(elements: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True,
+             cut=None) -> Section:  # noqa: ANN001 - a CutPlan
     path = PathArrays.of(elements)
     feed = np.array([e.feed_mm_s for e in elements])
+    if cut is not None:  # the cutting model: F is only an upper bound
+        feed = np.minimum(feed, cut.caps(elements, path))
     rapid = np.array([e.kind == RAPID for e in elements])
     tolerance = min(e.tolerance_mm for e in elements)
     blended = any(e.blend for e in elements)

@@ -110,9 +110,10 @@ class ProgramTiming:
         self.failure: BaseException | None = None
 
     @classmethod
-    def of(cls, program: Program, config: MachineConfig) -> "ProgramTiming":
-        """A whole program's timing, its steps made as the planner streams them (`iter_steps`)."""
-        return cls(config.timing.period_s).compute(iter_steps(program, config))
+    def of(cls, program: Program, config: MachineConfig, cut=None) -> "ProgramTiming":  # noqa: ANN001 - a CutPlan
+        """A whole program's timing, its steps made as the planner streams them (`iter_steps`), under
+        the cutting job's plan `cut` when there is one."""
+        return cls(config.timing.period_s).compute(iter_steps(program, config, cut))
 
     def compute(self, steps: Iterable[Step]) -> "ProgramTiming":
         """Walk the steps (each made, timed and dropped) to the end."""

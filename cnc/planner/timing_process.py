@@ -4,8 +4,8 @@ Timing a program means making all of its sections (about 1 ms each: seconds to m
 large program). Done on a thread of the planner it would share the interpreter lock with the
 refills: on the real-time clock, the refills of a cut waited behind it and the FIFO ran dry.
 So the planner hands the interpreted program to a child process (`python -m
-cnc.planner.timing_process DIR`): the segments as a numpy file, the messages and the machine
-configuration in force (with its tuned parameters) pickled beside them. The child makes the
+cnc.planner.timing_process DIR`): the segments as a numpy file, the messages, the machine
+configuration in force (with its tuned parameters) and the cutting job's plan pickled beside them. The child makes the
 same steps with the same code (`sections.iter_steps`), times them (`ProgramTiming`) and writes
 the result into the same directory; the planner polls it at its ticks without waiting. The
 child runs under the normal scheduler, dies with the planner, and is stopped when the program
@@ -45,12 +45,12 @@ def remove_stale() -> None:
 class TimingProcess:
     """One program's timing under way in a child process; `poll` fills `timing` when it is done."""
 
-    def __init__(self, program: Program, config: MachineConfig, timing: ProgramTiming) -> None:
+    def __init__(self, program: Program, config: MachineConfig, timing: ProgramTiming, cut=None) -> None:  # noqa: ANN001
         self.timing = timing
         self.dir = Path(tempfile.mkdtemp(prefix=f"{DIR_PREFIX}{os.getpid()}-"))
         np.save(self.dir / "segments.npy", program.segments)
         with open(self.dir / "job.pickle", "wb") as f:
-            pickle.dump({"config": config, "messages": program.messages, "name": program.name}, f)
+            pickle.dump({"config": config, "messages": program.messages, "name": program.name, "cut": cut}, f)
         # started from a thread under the normal scheduler (the planner's helper): the child
         # inherits that policy, never the refills' real-time one
         with open(self.dir / "stderr.txt", "wb") as err:  # a file, not a pipe: a long traceback cannot block it
@@ -114,7 +114,7 @@ def main(argv: list[str]) -> int:
     segments = np.load(workdir / "segments.npy")
     program = Program(job["name"], segments, job["messages"], None)
     config: MachineConfig = job["config"]
-    timing = ProgramTiming.of(program, config)
+    timing = ProgramTiming.of(program, config, job.get("cut"))
     result = {
         "failure": f"{type(timing.failure).__name__}: {timing.failure}" if timing.failure is not None else "",
         "step_ticks": np.array(timing.step_ticks, dtype=np.int64), "total_mm": timing.total_mm,
