@@ -18,7 +18,7 @@ from cnc.bus.messages import (
     LOGIC_COMMANDS, MAX_CYCLES, PLANNER_COMMANDS, Acknowledge, CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop,
     LoadProgram, LockRequest, LogSetting, LogStart, LogStop, Override, ProcedureConfirm, ProcedureEnd, ProcedureStart,
     ProcedureStop, Pump, Reset, Resume, SaveParams, SchemaVersionError, SetMode, SetParam, SimInput, Start, Stop, StopAll,
-    UploadProgram, Mdi, DeleteProgram, Recover, RestartAt,
+    UploadProgram, Mdi, DeleteProgram, Recover, RestartAt, SetCut,
     decode, encode,
 )
 
@@ -32,6 +32,7 @@ VALID: list[msgspec.Struct] = [  # one well-formed command of every kind a door 
     ProcedureEnd(), LockRequest(False), UploadProgram("part.ngc", "G0 X1\nM2\n"), SetParam(120.0), SaveParams(),
     SimInput("doors_open", 1.0), StopAll("station x (local)"), Mdi("G0 X10 Y20\nG1 X30 F600"), DeleteProgram("part.ngc"),
     Recover("continue", overlap_mm=3.0), Recover("part", 4), Start(restart=RestartAt("line", number=12)),
+    SetCut("leather", 2.5, 3, "quality", 5), LoadProgram("part.ngc", cut=SetCut("leather", 2.5, 3)),
     LogStart([LogSetting("x.following_error", "triggered", enable_when="jet")], "run"), LogStop(),
 ]
 KINDS = sorted({type(m) for m in VALID}, key=lambda k: k.__name__)

@@ -95,6 +95,11 @@ class Keys:
         return f"{self.root}/programs"
 
     @property
+    def materials(self) -> str:
+        """Query: the material library (`MaterialList`), for the job set-up."""
+        return f"{self.root}/materials"
+
+    @property
     def program_preview(self) -> str:
         """Query `?name=<percent-encoded name>`: a stored program's text and path (`ProgramInfo`)."""
         return f"{self.root}/programs/preview"

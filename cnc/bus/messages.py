@@ -55,6 +55,7 @@ class ProgramProgress(msgspec.Struct, frozen=True):
     planned_s: float  # cycle time at 100 % override (-1 while it is being planned)
     run: int  # runs started since the controller came up
     result: str  # RunResult name of the last run
+    cut: str = ""  # the cutting job in force ("leather 2 mm quality 3, by the program"); "" cuts at F
 
 
 class Status(msgspec.Struct, frozen=True):
@@ -214,6 +215,28 @@ class ProgramList(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
+class MaterialEntry(msgspec.Struct, frozen=True):
+    """One material of the library (`cnc.materials`), as the job set-up offers it."""
+
+    id: str
+    name: str
+    kind: str  # "abrasive" or "water"
+    source: str  # where its numbers come from
+    thicknesses_mm: list[float]  # its chart's rows (empty: not calibrated yet, it cannot be chosen)
+    speeds_mm_min: list[list[float]]  # per row, the speed of quality 1..5
+    corners: bool  # the chart has the trail-back and corner figures: corners and arcs are slowed
+
+
+class MaterialList(msgspec.Struct, frozen=True):
+    """Answer of `<root>/materials`: the machine's material library; `error` names a broken file
+    (the others are listed)."""
+
+    directory: str
+    entries: list[MaterialEntry]
+    error: str = ""
+    version: int = SCHEMA_VERSION
+
+
 class DeleteProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Delete a program from the controller's program directory (not while it runs)."""
 
@@ -232,6 +255,7 @@ class JobRecord(msgspec.Struct, frozen=True):
     result: str  # RunResult name
     cycle_time_s: float  # machine time from start to end
     planned_s: float = -1.0  # the planned cycle time at 100 % override (-1: not known when it ended)
+    cut: str = ""  # the cutting job it ran with ("" at the programmed F)
 
 
 class JobPage(msgspec.Struct, frozen=True):
@@ -509,10 +533,28 @@ class Stamp(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     epoch: int
 
 
+class SetCut(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """The cutting job of the loaded program (`cnc.cutmodel`): a `material` of the machine's library,
+    its `thickness_mm`, the edge `quality` 1-5, the `mode` ("quality": the model sets the speed and F
+    is only an upper bound; "feed": F as programmed), the lead-ins' `pierce_quality`. An empty
+    `material` goes back to what the program says (its `(MATERIAL, ...)` comment, or its F). Only
+    while no program runs; the loaded program's cycle time is planned again with it."""
+
+    material: str = ""
+    thickness_mm: float = 0.0
+    quality: int = 3
+    mode: str = "quality"
+    pierce_quality: int = 5
+    version: int = SCHEMA_VERSION
+
+
 class LoadProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Interpret and check a program file; it becomes the program `Start` runs."""
+    """Interpret and check a program file; it becomes the program `Start` runs. `cut`: its cutting
+    job, when the operator chose one for it (the gateway remembers it per program); else what the
+    program says."""
 
     path: str
+    cut: SetCut | None = None
     version: int = SCHEMA_VERSION
 
 
@@ -642,6 +684,7 @@ class Reply(msgspec.Struct, frozen=True):
 PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "load": LoadProgram, "start": Start, "hold": Hold, "resume": Resume, "stop": Stop, "override": Override,
     "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo, "home": Home, "mdi": Mdi,
+    "cut_setup": SetCut,
 }
 MOTION_COMMANDS = (Start, Resume, Jog, JogRefresh, GoTo, Home, Mdi)  # carried out only with the commander's Stamp
 REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset", "stop_all")  # never queued behind slow work
@@ -808,7 +851,7 @@ class Notice(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 LOGIC_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "mode": SetMode, "start": CycleStart, "hold": Hold, "resume": Resume, "stop": Stop, "reset": Reset,
     "drives": Drives, "home": Home, "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo,
-    "mdi": Mdi, "recover": Recover, "load": LoadProgram,
+    "mdi": Mdi, "recover": Recover, "load": LoadProgram, "cut_setup": SetCut,
     "override": Override, "pump": Pump, "jet_test": JetTest, "acknowledge": Acknowledge,
     "procedure_start": ProcedureStart, "procedure_confirm": ProcedureConfirm, "procedure_stop": ProcedureStop,
     "procedure_end": ProcedureEnd, "stop_all": StopAll,

@@ -184,6 +184,7 @@ def motion_layout(n: int) -> BlockLayout:
             F("program_hash", "s", 64),  # sha256 of the program text, hex
             F("program_lines", "Q"),
             F("planned_s", "d"),  # cycle time of the loaded program at 100 % override (-1 while it is being planned)
+            F("cut", "s", 96),  # its cutting job (`cnc.cutmodel`), as the operator reads it; "" at the programmed F
             F("total_mm", "d"),  # path length of the loaded program
             F("run_seq", "Q"),  # +1 at every start
             F("run_result", "I"),  # RunResult of the last run

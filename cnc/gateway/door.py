@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, Callable
 from urllib.parse import unquote
 
+import msgspec
 import zenoh
 
 from ..alarms import AlarmHistory, AlarmLevel, HistoryError
@@ -40,12 +41,14 @@ from ..bus.keys import Keys
 from ..bus.messages import (
     LOCK_FREE_VERBS, LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, DeleteProgram, Hold, JobPage, LoadProgram,
     LockRequest, Notice, ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramList, ProgramPath, Reply,
-    SimInput, SimInputs, StopAll, UploadProgram, decode, encode,
+    SCHEMA_VERSION, MaterialEntry, MaterialList, SetCut, SimInput, SimInputs, StopAll, UploadProgram, decode, encode,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..bus.states import MachineState
 from ..config import MachineConfig
-from .jobs import JobHistory, jobs_path
+from ..cutmodel import library_of
+from ..materials import QUALITIES, MaterialError, load_material
+from .jobs import CutSetups, JobHistory, jobs_path
 from .library import ProgramLibrary, library_path
 from .lock import OperatorLock, Token
 from ..logic.client import LogicClient
@@ -78,6 +81,7 @@ class Door:
         self.library = ProgramLibrary(self.programs, library_path(history_path), jobs_path(history_path), config,
                                       summarise=config.gateway.library_checks)
         self.machine_state, self.motion = machine_state, motion
+        self.cut_setups = CutSetups(jobs_path(history_path))  # the cutting job chosen for each program
         self.lock = OperatorLock()
         self.audit = AuditWriter(audit_path(history_path))
         self.logic = LogicClient(session, keys, timeout_s=logic_timeout_s)
@@ -101,7 +105,8 @@ class Door:
                 ("history", keys.alarms_history, self._history), ("jobs", keys.jobs_history, self._jobs),
                 ("audit", keys.audit_history, self._audit), ("program", keys.program, self._program),
                 ("lock", keys.lock, lambda _params: self.lock.state()), ("procedures", keys.procedures, self._procedures),
-                ("programs", keys.programs, self._library), ("program preview", keys.program_preview, self._preview))
+                ("programs", keys.programs, self._library), ("program preview", keys.program_preview, self._preview),
+                ("materials", keys.materials, self._materials))
         ]
         self.service.serve(
             *commands,
@@ -128,6 +133,7 @@ class Door:
         self.pinger.join(2.0)
         self.audit.close()
         self.library.close()
+        self.cut_setups.close()
 
     # -- commands ---------------------------------------------------------------------------
     def _forward(self, request: Request) -> Reply:
@@ -139,7 +145,32 @@ class Door:
         elif isinstance(command, StopAll):  # who asked, as the router and the service know it
             caller = request.caller
             command = StopAll(f"station {caller.station or '?'} ({caller.user or 'no user'})")
+        elif isinstance(command, SetCut):
+            return self._set_cut(command)
         return self.logic.request(command, self._limit_for(command))
+
+    def _set_cut(self, command: SetCut) -> Reply:
+        """The cutting job of the loaded program; once taken, remembered for that program (by name),
+        so that loading it again brings it back."""
+        name = self.motion()["program_name"]
+        reply = self.logic.request(command, self._limit_for(command))
+        if reply.ok and name:
+            if command.material:
+                self.cut_setups.save(name, json.dumps(msgspec.to_builtins(command)))
+            else:
+                self.cut_setups.forget(name)
+        return reply
+
+    def _remembered_cut(self, name: str) -> SetCut | None:
+        """The cutting job last chosen for the program `name` (None: the program's own)."""
+        raw = self.cut_setups.get(name)
+        if raw is None:
+            return None
+        try:
+            return msgspec.convert({**json.loads(raw), "version": SCHEMA_VERSION}, SetCut)
+        except (ValueError, msgspec.ValidationError) as exc:  # written by an older version: forgotten, and said
+            log.warning("gateway: the cutting job remembered for %s is unreadable (%s): the program's own applies", name, exc)
+            return None
 
     def _sim(self, request: Request) -> Reply:
         """An input of the simulated machine changed (`cnc.siminputs`): checked, told to the alarm
@@ -306,7 +337,7 @@ class Door:
         # upload), no others: programs can be large
         loaded = {h: p for h, p in self.uploaded.items() if h == self.motion()["program_hash"]}
         self.uploaded = {**loaded, digest: (name, data.decode("utf-8"), program)}
-        command = LoadProgram(str(path))
+        command = LoadProgram(str(path), cut=self._remembered_cut(name))
         reply = self.logic.request(command, self._limit_for(command))
         if not reply.ok:
             return reply
@@ -315,7 +346,7 @@ class Door:
     def _limit_for(self, command) -> float | None:
         """A load waits as long as the logic waits for the planner to check and plan the program
         (minutes for a large one), and a little longer; other commands the client's default."""
-        return self.config.planner.load_timeout_s + 5.0 if isinstance(command, LoadProgram) else None
+        return self.config.planner.load_timeout_s + 5.0 if isinstance(command, (LoadProgram, SetCut)) else None
 
     def _interpret(self, name: str, data: bytes) -> tuple[Any, ProgramDiagnostic | None]:
         from gcode.errors import GCodeError
@@ -337,6 +368,23 @@ class Door:
             lines=m["program_lines"], planned_s=m["planned_s"], text=text if want_text else "",
             path=program_path(program) if want_path and program is not None else None,
         )
+
+    def _materials(self, _params: dict) -> MaterialList:
+        """The material library, read afresh (a file calibrated meanwhile is seen); a broken file is
+        named, and the others still listed."""
+        directory = library_of(self.config)
+        entries, errors = [], []
+        for path in sorted(directory.glob("*.toml")) if directory.is_dir() else []:
+            try:
+                m = load_material(path)
+            except MaterialError as exc:
+                errors.append(str(exc))
+                continue
+            rows = [r.thickness_mm for r in m.chart]
+            entries.append(MaterialEntry(
+                m.id, m.name, m.kind, m.source, rows, [[m.cut(t, q).speed_mm_min for q in QUALITIES] for t in rows],
+                bool(m.corner_mm) and all(r.lag_mm for r in m.chart) and bool(m.chart)))
+        return MaterialList(str(directory), entries, "; ".join(errors))
 
     def _library(self, _params: dict) -> ProgramList:
         return self.library.listing(loaded=self.motion()["program_name"])

@@ -1,5 +1,6 @@
-"""Job history: every program run (program, hash, start, end, result, cycle time, planned cycle time)
-in SQLite, and where the jet last cut in each program whose run did not end (`CutPoints`).
+"""Job history: every program run (program, hash, start, end, result, cycle time, planned cycle time,
+cutting job) in SQLite, where the jet last cut in each program whose run did not end (`CutPoints`),
+and the cutting job the operator chose for each program (`CutSetups`).
 
 Written by the control logic when a run ends, read by the gateway for `<root>/jobs/history`.
 It lives beside the alarm history, in its own file (WAL mode: one writer, readers in other
@@ -18,8 +19,9 @@ from .store import open_store, page_rows
 
 _TABLE = ("CREATE TABLE IF NOT EXISTS jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, program TEXT NOT NULL, "
           "hash TEXT NOT NULL, start_ns INTEGER NOT NULL, end_ns INTEGER NOT NULL, result TEXT NOT NULL, "
-          "cycle_time_s REAL NOT NULL, planned_s REAL NOT NULL DEFAULT -1)")
+          "cycle_time_s REAL NOT NULL, planned_s REAL NOT NULL DEFAULT -1, cut TEXT NOT NULL DEFAULT '')")
 _COLUMNS = "seq, program, hash, start_ns, end_ns, result, cycle_time_s"
+_ADDED = (("planned_s", "REAL NOT NULL DEFAULT -1"), ("cut", "TEXT NOT NULL DEFAULT ''"))  # columns later versions added
 
 
 _CUTS = ("CREATE TABLE IF NOT EXISTS cut_points (hash TEXT PRIMARY KEY, program TEXT NOT NULL, segment INTEGER NOT NULL, "
@@ -71,6 +73,35 @@ class CutPoints:
         self.db.close()
 
 
+_SETUPS = ("CREATE TABLE IF NOT EXISTS cut_setups (program TEXT PRIMARY KEY, setup TEXT NOT NULL, "
+           "updated_ns INTEGER NOT NULL)")
+
+
+class CutSetups:
+    """The cutting job the operator chose for each program (by name), as the `SetCut` JSON: given
+    with the program whenever it is loaded again. Beside the job history, in its file; the gateway
+    writes it."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.db = open_store(Path(path), _SETUPS, "job history (cutting jobs)")
+
+    def save(self, program: str, setup_json: str) -> None:
+        self.db.execute("INSERT OR REPLACE INTO cut_setups (program, setup, updated_ns) VALUES (?, ?, ?)",
+                        (program, setup_json, time.time_ns()))
+        self.db.commit()
+
+    def forget(self, program: str) -> None:
+        self.db.execute("DELETE FROM cut_setups WHERE program = ?", (program,))
+        self.db.commit()
+
+    def get(self, program: str) -> str | None:
+        row = self.db.execute("SELECT setup FROM cut_setups WHERE program = ?", (program,)).fetchone()
+        return row[0] if row else None
+
+    def close(self) -> None:
+        self.db.close()
+
+
 def jobs_path(history_path: str | Path) -> Path:
     """The job history beside the alarm history."""
     return Path(history_path).with_name("jobs.sqlite")
@@ -82,34 +113,48 @@ class JobHistory:
     def __init__(self, path: str | Path, readonly: bool = False) -> None:
         self.path = Path(path)
         self.db = open_store(self.path, _TABLE, "job history", readonly)
-        if not readonly and not self._has_planned():  # a history written before the planned time was kept
-            self.db.execute("ALTER TABLE jobs ADD COLUMN planned_s REAL NOT NULL DEFAULT -1")
+        if not readonly:  # a history written before these were kept
+            have = self._columns()
+            for name, kind in _ADDED:
+                if name not in have:
+                    self.db.execute(f"ALTER TABLE jobs ADD COLUMN {name} {kind}")
             self.db.commit()
 
-    def _has_planned(self) -> bool:
-        return any(row[1] == "planned_s" for row in self.db.execute("PRAGMA table_info(jobs)"))
+    def _columns(self) -> set[str]:
+        return {row[1] for row in self.db.execute("PRAGMA table_info(jobs)")}
+
+    def _select(self) -> str:
+        """The columns a JobRecord takes, as far as this file has them (an older one may lack the last)."""
+        have = self._columns()
+        extra = []
+        for name, _ in _ADDED:
+            if name not in have:
+                break
+            extra.append(name)
+        return ", ".join([_COLUMNS, *extra])
 
     def append(self, program: str, hash: str, start_ns: int, end_ns: int, result: str, cycle_time_s: float,
-               planned_s: float = -1.0) -> JobRecord:
-        """Record a run: its machine time and its planned cycle time at 100 % override (-1 when the
-        planner had not finished timing it)."""
+               planned_s: float = -1.0, cut: str = "") -> JobRecord:
+        """Record a run: its machine time, its planned cycle time at 100 % override (-1 when the
+        planner had not finished timing it) and the cutting job it ran with."""
         cur = self.db.execute(
-            "INSERT INTO jobs (program, hash, start_ns, end_ns, result, cycle_time_s, planned_s) VALUES (?, ?, ?, ?, ?, ?, ?)",
-            (program, hash, start_ns, end_ns, result, cycle_time_s, planned_s),
+            "INSERT INTO jobs (program, hash, start_ns, end_ns, result, cycle_time_s, planned_s, cut) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (program, hash, start_ns, end_ns, result, cycle_time_s, planned_s, cut),
         )
         self.db.commit()
-        return JobRecord(cur.lastrowid, program, hash, start_ns, end_ns, result, cycle_time_s, planned_s)
+        return JobRecord(cur.lastrowid, program, hash, start_ns, end_ns, result, cycle_time_s, planned_s, cut)
 
     def page(self, offset: int = 0, limit: int = 100, newest_first: bool = True, program: str = "") -> JobPage:
         """Runs, newest first by default, optionally of one program; `more` when the page is not the last."""
-        columns = _COLUMNS + (", planned_s" if self._has_planned() else "")
+        columns = self._select()
         rows, more = page_rows(self.db, "jobs", columns, offset, limit, newest_first, "program" if program else "", program)
         return JobPage([JobRecord(*r) for r in rows], more)
 
     def last_runs(self) -> dict[str, JobRecord]:
         """Each program's last run, by program name."""
-        columns = _COLUMNS + (", planned_s" if self._has_planned() else "")
         try:
+            columns = self._select()
             rows = self.db.execute(f"SELECT {columns} FROM jobs WHERE seq IN (SELECT MAX(seq) FROM jobs GROUP BY program)")
         except sqlite3.OperationalError as exc:  # its writer has not created the table yet
             if "no such table" in str(exc):

@@ -162,7 +162,7 @@ class Gateway:
             name=mo["program_name"], hash=mo["program_hash"], lines=mo["program_lines"], segment=mo["segment"],
             line=mo["line"], done_mm=mo["done_mm"], remaining_mm=max(total - mo["done_mm"], 0.0),
             progress=mo["done_mm"] / total if total > 0 else 0.0, eta_s=mo["eta_s"], planned_s=mo["planned_s"],
-            run=mo["run_seq"], result=RunResult(mo["run_result"]).name,
+            run=mo["run_seq"], result=RunResult(mo["run_result"]).name, cut=mo["cut"],
         )
 
     def _actual_speed(self, actual: list[float], tick: int) -> float:

@@ -521,6 +521,14 @@ class Logic:
             raise CommandRefused("cannot load a program while cutting: it is taken between cycles")
         return self._forward(msg, request, timeout_s=self.config.planner.load_timeout_s)
 
+    def _cmd_cut_setup(self, msg, snap, now, request) -> str:
+        """The cutting job of the loaded program (`cnc.cutmodel`): only while no automatic cycle runs
+        (the planner also refuses it while anything moves)."""
+        if self.cycle.phase != CyclePhase.NONE:
+            raise CommandRefused(f"cannot change the cutting job during the automatic cycle ({self.cycle.phase.name} phase): "
+                                 "it is chosen before cycle start")
+        return self._forward(msg, request, timeout_s=self.config.planner.load_timeout_s)
+
     def _cmd_override(self, msg: Override, snap, now, request) -> str:
         return self._forward(msg, request)
 
@@ -932,7 +940,8 @@ class Logic:
         if m["run_result"] != RunResult.NONE:
             ticks = max(0, m["run_end_tick"] - m["run_start_tick"])
             self.jobs.append(m["program_name"], m["program_hash"], self.run_started_ns or time.time_ns(), time.time_ns(),
-                             RunResult(m["run_result"]).name, ticks * self.config.timing.period_s, float(m["planned_s"]))
+                             RunResult(m["run_result"]).name, ticks * self.config.timing.period_s, float(m["planned_s"]),
+                             m["cut"])
 
     def _track_cut(self, snap: Snapshot) -> None:
         """Where the jet cuts in the program, kept for "continue": the servo notes it every tick the

@@ -51,10 +51,11 @@ from gcode.program import Program
 from ..bus.keys import Keys
 from ..bus.messages import (
     MOTION_COMMANDS, MOTION_VERBS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Mdi, Override,
-    ProgramDiagnostic, Reply, RestartAt,
+    ProgramDiagnostic, Reply, RestartAt, SetCut,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..config import MachineConfig
+from ..cutmodel import CutSetup
 from ..data.dataserver import SharedArea
 from ..data.injection import injected_bugs
 from ..data.fifo import SetpointFifo
@@ -68,6 +69,7 @@ from .preflight import PreflightError, preflight
 from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
 from .recovery import Restart, RecoveryError, continue_at, run_from_line, start_at_part
+from .quality import CutPlan, CutPlanError, cut_plan_for
 from .sections import iter_steps, move_steps
 from .steps import ProgramTiming, StepSource
 
@@ -95,9 +97,11 @@ class LoadedProgram:
     are made while it runs (`StepSource`), its cycle time beside it (`ProgramTiming`)."""
 
     def __init__(self, path: str, text: bytes, program: Program, config: MachineConfig, start: tuple,
-                 shift: StartShift | None) -> None:
+                 shift: StartShift | None, cut: CutPlan | None = None, cut_text: str = "",
+                 operator_cut: CutSetup | None = None) -> None:
         self.path, self.text, self.program, self.start, self.shift = path, text, program, start, shift
         self.config = config
+        self.cut, self.cut_text, self.operator_cut = cut, cut_text, operator_cut  # the cutting job (`cnc.cutmodel`)
         self.name = Path(path).name
         self.hash = hashlib.sha256(text).hexdigest()
         st = program.stats
@@ -109,11 +113,11 @@ class LoadedProgram:
             self._first.build_until(1 << 62)  # all of it: bounded by the program's size
             self.timing.compute([self._first.peek(i) for i in range(self._first.made)])
         else:  # made on the helper thread (normal scheduling): the child process inherits that
-            self.timing_job = TimingProcess(program, config, self.timing)
+            self.timing_job = TimingProcess(program, config, self.timing, cut)
 
     def new_source(self) -> StepSource:
         """The program's steps for one run, the first stretch made."""
-        source = StepSource(iter_steps(self.program, self.config))
+        source = StepSource(iter_steps(self.program, self.config, self.cut))
         source.build_until(FIRST_STRETCH_STEPS - 1)
         return source
 
@@ -128,7 +132,13 @@ class LoadedProgram:
         for name, now, then in zip(self.config.axis_names, start, self.start):
             delta["xyz".index(name)] = float(now) - float(then)
         program = self.shift.apply(self.program, tuple(delta))
-        return LoadedProgram(self.path, self.text, program, self.config, start, self.shift)
+        return LoadedProgram(self.path, self.text, program, self.config, start, self.shift, self.cut, self.cut_text,
+                             self.operator_cut)
+
+    def with_cut(self, cut: CutPlan | None, cut_text: str, operator_cut: CutSetup | None) -> "LoadedProgram":
+        """This program under another cutting job (its steps and cycle time made again)."""
+        return LoadedProgram(self.path, self.text, self.program, self.config, self.start, self.shift, cut, cut_text,
+                             operator_cut)
 
     @property
     def total_mm(self) -> float:
@@ -337,12 +347,33 @@ class Planner:
         start = tuple(servo["commanded_mm"])
         # on a homed machine a move beyond the travel is refused now (before it is planned), not
         # at the start of a cycle that has fed the material
-        self._take(self._prepare(path, data, start, check_travel=servo["homed_mask"] == (1 << self.n) - 1))
+        setup = cut_setup_of(msg.cut)
+        self._take(self._prepare(path, data, start, check_travel=servo["homed_mask"] == (1 << self.n) - 1, setup=setup))
         program = self.loaded.program
         self._set(
             program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
             program_lines=program.stats.lines, done_mm=0.0, segment=-1, line=0, run_result=int(RunResult.NONE),
+            cut=self.loaded.cut_text,
         )
+
+    def _cmd_cut_setup(self, msg: SetCut) -> Reply:
+        """The operator's cutting job for the loaded program (or back to the program's own): checked
+        against the library and the program, then the program's steps and cycle time made with it."""
+        if self.loaded is None:
+            raise CommandRefused("no program is loaded: load one, then choose its material")
+        self._require_idle("change the cutting job")
+        setup = cut_setup_of(msg)
+        loaded = self.loaded
+        cut, text = self._on_helper(lambda: self._cut_plan(loaded.program, setup, loaded.name))
+        self._take(loaded.with_cut(cut, text, setup))
+        self._set(cut=text)
+        return Reply(True, text or f"{loaded.name} cuts at its programmed feed")
+
+    def _cut_plan(self, program: Program, given: CutSetup | None, name: str) -> tuple[CutPlan | None, str]:
+        try:
+            return cut_plan_for(program, given, self.config, name)
+        except CutPlanError as exc:
+            raise CommandRefused(str(exc)) from None
 
     def _take(self, loaded: LoadedProgram) -> None:
         """Make `loaded` the program; its cycle time is being planned in a process of its own (the
@@ -388,20 +419,23 @@ class Planner:
         self._set(program_seq=self.out.get("program_seq") + 1, program_name="", program_hash="", program_lines=0,
                   planned_s=0.0, total_mm=0.0, done_mm=0.0, segment=-1, line=0, eta_s=0.0)
 
-    def _prepare(self, path: str, data: bytes, start: tuple, check_travel: bool = False, probe: bool = True) -> LoadedProgram:
+    def _prepare(self, path: str, data: bytes, start: tuple, check_travel: bool = False, probe: bool = True,
+                 setup: CutSetup | None = None) -> LoadedProgram:
         """Interpret and check a program, and make its first steps, on a helper thread while this loop
         keeps its heartbeat: a large program takes seconds to interpret, and a silent heartbeat
         makes the supervisor kill the planner as hung. The program is interpreted a second time
         from a probe start (`rebase.py`), so that a start from wherever the head then is needs no
         third interpretation."""
-        return self._on_helper(lambda: self._load(path, data, start, check_travel, probe))
+        return self._on_helper(lambda: self._load(path, data, start, check_travel, probe, setup))
 
-    def _load(self, path: str, data: bytes, start: tuple, check_travel: bool, probe: bool) -> LoadedProgram:
+    def _load(self, path: str, data: bytes, start: tuple, check_travel: bool, probe: bool,
+              setup: CutSetup | None = None) -> LoadedProgram:
         program = self._interpret(path, data, start)
         if check_travel:
             preflight(program.segments, self.config, dict.fromkeys(self.config.axis_names, True), Path(path).name)
+        cut, cut_text = self._cut_plan(program, setup, Path(path).name)
         if not probe:
-            return LoadedProgram(path, data, program, self.config, start, None)
+            return LoadedProgram(path, data, program, self.config, start, None, cut, cut_text, setup)
         offset = [PROBE_MM["xyz".index(a)] for a in self.config.axis_names]
         probe_start = tuple(float(v) + d for v, d in zip(start, offset))
         try:
@@ -412,7 +446,7 @@ class Planner:
             shift = start_shift(program, probe, _xyz(self.config, offset))
             del probe
         give_back_memory()
-        return LoadedProgram(path, data, program, self.config, start, shift)
+        return LoadedProgram(path, data, program, self.config, start, shift, cut, cut_text, setup)
 
     def _on_helper(self, work):
         """`work()` on a helper thread (out of real time, the collector paused) while this loop beats
@@ -505,12 +539,17 @@ class Planner:
             preflight(restart.program.segments, self.config, homed, self.loaded.name)
         except (RecoveryError, PreflightError) as exc:
             raise CommandRefused(str(exc)) from None
+        cut = None
+        if self.loaded.cut is not None:  # the same job: each segment keeps its quality (the rapid has none)
+            original = restart.original_segment(np.arange(len(restart.program.segments)))
+            cut = CutPlan(self.loaded.cut.model, self.loaded.cut.quality[np.clip(original, 0, len(self.loaded.cut.quality) - 1)])
         timing = ProgramTiming(self.dt)
         if len(restart.program.segments) <= TIMED_AT_LOAD_SEGMENTS:
-            timing.compute(iter_steps(restart.program, self.config))
+            timing.compute(iter_steps(restart.program, self.config, cut))
         log.info("planner: %s: %s", self.loaded.name, restart.description)
         self._event("restart", restart.description, restart.line)
-        return ProgramRunner(None, self.config, steps=StepSource(iter_steps(restart.program, self.config)), timing=timing), restart
+        steps = StepSource(iter_steps(restart.program, self.config, cut))
+        return ProgramRunner(None, self.config, steps=steps, timing=timing), restart
 
     def _cmd_hold(self, _msg) -> Reply:
         """A feed hold of a program; a jog, go-to or homing (which cannot continue) stops."""
@@ -883,6 +922,13 @@ class Planner:
         for key, value in values.items():
             self.out.set(key, value)
         self.out.publish()
+
+
+def cut_setup_of(msg: SetCut | None) -> CutSetup | None:
+    """The operator's cutting job from its message (None: the program's own)."""
+    if msg is None or not msg.material:
+        return None
+    return CutSetup(msg.material, float(msg.thickness_mm), int(msg.quality), msg.mode, int(msg.pierce_quality))
 
 
 def _xyz(config: MachineConfig, values) -> tuple[float, float, float]:
