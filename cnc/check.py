@@ -13,6 +13,8 @@ from gcode.program import Program
 
 from .config import MachineConfig
 from .machine_dialect import dialect_for
+from .cutmodel import CutSetup
+from .planner.quality import CutPlan, CutPlanError, cut_plan_for
 from .planner.steps import ProgramTiming
 
 
@@ -42,11 +44,13 @@ class ProgressBar:
 
 def check_program(
     path: str, config: MachineConfig, tool_table: str | None, segments_out: str | None, out: IO[str], err: IO[str],
-    json_out: str | None = None,
+    json_out: str | None = None, cut: CutSetup | None = None,
 ) -> int:
     """Interpret `path`; print the summary (exit 0) or the error with its source line (exit 1).
     `json_out`: also write the figures as JSON ("-": to `out` instead of the summary), with the
-    wall times of interpretation and planning apart."""
+    wall times of interpretation and planning apart. `cut`: the cutting job (else the program's
+    `(MATERIAL, ...)` comment, else none): the cycle time is planned with its model, and the one at
+    the programmed F given beside it."""
     try:
         data = Path(path).read_bytes()
     except OSError as exc:
@@ -69,28 +73,46 @@ def check_program(
     if segments_out:
         with open(segments_out, "w", encoding="utf-8") as f:
             program.write_segments_jsonl(f)
-    timing = program_timing(program, config)
+    try:
+        plan, cut_text = cut_plan_for(program, cut, config, path)
+    except CutPlanError as exc:
+        print(f"{exc}", file=err)
+        return 1
+    timing = program_timing(program, config, plan)
     t2 = time.perf_counter()
     cycle_s = timing.total_ticks * config.timing.period_s
+    at_feed_s = None
+    if plan is not None and plan.applies:
+        at_feed_s = program_timing(program, config).total_ticks * config.timing.period_s
     if json_out:
         figures = json_figures(program, cycle_s, timing.total_mm, t1 - t0, t2 - t1)
+        figures["cut"] = cut_text
+        figures["programmed_feed_cycle_time_s"] = at_feed_s if at_feed_s is not None else cycle_s
         text = json.dumps(figures, indent=2) + "\n"
         if json_out == "-":
             out.write(text)
             return 0
         Path(json_out).write_text(text, encoding="utf-8")
     print(summary(program, config), file=out)
+    if plan is not None:
+        m = plan.model
+        print(f"  cutting job      {cut_text}", file=out)
+        print(f"  speeds           " + ", ".join(f"q{q} {m.speed(q) * 60.0:.0f}" for q in range(1, 6))
+              + " mm/min straight" + ("; slower in corners and arcs (jet lag)" if m.corners_modelled else ""), file=out)
     print(f"  cycle time       {cycle_s:.2f} s planned at 100 % override"
-          f" (from X0 Y0; pauses at program stops not counted)", file=out)
+          + (" with the cutting model" if at_feed_s is not None else "")
+          + " (from X0 Y0; pauses at program stops not counted)", file=out)
+    if at_feed_s is not None:
+        print(f"  at programmed F  {at_feed_s:.2f} s (the same program cut at its F)", file=out)
     print(f"  wall time        interpretation {t1 - t0:.2f} s, planning {t2 - t1:.2f} s "
           f"({cycle_s / max(t2 - t1, 1e-9):.0f}x real time)", file=out)
     return 0
 
 
-def program_timing(program: Program, config: MachineConfig) -> ProgramTiming:
+def program_timing(program: Program, config: MachineConfig, cut: CutPlan | None = None) -> ProgramTiming:
     """The program's cycle time from the planner's profile (acceleration, jerk, corners, dwells, jet
-    delays), step by step as the planner streams it."""
-    timing = ProgramTiming.of(program, config)
+    delays; the cutting model's speeds under `cut`), step by step as the planner streams it."""
+    timing = ProgramTiming.of(program, config, cut)
     if timing.failure is not None:
         raise timing.failure
     return timing

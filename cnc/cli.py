@@ -59,14 +59,36 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from .check import check_program
 
     config = load_machine(args.machine)
-    return check_program(args.program, config, args.tool_table, args.segments, sys.stdout, sys.stderr, args.json)
+    return check_program(args.program, config, args.tool_table, args.segments, sys.stdout, sys.stderr, args.json,
+                         cut=_cut_setup(args))
+
+
+def _cut_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("cutting job (cnc.cutmodel; default: the program's (MATERIAL, ...) comment, else its F)")
+    g.add_argument("--material", metavar="ID", help="a material of the machine's library (waterjet materials)")
+    g.add_argument("--thickness", type=float, metavar="MM", help="its thickness, mm")
+    g.add_argument("--quality", type=int, choices=(1, 2, 3, 4, 5), help="edge quality, 1 (separation) to 5 (finest)")
+    g.add_argument("--mode", choices=("quality", "feed"), default="quality",
+                   help="quality: the model sets the speed, F is only an upper bound (default); feed: F as programmed")
+
+
+def _cut_setup(args: argparse.Namespace):  # noqa: ANN202 - a CutSetup or None
+    from .cutmodel import CutSetup
+
+    if args.material is None:
+        if args.thickness is not None or args.quality is not None:
+            raise SystemExit("waterjet: --thickness and --quality need --material")
+        return None
+    if args.thickness is None or args.quality is None:
+        raise SystemExit("waterjet: --material needs --thickness and --quality")
+    return CutSetup(args.material, args.thickness, args.quality, args.mode)
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from .sim.simulate import run_cli
 
     logging.getLogger("cnc").setLevel(logging.WARNING)  # the figures are the output
-    return run_cli(args.program, args.machine, args.json, args.plot, sys.stdout, sys.stderr)
+    return run_cli(args.program, args.machine, args.json, args.plot, sys.stdout, sys.stderr, cut=_cut_setup(args))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -87,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     check.add_argument("--segments", metavar="OUT.jsonl", help="write every motion and dwell as one JSON object per line")
     check.add_argument("--json", metavar="OUT", help="write the figures as JSON ('-': to stdout instead of the summary), "
                        "with the wall times of interpretation and planning")
+    _cut_args(check)
     check.set_defaults(func=_cmd_check)
 
     simulate = sub.add_parser(
@@ -96,6 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
     _machine_arg(simulate)
     simulate.add_argument("--json", metavar="OUT", help="write the figures as JSON")
     simulate.add_argument("--plot", metavar="OUT.png", help="draw the XY contour and per-axis tracking (the paper's Figs. 10-12)")
+    _cut_args(simulate)
     simulate.set_defaults(func=_cmd_simulate)
 
     # commands whose module brings its own options and runner: name, help, module (imported here, lazily)

@@ -167,3 +167,46 @@ def thin_path(xy: np.ndarray, cell_mm: float) -> np.ndarray:
     keep = np.ones(xy.shape[0], dtype=bool)
     keep[1:-1] = np.any(cells[1:-1] != cells[:-2], axis=1)
     return xy[keep]
+
+
+QUALITY_COLOURS = {1: "#d62728", 2: "#ff7f0e", 3: "#2ca02c", 4: "#1f77b4", 5: "#9467bd"}  # separation .. finest
+
+
+def plot_speed_by_quality(
+    out_png: str | Path, distance_mm: np.ndarray, speed_mm_s: np.ndarray, quality: np.ndarray, straight_mm_s: np.ndarray,
+    title: str = "",
+) -> None:
+    """The speed along the path of a run under the cutting model (`cnc.cutmodel`): the setpoint speed
+    against the distance travelled, coloured by the quality in force where the jet cuts (grey where
+    it does not), with each quality's straight speed dashed above it: the slow-downs in corners, arcs
+    and lead-ins are where the curve drops below its dashes. ValueError names a misfit argument."""
+    d, v, q, cap = (np.asarray(a) for a in (distance_mm, speed_mm_s, quality, straight_mm_s))
+    if not (d.ndim == v.ndim == q.ndim == cap.ndim == 1 and len(d) == len(v) == len(q) == len(cap) and len(d) >= 2):
+        raise ValueError(f"distance_mm, speed_mm_s, quality and straight_mm_s must be (n,) alike with n >= 2, got "
+                         f"{d.shape}, {v.shape}, {q.shape}, {cap.shape}")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(FIGSIZE_IN[0], FIGSIZE_IN[1] * 0.6), dpi=DPI)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.plot(d, v * 60.0, color="0.75", lw=0.8, label="jet off / rapid")
+    for level, colour in QUALITY_COLOURS.items():
+        at = q == level
+        if not at.any():
+            continue
+        ax.plot(d, np.where(at, v * 60.0, np.nan), color=colour, lw=1.2, label=f"quality {level}")
+        ax.plot(d, np.where(at, cap * 60.0, np.nan), color=colour, lw=0.8, ls="--")
+    ax.set_xlabel("distance along the path (mm)")
+    ax.set_ylabel("speed (mm/min)")
+    top = float(np.nanmax(np.where(q > 0, np.maximum(v, cap), 0.0))) * 60.0
+    if top > 0.0:
+        ax.set_ylim(0.0, top * 1.25)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8, ncol=3)
+    if title:
+        ax.set_title(title, fontsize=11)
+    out = Path(out_png)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out, dpi=DPI)

@@ -12,7 +12,10 @@ the trace:
 - contour_error_max_mm: actual position against the programmed geometry, on the feed moves
   (what the cut shows; rapids separately, as contour_error_rapid_max_mm);
 - following_error_max_mm, peak_velocity_mm_s, peak_accel_mm_s2, peak_jerk_mm_s3: per axis;
-- fifo_min_fill (the lowest fill the planner saw at a refill), underruns, overruns.
+- fifo_min_fill (the lowest fill the planner saw at a refill), underruns, overruns;
+- with a cutting job (`cnc.cutmodel`: the program's `(MATERIAL, ...)` comment, or `--material`
+  ...): the job, and per quality the cut length, its peak speed and the quality's straight speed
+  (`--plot` also draws the speed along the path coloured by quality, into OUT-speed.png).
 """
 
 from __future__ import annotations
@@ -31,8 +34,10 @@ from gcode.canon import RAPID
 from gcode.interp import Interpreter
 from gcode.program import Program
 
-from ..bus.messages import Home, LoadProgram, Start
+from ..bus.messages import Home, LoadProgram, SetCut, Start
 from ..config import MachineConfig, load_machine
+from ..cutmodel import CutSetup
+from ..planner.quality import CutPlan, CutPlanError, cut_plan_for
 from .demo import free_port
 from ..data.fifo import SetpointFlag
 from ..data.layout import PlannerState, RunResult, ServoState
@@ -59,14 +64,16 @@ class SimulationResult:
     trace: np.ndarray = field(repr=False)
     programmed_xy: np.ndarray = field(repr=False)
     dt: float = 0.001
+    cut: CutPlan | None = field(default=None, repr=False)
 
 
-def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
+def simulate(program_path: str, config: MachineConfig, cut: CutSetup | None = None) -> SimulationResult:
     """Home, load, run; return the figures. Raises ScriptError with the planner's reason on refusal.
-    `config` should listen on a port of its own (see `run_cli`)."""
+    `config` should listen on a port of its own (see `run_cli`); `cut`: the operator's cutting job
+    (else the program's own)."""
     dt = config.timing.period_s
     with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
-        load_s = _prepare(sup, program_path)
+        load_s = _prepare(sup, program_path, cut)
         sup.wait_until(lambda: sup.motion()["planned_s"] >= 0.0, 3600.0, "the program's cycle time to be planned")
         m0, s0 = sup.motion(), sup.servo()
         sup.pause_virtual_clock()
@@ -81,6 +88,10 @@ def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
         m, s = sup.motion(), sup.servo()
     program = _as_run(program_path, config, s0["commanded_mm"])
     metrics = _metrics(records, program, config, dt)
+    plan, cut_text = cut_plan_for(program, cut, config, Path(program_path).name)
+    metrics["cut"] = cut_text
+    if plan is not None:
+        metrics["quality"] = _by_quality(records, plan, dt)
     metrics.update(
         cycle_time_s=(m["records_pushed"] - m0["records_pushed"]) * dt,  # one record per servo period
         planned_cycle_time_s=m0["planned_s"],
@@ -92,7 +103,7 @@ def simulate(program_path: str, config: MachineConfig) -> SimulationResult:
         result=RunResult(m["run_result"]).name,
     )
     xy = sample(elements_from_program(program.segments), step_mm=0.05)
-    return SimulationResult(Path(program_path).name, metrics, records, xy, dt)
+    return SimulationResult(Path(program_path).name, metrics, records, xy, dt, plan)
 
 
 def _as_run(program_path: str, config: MachineConfig, start_mm: list[float]) -> Program:
@@ -104,7 +115,32 @@ def _as_run(program_path: str, config: MachineConfig, start_mm: list[float]) -> 
     return Interpreter(dialect, program_path).run(Path(program_path).read_bytes())
 
 
-def _prepare(sup: Supervisor, program_path: str) -> float:
+def speed_along_path(records: np.ndarray, plan: CutPlan, dt: float) -> tuple[np.ndarray, ...]:
+    """Per servo period: the distance along the path (mm), the setpoint speed (mm/s), the quality
+    in force where the jet cuts (0 elsewhere) and that quality's straight speed (mm/s)."""
+    cmd = records["commanded"][:, :2]
+    step = np.concatenate(([0.0], np.hypot(*np.diff(cmd, axis=0).T)))
+    distance, speed = np.cumsum(step), step / dt
+    segment = np.clip(records["segment"].astype(np.int64), 0, len(plan.quality) - 1)
+    cutting = (records["flags"] & int(SetpointFlag.JET_ON)) != 0
+    quality = np.where(cutting, plan.quality[segment], 0).astype(np.int64)
+    return distance, speed, quality, plan.model.speed_mm_s[quality]
+
+
+def _by_quality(records: np.ndarray, plan: CutPlan, dt: float) -> dict:
+    """Per quality: the length cut at it, its peak speed and its straight speed (the peak never above)."""
+    distance, speed, quality, straight = speed_along_path(records, plan, dt)
+    step = np.diff(distance, prepend=0.0)
+    out = {}
+    for q in range(1, 6):
+        at = quality == q
+        if at.any():
+            out[str(q)] = {"cut_mm": float(step[at].sum()), "peak_speed_mm_s": float(speed[at].max()),
+                           "straight_speed_mm_s": float(straight[at][0])}
+    return out
+
+
+def _prepare(sup: Supervisor, program_path: str, cut: CutSetup | None = None) -> float:
     """Home the machine and load the program; the load's wall time (s)."""
     sup.enable()
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 10.0, "the servo to close the loop")
@@ -114,7 +150,8 @@ def _prepare(sup: Supervisor, program_path: str) -> float:
         raise SimulationError(f"homing failed: {sup.motion()['error']}")
     sup.wait_until(lambda: abs(max(sup.servo()["following_error_mm"], key=abs)) < 0.002, 10.0, "the axes to settle")
     t0 = time.perf_counter()
-    _ask_planner(sup, LoadProgram(str(Path(program_path).resolve())), "loading the program")
+    given = None if cut is None else SetCut(cut.material, cut.thickness_mm, cut.quality, cut.mode, cut.pierce_quality)
+    _ask_planner(sup, LoadProgram(str(Path(program_path).resolve()), cut=given), "loading the program")
     return time.perf_counter() - t0
 
 
@@ -189,17 +226,23 @@ def report(result: SimulationResult, out: IO[str]) -> None:
     ):
         rows.append((label, "  ".join(f"{a.upper()} {m[key][a] * scale:.6g}" for a in axes), unit))
     rows.append(("FIFO", f"min fill {m['fifo_min_fill']}", f"underruns {m['underruns']}, overruns {m['overruns']}"))
+    if m.get("cut"):
+        rows.append(("cutting job", m["cut"], ""))
+        for q, f in m.get("quality", {}).items():
+            rows.append((f"  quality {q}", f"{f['cut_mm']:.1f} mm cut", f"peak {f['peak_speed_mm_s'] * 60:.0f} mm/min, "
+                         f"straight {f['straight_speed_mm_s'] * 60:.0f} mm/min"))
     print(f"{result.program}: {m['result']}", file=out)
     for label, value, note in rows:
         print(f"  {label:<40} {value:<28} {note}", file=out)
 
 
-def run_cli(program: str, machine: str, json_out: str | None, plot_out: str | None, out: IO[str], err: IO[str]) -> int:
+def run_cli(program: str, machine: str, json_out: str | None, plot_out: str | None, out: IO[str], err: IO[str],
+            cut: CutSetup | None = None) -> int:
     """`waterjet simulate`: exit 0 with the figures, 1 when the program cannot run (with the reason)."""
     config = load_machine(machine, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"]})
     try:
-        result = simulate(program, config)
-    except (SimulationError, ScriptError, SupervisorError, TimeoutError) as exc:
+        result = simulate(program, config, cut)
+    except (SimulationError, ScriptError, SupervisorError, TimeoutError, CutPlanError) as exc:
         print(f"waterjet simulate: {exc}", file=err)
         return 1
     report(result, out)
@@ -214,5 +257,13 @@ def run_cli(program: str, machine: str, json_out: str | None, plot_out: str | No
             velocity_mm_s=r["velocity"], speed_command_v=r["speed_cmd"], programmed_xy=result.programmed_xy,
             title=f"{result.program}: simulated run",
         )
+        if result.cut is not None:
+            from ..logger.plots import plot_speed_by_quality
+
+            distance, speed, quality, straight = speed_along_path(r, result.cut, result.dt)
+            speed_png = Path(plot_out).with_name(Path(plot_out).stem + "-speed.png")
+            plot_speed_by_quality(speed_png, distance, speed, quality, straight,
+                                  title=f"{result.program}: speed along the path, {result.metrics['cut']}")
+            print(f"  speed along the path by quality: {speed_png}", file=out)
     return 0
 
