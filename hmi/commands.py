@@ -78,6 +78,11 @@ def describe(msg: msgspec.Struct) -> str:
         return f"Start at {msg.kind} {msg.number}"
     if isinstance(msg, m.DeleteProgram):
         return f"Delete program {msg.name}"
+    if isinstance(msg, m.SetCut):
+        if not msg.material:
+            return "Cutting job: the program's own"
+        how = "" if msg.mode == "quality" else ", feed as programmed"
+        return f"Cutting job: {msg.material} {msg.thickness_mm:g} mm quality {msg.quality}{how}"
     if isinstance(msg, m.SimInput):
         return f"Simulator: {msg.input.replace('_', ' ')} {msg.value:g}"
     fixed = _FIXED.get(type(msg))

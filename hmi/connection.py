@@ -15,7 +15,7 @@ import zenoh
 from cnc.bus.certs import TlsFiles
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState,
+    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState, MaterialList,
     ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, ProgramList, Reply, SimInput, SimInputs, Status,
     StopAll, decode,
 )
@@ -395,6 +395,11 @@ class Connection:
     def programs(self) -> ProgramList:
         """The controller's program library (blocking: off the GUI thread); NoAnswer when it does not answer."""
         return self._query(self.keys.programs, ProgramList)
+
+    def materials(self) -> MaterialList:
+        """The controller's material library, for the job set-up (blocking: off the GUI thread); NoAnswer
+        when it does not answer."""
+        return self._query(self.keys.materials, MaterialList)
 
     def preview(self, name: str) -> ProgramInfo:
         """A stored program's text and path, without loading it (blocking); NoAnswer says why not."""

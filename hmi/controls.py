@@ -10,6 +10,7 @@ greyed (read-only). The controller has the last word: a refusal comes back with 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Protocol
 
 from PySide6.QtCore import QEvent, QObject, Qt, QTimer, Signal
 from PySide6.QtGui import QKeyEvent
@@ -26,6 +27,7 @@ from cnc.bus.states import Mode
 
 from .adapter import ModelAdapter
 from .commands import CommandRunner, enable_while_commanding
+from .cutjob import CutJobPanel, MaterialSource
 from .library import LibraryPanel, ProgramSource
 from .mdi import MdiPanel
 from .program import ProgramPanel
@@ -315,16 +317,24 @@ class ManualPage(QWidget):
             self.commands.send(ProcedureStart(procedure))
 
 
-class AutoPage(QWidget):
-    """AUTO mode: the program (load, text, block being cut), the program library when the screen
-    can ask for it, and the cycle's buttons (with continuing a cut, starting at a part or a line)."""
+class ControllerQueries(ProgramSource, MaterialSource, Protocol):
+    """What the automatic page asks the controller besides commands: its program and material
+    libraries (`hmi.connection.Connection` fits)."""
 
-    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, library: ProgramSource | None = None,
+
+class AutoPage(QWidget):
+    """AUTO mode: the program (load, text, block being cut), the program library and the cutting job
+    when the screen can ask for them, and the cycle's buttons (with continuing a cut, starting at a
+    part or a line). The cutting job stands beside the cycle's buttons: the operator sees what the
+    program will be cut with before cycle start."""
+
+    def __init__(self, adapter: ModelAdapter, commands: CommandRunner, library: ControllerQueries | None = None,
                  parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.model, self.commands = adapter.model, commands
         self.program = ProgramPanel(adapter, commands)
         self.library = LibraryPanel(adapter, commands, library) if library is not None else None
+        self.cut_job = CutJobPanel(adapter, commands, library) if library is not None else None
         self.tabs = QTabWidget()
         self.tabs.addTab(self.program, "Loaded program")
         if self.library is not None:
@@ -377,6 +387,8 @@ class AutoPage(QWidget):
         buttons.addStretch(1)
         layout = QHBoxLayout(self)
         layout.addWidget(self.tabs, 1)
+        if self.cut_job is not None:
+            layout.addWidget(self.cut_job)
         layout.addWidget(cycle)
         enable_while_commanding(adapter, [self.cycle_start, self.hold, self.resume, self.stop, self.continue_cut,
                                           self.start_part, self.start_line])

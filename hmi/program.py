@@ -78,6 +78,8 @@ class ProgramPanel(QWidget):
         self._after_upload.connect(self._on_uploaded, Qt.ConnectionType.QueuedConnection)
         adapter.program.connect(self._show_loaded)
         adapter.status.connect(self._follow)
+        adapter.status.connect(self._retime)
+        self._timed: tuple = ()  # (hash, planned_s) the info line shows
         enable_while_commanding(adapter, [self.load_button])
         self._show_loaded()
 
@@ -137,17 +139,34 @@ class ProgramPanel(QWidget):
         if prog is None or not prog.name:
             return
         self.info.setText(f"{prog.name}: {prog.text.count(chr(10)) if prog.text else '?'} lines, "
-                          f"{prog.segments} motions" + self._planned())
+                          f"{prog.segments} motions" + self._planned() + self._cut())
         if prog.hash == self._shown_hash or self.error_line:
             return
         self._shown_hash = prog.hash
         self.text.setPlainText(prog.text or f"({prog.name} was loaded from a file on the controller: no text to show)")
         self._current_line = 0
 
+    def _retime(self) -> None:
+        """The cycle time is planned again (after the load, or with another cutting job): the info
+        line follows the status's, not the figure of the moment the program was loaded."""
+        st = self.model.status
+        p = st.program if st is not None else None
+        if p is None or not p.name or self.error_line:
+            return
+        timed = (p.hash, p.planned_s, p.cut)
+        if timed != self._timed:
+            self._timed = timed
+            self._show_loaded()
+
     def _kept(self) -> str:
         """What the controller still has loaded after a refusal."""
         prog = self.model.program
         return f"; the controller keeps {prog.name}" if prog is not None and prog.name else ""
+
+    def _cut(self) -> str:
+        st = self.model.status
+        p = st.program if st is not None else None
+        return f"; cutting job: {p.cut}" if p is not None and p.cut else ""
 
     def _planned(self) -> str:
         st = self.model.status

@@ -27,8 +27,7 @@ from .adapter import ModelAdapter
 from .alarms import ActiveAlarms, FaultsList, HistoryWindow, MessageArea, Search
 from .commands import JOG_HELD, CommandRunner
 from .contour import ContourView
-from .controls import STOP_ALL_KEY, AutoPage, CommandBar, JogPad, KeyJog, ManualPage
-from .library import ProgramSource
+from .controls import STOP_ALL_KEY, AutoPage, CommandBar, ControllerQueries, JogPad, KeyJog, ManualPage
 from .sim_panel import SimPanel
 from .model import Screen
 from .panels import StatusPanels
@@ -105,7 +104,7 @@ class MainWindow(QMainWindow):
 
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, where: str = "the controller",
                  open_error: Callable[[], str] | None = None, search_history: Search | None = None,
-                 engineering: Callable[[QWidget], QWidget] | None = None, library: ProgramSource | None = None,
+                 engineering: Callable[[QWidget], QWidget] | None = None, library: ControllerQueries | None = None,
                  parent: QWidget | None = None) -> None:
         """`open_error()` says why the controller cannot be reached ("" when unknown);
         `search_history` searches the controller's whole history (the history window's button);
@@ -334,9 +333,10 @@ class MainWindow(QMainWindow):
             pad.stop_all()
         QApplication.instance().removeEventFilter(self._key_jog)
         self.history.shutdown()
-        library = self.pages[Screen.AUTO].library
-        if library is not None:
-            library.close_worker()
+        auto = self.pages[Screen.AUTO]
+        for panel in (auto.library, auto.cut_job):  # their queries' workers end before the widgets go
+            if panel is not None:
+                panel.close_worker()
         if self.engineering is not None:
             self.engineering.close()
         super().closeEvent(event)
