@@ -69,9 +69,8 @@ def test_killing_the_supervisor_ends_every_controller_process_and_the_plc_simula
     )
     try:
         assert "running on the virtual clock" in proc.stdout.readline()
-        children = [int(p) for p in subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
-                                                    text=True).stdout.split()]
-        assert len(children) >= 7, children  # hardware, servo, gateway, planner, logic, PLC link, simulator...
+        children = _descendants(proc.pid)  # the fork server and what it forked, the resource tracker
+        assert len(children) >= 8, children  # hardware, servo, gateway, planner, logic, PLC link, simulator...
         proc.kill()  # no chance to stop anything in order
         proc.wait(10)
         deadline = time.monotonic() + 60.0
@@ -82,6 +81,16 @@ def test_killing_the_supervisor_ends_every_controller_process_and_the_plc_simula
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def _descendants(pid: int) -> list[int]:
+    found, todo = [], [pid]
+    while todo:
+        kids = [int(p) for p in subprocess.run(["pgrep", "-P", str(todo.pop())], capture_output=True,
+                                               text=True).stdout.split()]
+        found += kids
+        todo += kids
+    return found
 
 
 def _state(pid: int) -> str:
