@@ -98,6 +98,14 @@ class PlcLink:
                 deadline = now
             time.sleep(deadline - now)
 
+    def announce(self) -> None:
+        """Before the first exchange: the link is connecting (its port about to open), not down, so
+        that the control logic, which may start within milliseconds, waits for it instead of raising
+        "PLC link lost: not started". Without a port it stays down: that is what it is."""
+        if self.master.port:
+            self._writer.set("state", int(LinkState.CONNECTING))
+            self._writer.publish()
+
     def close(self) -> None:
         """Close the port and publish the link as down."""
         self.master.close()
@@ -115,6 +123,7 @@ def run_plc_link(rt: Runtime, ready) -> None:
     link = PlcLink(rt.config, area, port)
     if not port:
         log.warning("PLC link: %s", NO_PORT)
+    link.announce()
     if rt.clock == "realtime":
         # below the logic: the PLC's safety and plant signals must not wait behind a busy host
         # (a program being planned, fifty observers): three exchanges late is a lost link

@@ -82,11 +82,12 @@ MOTION_ONLY = ("servo", "hardware", "planner", "gateway")  # no soft-PLC: the su
 DIRECT_FEED = ("servo", "hardware", "gateway")  # no planner: the supervisor's process feeds the FIFO (servo tests)
 TRACE_CAPACITY = 1 << 16  # ticks the trace ring holds between two drains
 MAX_RESTARTS_PER_MINUTE = 5
-# What every controller process imports, imported once by the fork server they start from.
+# What every controller process imports, imported once by the fork server they start from. Not the
+# PLC link's modules: pymodbus imported before the fork left the forked link losing exchanges
+# (its serial and asyncio state is the process's own); the link and the simulator import it afresh.
 PRELOAD = (
     "numpy", "zenoh", "msgspec", "cnc.runtime.procs", "cnc.hw.server", "cnc.hw.clock", "cnc.servo",
-    "cnc.planner.process", "cnc.logic.process", "cnc.gateway.process", "cnc.logger.process", "plc_link.process",
-    "plc_link.sim_server",
+    "cnc.planner.process", "cnc.logic.process", "cnc.gateway.process", "cnc.logger.process",
 )
 
 
