@@ -18,8 +18,9 @@ import sys
 from pathlib import Path
 
 from .config import DEFAULT_MACHINE, ConfigError, load_machine
+from .calibration import machine_ladder
 from .cutmodel import library_of
-from .materials import QUALITIES, Ladder, MaterialError, ladder_program, load_library, record_calibration
+from .materials import QUALITIES, Ladder, MaterialError, load_library, record_calibration
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -144,22 +145,6 @@ def _show(m) -> int:  # noqa: ANN001 - a Material
 
 
 def _ladder(material, config, args: argparse.Namespace) -> int:  # noqa: ANN001
-    from gcode.errors import GCodeError
-    from gcode.interp import Interpreter
-
-    from .machine_dialect import dialect_for
-    from .planner.preflight import PreflightError, preflight
-
     ladder = Ladder(args.thickness, args.slowest, args.fastest, rungs=args.rungs, pierce_s=args.pierce)
-    fastest_axis = min(a.max_velocity_mm_s for a in config.axes) * 60.0
-    if ladder.fastest_mm_min > fastest_axis:
-        raise MaterialError(f"ladder: the fastest rung {ladder.fastest_mm_min:g} mm/min is beyond this machine's "
-                            f"{fastest_axis:g} mm/min")
-    text = ladder_program(material, ladder, config.mcodes.jet_on, config.mcodes.jet_off)
-    try:
-        program = Interpreter(dialect_for(config), "ladder").run(text.encode())
-        preflight(program.segments, config, dict.fromkeys(config.axis_names, True), "ladder")
-    except (GCodeError, PreflightError) as exc:
-        raise MaterialError(f"ladder: {exc}") from None
-    sys.stdout.write(text)
+    sys.stdout.write(machine_ladder(material, ladder, config))
     return 0

@@ -78,6 +78,10 @@ def describe(msg: msgspec.Struct) -> str:
         return f"Start at {msg.kind} {msg.number}"
     if isinstance(msg, m.DeleteProgram):
         return f"Delete program {msg.name}"
+    if isinstance(msg, m.CalibrationLadder):
+        return f"Speed ladder for {msg.material} {msg.thickness_mm:g} mm"
+    if isinstance(msg, m.CalibrationRecord):
+        return f"Record the calibration of {msg.material} {msg.thickness_mm:g} mm"
     if isinstance(msg, m.SetCut):
         if not msg.material:
             return "Cutting job: the program's own"

@@ -7,7 +7,9 @@ run's job record keeps the job and its planned time; nothing is changed during t
 from __future__ import annotations
 
 from cnc.bus.keys import Keys
-from cnc.bus.messages import CycleStart, LoadProgram, MaterialList, SetCut, SetMode
+from cnc.bus.messages import (
+    CalibrationLadder, CalibrationRecord, CycleStart, LoadProgram, MaterialList, SetCut, SetMode,
+)
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.data.layout import PlannerState, RunResult
@@ -107,6 +109,53 @@ def test_the_cutting_job_is_chosen_over_zenoh_remembered_per_program_and_kept_in
             assert op.request(SetCut("")).reason == "part.ngc cuts at its programmed feed"
             assert planned(sup) == at_f
             assert op.request(LoadProgram("part.ngc")).ok and sup.motion()["cut"] == "", "and that is remembered too"
+        finally:
+            op.close()
+            session.close()
+
+
+def test_a_material_is_calibrated_over_zenoh_ladder_first_then_what_the_operator_judged(tmp_path):
+    """The guided calibration: the ladder made for an uncalibrated material, checked, stored and loaded
+    at its programmed feeds; what the cut showed recorded into the material's file; the material can
+    then be chosen for a job. What cannot be is refused with the reason, and nothing is written."""
+    library = hide_library(tmp_path / "materials")
+    (library / "felt.toml").write_text('[material]\nname = "Felt"\nkind = "water"\nsource = "calibrate it"\n'
+                                        '[quality]\ncorner_mm = [0.4, 0.3, 0.2, 0.1, 0.05]\n')
+    config = machine_config(**NEAR_HOME, **{"cutting.materials_dir": str(library)})
+    with full_controller(config, tmp_path / "history.sqlite") as sup:
+        keys = Keys(config.zenoh.key_prefix, config.machine.name)
+        session = open_client([config.zenoh.listen[0]])
+        op = OperatorStation(session, keys, "op")
+        try:
+            assert op.take_lock().ok
+            for wrong, why in ((CalibrationLadder("wool", 3.0, 600.0, 6000.0), "material 'wool' is not in the library"),
+                               (CalibrationLadder("felt", 3.0, 6000.0, 600.0), "must rise from above 0"),
+                               (CalibrationLadder("felt", 3.0, 600.0, 90000.0), "beyond this machine's"),
+                               (CalibrationLadder("felt", 3.0, 600.0, 6000.0, rungs=1), "rungs 1 must be 2 to 40")):
+                reply = op.request(wrong)
+                assert not reply.ok and why in reply.reason, reply
+            assert not (tmp_path / "programs").exists() or not list((tmp_path / "programs").glob("ladder-*"))
+
+            reply = op.request(CalibrationLadder("felt", 3.0, 600.0, 6000.0, rungs=5, pierce_s=0.5))
+            assert reply.ok and reply.reason.startswith("ladder-felt-3mm.ngc loaded: 5 rungs at 600, 1067, 1897, 3374, 6000"), reply
+            assert sup.motion()["program_name"] == "ladder-felt-3mm.ngc" and sup.motion()["cut"] == ""
+            text = (tmp_path / "programs" / "ladder-felt-3mm.ngc").read_text()
+            assert text.count("(MSG,rung") == 5 and "F6000.0" in text
+
+            bad = op.request(CalibrationRecord("felt", 3.0, 3374.0, [3374.0, 1897.0, 2400.0, 1067.0, 600.0], 0.5, 0.2))
+            assert not bad.ok and "quality 3: 2400 is faster than quality 2's 1897" in bad.reason, bad
+            assert "[[chart]]" not in (library / "felt.toml").read_text(), "nothing written"
+            reply = op.request(CalibrationRecord("felt", 3.0, 3374.0, [3374.0, 2500.0, 1897.0, 1067.0, 600.0], 0.5, 0.2,
+                                                 lag_mm=[0.9, 0.6, 0.45, 0.25, 0.1]))
+            assert reply.ok and reply.reason == "felt: 3 mm recorded; its chart covers 3 mm", reply
+            felt = {e.id: e for e in get(session, keys.materials, MaterialList).entries}["felt"]
+            assert felt.thicknesses_mm == [3.0] and felt.corners and felt.speeds_mm_min[0][1] == 2500.0
+            assert "calibrated 3 mm by local at station op" in felt.source
+
+            (tmp_path / "programs" / "part.ngc").write_text(PART)
+            assert op.request(LoadProgram("part.ngc")).ok
+            reply = op.request(SetCut("felt", 3.0, 2))
+            assert reply.ok and reply.reason == "felt 3 mm quality 2, by the operator", reply
         finally:
             op.close()
             session.close()

@@ -27,7 +27,9 @@ def test_every_operator_command_kind_is_covered_here():
 
 
 def test_the_words_say_what_the_command_does():
-    from cnc.bus.messages import DeleteProgram, GoTo, Hold, Jog, LockRequest, Mdi, Override, SetCut
+    from cnc.bus.messages import (
+        CalibrationLadder, CalibrationRecord, DeleteProgram, GoTo, Hold, Jog, LockRequest, Mdi, Override, SetCut,
+    )
 
     assert describe(LockRequest(take=True)) == "Take the command lock"
     assert describe(Hold(why="")) == "Feed hold"
@@ -38,6 +40,8 @@ def test_the_words_say_what_the_command_does():
     assert describe(SetCut("leather", 2.5, 3)) == "Cutting job: leather 2.5 mm quality 3"
     assert describe(SetCut("leather", 2.5, 3, mode="feed")) == "Cutting job: leather 2.5 mm quality 3, feed as programmed"
     assert describe(SetCut()) == "Cutting job: the program's own"
+    assert describe(CalibrationLadder("felt", 3.0, 600.0, 6000.0)) == "Speed ladder for felt 3 mm"
+    assert describe(CalibrationRecord("felt", 3.0, 600.0, [600.0] * 5, 1.0, 0.2)) == "Record the calibration of felt 3 mm"
     assert describe(DeleteProgram("part.ngc")) == "Delete program part.ngc"
 
 

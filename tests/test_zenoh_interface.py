@@ -297,7 +297,8 @@ def test_with_access_control_only_authenticated_operators_command_the_running_co
 
 def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_allow_it(controller, session, keys):
     from cnc.bus.messages import (
-        Acknowledge, DeleteProgram, Drives, GoTo, Hold, Jog, JogRefresh, JogStop, JetTest, LoadProgram, Mdi, Override,
+        Acknowledge, CalibrationLadder, CalibrationRecord, DeleteProgram, Drives, GoTo, Hold, Jog, JogRefresh, JogStop,
+        JetTest, LoadProgram, Mdi, Override,
         ProcedureConfirm, Recover, ProcedureEnd, ProcedureStart, ProcedureStop, Pump, Resume, SetCut, SimInput, Stop,
     )
     from cnc.bus.operator import OPERATOR_COMMANDS
@@ -322,6 +323,8 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
         "program_delete": (DeleteProgram("../credentials"), "plain name"),
         "load": (LoadProgram("/nonexistent/part.ngc"), "outside the program directory"),
         "cut_setup": (SetCut("leather", 2.0, 3), "no program is loaded: load one, then choose its material"),
+        "calibration_ladder": (CalibrationLadder("leather", 2.0, 600.0, 60000.0), "beyond this machine's"),
+        "calibration_record": (CalibrationRecord("../leather", 2.0, 600.0, [600.0] * 5, 0.5, 0.2), "is not a material id"),
         "override": (Override(250.0), "out of range: 0 to 200"),
         "pump": (Pump(True, pressure_bar=-5.0), "out of range"),
         "jet_test": (JetTest(True), "jet test"),

@@ -237,6 +237,35 @@ class MaterialList(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
+class CalibrationLadder(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Make the speed ladder of a library material (`cnc.calibration`): `rungs` straight cuts from
+    `slowest_mm_min` to `fastest_mm_min` in equal ratios, a `pierce_s` dwell each; checked against
+    the machine, stored as ladder-<material>-<thickness>mm.ngc and loaded (at its programmed feeds)."""
+
+    material: str
+    thickness_mm: float
+    slowest_mm_min: float
+    fastest_mm_min: float
+    rungs: int = 8
+    pierce_s: float = 1.0
+    version: int = SCHEMA_VERSION
+
+
+class CalibrationRecord(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """What a cut ladder showed, into the material's chart (an engineer's change): the row of
+    `thickness_mm` with the fastest speed that cut through, the speed judged right per quality 1..5,
+    the pierce time and kerf, and optionally the trail-back measured on each quality's rung."""
+
+    material: str
+    thickness_mm: float
+    separation_mm_min: float
+    quality_mm_min: list[float]
+    pierce_s: float
+    kerf_mm: float
+    lag_mm: list[float] = msgspec.field(default_factory=list)
+    version: int = SCHEMA_VERSION
+
+
 class DeleteProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Delete a program from the controller's program directory (not while it runs)."""
 

@@ -11,20 +11,21 @@ import zenoh
 from .keys import Keys
 from .session import LOCAL_USER
 from .messages import (
-    LOGIC_COMMANDS, DeleteProgram, LoadProgram, LockRequest, LogStart, LogStop, ParamList, Reply, SaveParams, SetParam, SimInput,
-    UploadProgram,
+    LOGIC_COMMANDS, CalibrationLadder, CalibrationRecord, DeleteProgram, LoadProgram, LockRequest, LogStart, LogStop,
+    ParamList, Reply, SaveParams, SetParam, SimInput, UploadProgram,
     decode, encode,
 )
 
 OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {
     **LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram, "sim": SimInput, "program_delete": DeleteProgram,
+    "calibration_ladder": CalibrationLadder, "calibration_record": CalibrationRecord,
 }
 _VERBS = {kind: verb for verb, kind in OPERATOR_COMMANDS.items()}
 # An upload or load is answered once the planner has checked and planned the program: minutes for
 # a million lines, bounded by the controller's own `[planner] load_timeout_s` (at most 7200 s) and
 # the gateway's margin. The station waits that long, so the controller's answer always comes first.
 LOAD_WAIT_S = 7200.0 + 60.0
-LOADS = (UploadProgram, LoadProgram)
+LOADS = (UploadProgram, LoadProgram, CalibrationLadder)
 
 
 class OperatorStation:

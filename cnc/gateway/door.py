@@ -41,13 +41,14 @@ from ..bus.keys import Keys
 from ..bus.messages import (
     LOCK_FREE_VERBS, LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, DeleteProgram, Hold, JobPage, LoadProgram,
     LockRequest, Notice, ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramList, ProgramPath, Reply,
-    SCHEMA_VERSION, MaterialEntry, MaterialList, SetCut, SimInput, SimInputs, StopAll, UploadProgram, decode, encode,
+    SCHEMA_VERSION, CalibrationLadder, CalibrationRecord, MaterialEntry, MaterialList, SetCut, SimInput, SimInputs, StopAll, UploadProgram, decode, encode,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..bus.states import MachineState
 from ..config import MachineConfig
 from ..cutmodel import library_of
-from ..materials import QUALITIES, MaterialError, load_material
+from ..calibration import ladder_name, library_material, machine_ladder
+from ..materials import QUALITIES, Ladder, MaterialError, load_material, record_calibration
 from .jobs import CutSetups, JobHistory, jobs_path
 from .library import ProgramLibrary, library_path
 from .lock import OperatorLock, Token
@@ -116,6 +117,10 @@ class Door:
             Route("sim", keys.cmd_any("sim"), self._sim, SimInput, role="operator", lock=True, lane="cmd", audit=True),
             Route("program_delete", keys.cmd_any("program_delete"), self._delete, DeleteProgram, role="operator", lock=True,
                   lane="cmd", audit=True),
+            Route("calibration_ladder", keys.cmd_any("calibration_ladder"), self._ladder, CalibrationLadder, role="operator",
+                  lock=True, lane="upload", audit=True),
+            Route("calibration_record", keys.cmd_any("calibration_record"), self._record, CalibrationRecord, role="engineer",
+                  lock=True, lane="cmd", audit=True),
             Route("sim", keys.sim, self._read(lambda _params: self._sim_inputs()), read=True, lane="query"),
             *reads,
         )
@@ -312,16 +317,58 @@ class Door:
             column = bad.start() - (msg.text.rfind("\n", 0, bad.start()) + 1) + 1
             why = f"not text: control character {bad.group()!r} (a binary file?)"
             return Reply(False, f"program: {msg.name}:{line}:{column}: {why}", [ProgramDiagnostic(line, column, why)])
-        program, diagnostic = self._interpret(msg.name, data)
+        return self._store_and_load(msg.name, data)
+
+    def _store_and_load(self, name: str, data: bytes) -> Reply:
+        """A program's text checked by the interpreter, stored in the directory (whole or not at all),
+        and loaded."""
+        program, diagnostic = self._interpret(name, data)
         if diagnostic is not None:
-            return _refused(msg.name, diagnostic)
+            return _refused(name, diagnostic)
         self.program_dir.mkdir(parents=True, exist_ok=True)
-        path = self.program_dir / msg.name
-        tmp = path.with_name(f".{msg.name}.part")
+        path = self.program_dir / name
+        tmp = path.with_name(f".{name}.part")
         tmp.write_bytes(data)
         os.replace(tmp, path)
         self.library.changed()
-        return self._load_checked(msg.name, path, data, program)
+        return self._load_checked(name, path, data, program)
+
+    def _ladder(self, request: Request) -> Reply:
+        """The guided calibration's first step (`cnc.calibration`): the ladder made, checked against
+        the machine, stored and loaded, at its programmed feeds (a cutting job remembered for that
+        name is forgotten: the rungs' speeds are the test)."""
+        msg: CalibrationLadder = request.message
+        try:
+            material, _ = library_material(msg.material, self.config)
+            ladder = Ladder(msg.thickness_mm, msg.slowest_mm_min, msg.fastest_mm_min, rungs=msg.rungs, pierce_s=msg.pierce_s)
+            text = machine_ladder(material, ladder, self.config)
+        except MaterialError as exc:
+            raise CommandRefused(f"calibration: {exc}") from None
+        name = ladder_name(material.id, msg.thickness_mm)
+        self.cut_setups.forget(name)
+        reply = self._store_and_load(name, text.encode("utf-8"))
+        if not reply.ok:
+            return reply
+        speeds = ", ".join(f"{s:.0f}" for s in ladder.speeds())
+        return Reply(True, f"{name} loaded: {ladder.rungs} rungs at {speeds} mm/min; cut it, then record per quality "
+                           "the fastest rung whose edge is good enough")
+
+    def _record(self, request: Request) -> Reply:
+        """The guided calibration's last step: what the operator judged, into the material's chart."""
+        msg: CalibrationRecord = request.message
+        caller = request.caller
+        try:
+            _, path = library_material(msg.material, self.config)
+            if len(msg.quality_mm_min) != len(QUALITIES) or (msg.lag_mm and len(msg.lag_mm) != len(QUALITIES)):
+                raise MaterialError("quality_mm_min (and lag_mm, when given) take five values, quality 1 to 5")
+            m = record_calibration(path, msg.thickness_mm, msg.separation_mm_min, list(msg.quality_mm_min), msg.pierce_s,
+                                   msg.kerf_mm, f"{caller.user or 'local'} at station {caller.station or '?'}",
+                                   list(msg.lag_mm) or None)
+        except MaterialError as exc:
+            raise CommandRefused(f"calibration: {exc}") from None
+        lo, hi = m.thickness_range
+        return Reply(True, f"{m.id}: {msg.thickness_mm:g} mm recorded; its chart covers "
+                           + (f"{lo:g} to {hi:g} mm" if hi > lo else f"{lo:g} mm"))
 
     def _load_checked(self, name: str, path: Path, data: bytes, program: Any = None) -> Reply:
         """Load a program of the directory: interpreted here first (unless `program` is that), so
