@@ -24,6 +24,7 @@ from cnc.bus.messages import MaterialEntry, MaterialList, Reply, SetCut
 from cnc.bus.states import CyclePhase
 
 from .adapter import ModelAdapter
+from .calibration import CalibrationDialog
 from .commands import CommandRunner, enable_while_commanding
 
 QUALITIES = (1, 2, 3, 4, 5)  # 1 separation (fastest, rough lower edge) to 5 the finest edge
@@ -71,7 +72,8 @@ class CutJobPanel(QGroupBox):
     def __init__(self, adapter: ModelAdapter, commands: CommandRunner, source: MaterialSource,
                  parent: QWidget | None = None) -> None:
         super().__init__("Cutting job", parent)
-        self.model, self.commands, self.source = adapter.model, commands, source
+        self.adapter, self.model, self.commands, self.source = adapter, adapter.model, commands, source
+        self.calibration: CalibrationDialog | None = None  # made when first asked for
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hmi-materials")
         self._closed = False
         self.entries: dict[str, MaterialEntry] = {}
@@ -108,6 +110,9 @@ class CutJobPanel(QGroupBox):
         self.refresh_button = QPushButton("Refresh")
         self.refresh_button.setToolTip("Ask the controller for its material library again")
         self.refresh_button.clicked.connect(self.refresh)
+        self.calibrate = QPushButton("Calibrate…")
+        self.calibrate.setToolTip("Calibrate a material: a speed ladder cut, and what its edges showed recorded")
+        self.calibrate.clicked.connect(self.open_calibration)
         self.reply = QLabel("")
         self.reply.setWordWrap(True)
         self._lay_out()
@@ -129,7 +134,7 @@ class CutJobPanel(QGroupBox):
         form.addRow("Quality", self.quality)
         form.addRow("Mode", self.mode)
         buttons = QHBoxLayout()
-        for b in (self.apply, self.programs_own, self.refresh_button):
+        for b in (self.apply, self.programs_own, self.refresh_button, self.calibrate):
             buttons.addWidget(b)
         layout = QVBoxLayout(self)
         layout.addLayout(form)
@@ -158,9 +163,22 @@ class CutJobPanel(QGroupBox):
         self._worker.submit(run)
 
     def close_worker(self) -> None:
-        """Wait for a query under way and take no more: the window is closing."""
+        """Wait for a query under way and take no more: the window is closing (the calibration with it)."""
         self._closed = True
         self._worker.shutdown(wait=True)
+        if self.calibration is not None:
+            self.calibration.close()
+
+    def open_calibration(self) -> None:
+        """Show the guided calibration with this library; a calibration recorded asks for the library
+        again, so that the material can be chosen at once."""
+        if self.calibration is None:
+            self.calibration = CalibrationDialog(self.adapter, self.commands, self)
+            self.calibration.recorded.connect(lambda _reply: self.refresh())
+            self.listed.connect(self.calibration.show_materials)
+            if self.listing is not None:
+                self.calibration.show_materials(self.listing)
+        self.calibration.present()
 
     def showEvent(self, event: QShowEvent) -> None:  # noqa: N802 - Qt's override
         """Shown: the library is asked for again (a material calibrated meanwhile appears)."""
