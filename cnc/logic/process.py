@@ -98,6 +98,11 @@ class Logic:
         hb["pid"][Proc.LOGIC] = os.getpid()
         self.scan_hist = area.blocks["logic_scan"].array
         self.wake_hist = area.blocks["logic_wake"].array
+        # the PLC link starts beside this process, on wall time: until it has had the time of a lost
+        # link (its cycles and their time-outs), "down, no error, never lost" is not yet "not started"
+        plc = config.plc
+        self.plc_stale_scans = 0  # consecutive scans the link was up and the tick found its inputs stale
+        self.link_grace_until = time.monotonic() + plc.lost_after_cycles * (plc.cycle_ms + plc.timeout_ms) / 1000.0
         self.overruns = OverrunWatch(int(area.reader("servo").read_dict()["overruns"]), config.timing.period_s,
                                      config.timing.max_overruns_per_s)
         self.recorder = Recorder("logic-recorder")
@@ -672,7 +677,10 @@ class Logic:
             c[f"{name}_drive"] = None if ready else f"the {name.upper()} drive is not ready"
         causes = servo["stop_causes"]
         if has_plc:
-            c["plc_link_lost"] = None if link_ok or plc["state"] == LinkState.CONNECTING and not plc["losses"] else (
+            up = plc["state"] == LinkState.OK  # whether the tick trusts its inputs is judged below
+            starting = not plc["losses"] and (plc["state"] == LinkState.CONNECTING or plc["state"] == LinkState.DOWN
+                                              and not plc["error"] and time.monotonic() < self.link_grace_until)
+            c["plc_link_lost"] = None if up or starting else (
                 f"no answer from the PLC for {self.config.plc.lost_after_cycles} exchanges" if plc["losses"]
                 else "the PLC link is down: " + (plc["error"] or "not started"))
             plc_alarm = int(self.reader.plc_value(snap, "plc_alarm"))
@@ -684,7 +692,12 @@ class Logic:
                 if causes & StopCause.PUMP else None)
             barriers = [b for b in ("front", "rear") if link_ok and signals.get(f"plc.barrier_{b}_ok") is False]
             c["barrier_interrupted"] = f"{' and '.join(barriers)} barrier interrupted" if barriers and running else None
-            if causes & StopCause.PLC_LINK and c["plc_link_lost"] is None and plc["state"] == LinkState.OK:
+            # the link up but the tick finding its inputs stale: a hung PLC-link process, once it lasts
+            # two scans (the servo runs beside this scan: a link just come up, or back, is seen by the
+            # tick a tick later; the tick has already stopped the machine either way)
+            stale = bool(causes & StopCause.PLC_LINK) and up
+            self.plc_stale_scans = self.plc_stale_scans + 1 if stale else 0
+            if self.plc_stale_scans >= 2 and c["plc_link_lost"] is None:
                 c["plc_link_lost"] = "the PLC's inputs stopped arriving (the PLC-link process is hung)"
         return c
 
