@@ -146,7 +146,9 @@ class CutModel:
         with np.errstate(divide="ignore", invalid="ignore"):
             as_corner = np.where(theta > 0.0, e / np.sin(np.minimum(theta, math.pi / 2.0)), np.inf)
             settled = np.where(e < r, np.sqrt(np.maximum(e * (2.0 * r - e), 0.0)), np.inf)
-        lag = np.maximum(as_corner, np.minimum(settled, r * theta))
+        # at L = r theta the model turns from the settled figure to the corner's: the cap stays a hair
+        # below that edge, so that the speed it gives (rounded back to a lag) is on the settled side
+        lag = np.maximum(as_corner, np.minimum(settled, r * theta * (1.0 - 1e-9)))
         return self.speed_for_lag(lag)
 
     def bottom_deviation(self, v_mm_s: float, radius_mm: float, sweep_rad: float) -> float:

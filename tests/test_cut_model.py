@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from cnc.cli import main
@@ -83,6 +83,7 @@ def interpret(text: str, config, name: str = "nest.ngc"):
 
 @settings(max_examples=300, deadline=None)
 @given(st.floats(0.02, 500.0), st.floats(0.001, 2 * math.pi), st.integers(1, 5), st.floats(2.0, 4.0))
+@example(0.25, 1.59375, 2, 3.5)  # the lag at the cap exactly r theta: the edge between the settled and corner figures
 def test_the_lag_caps_keep_the_bottom_of_the_cut_within_each_quality_and_are_tight(radius, sweep, quality, thickness):
     model = hide_model(thickness)
     e = model.corner_mm[quality]
