@@ -10,8 +10,8 @@ real controller processes (virtual clock, `waterjet simulate`) under a cutting j
   lead-ins, accelerations);
 - `docs/figures/cut_model_speed.png`: the speed along the path coloured by quality.
 
-The material is a chart for the bench (`BENCH_HIDE`, as a speed-ladder calibration would write it),
-not a shipped material: the controller ships no numbers it cannot cite.
+The material is the tests' calibrated chart (`tests/test_cut_model.py` `HIDE`, as a speed-ladder
+calibration would write it), not a shipped material: the controller ships no numbers it cannot cite.
 
     python bench/cut_model.py [--parts 12] [--quality 3] [--plot docs/figures/cut_model_speed.png]
 """
@@ -38,23 +38,8 @@ from cnc.planner.quality import cut_plan_for  # noqa: E402
 from cnc.sim.demo import free_port  # noqa: E402
 from cnc.sim.simulate import simulate, speed_along_path  # noqa: E402
 from gcode.interp import Interpreter  # noqa: E402
+from tests.test_cut_model import HIDE  # noqa: E402
 
-BENCH_HIDE = """[material]
-name = "Bench hide (a calibration's figures, for the bench only)"
-kind = "water"
-source = "bench data: not a shipped material"
-
-[quality]
-corner_mm = [0.5, 0.3, 0.2, 0.1, 0.05]
-
-[[chart]]
-thickness_mm = 2.0
-separation_mm_min = 6000.0
-pierce_s = 0.3
-kerf_mm = 0.2
-quality_mm_min = [6000.0, 4800.0, 3600.0, 2400.0, 1200.0]
-lag_mm = [1.0, 0.7, 0.45, 0.25, 0.1]
-"""
 
 
 def main() -> int:
@@ -67,7 +52,7 @@ def main() -> int:
         d = Path(tmp)
         shutil.copy(REPO / "machines" / "waterjet.toml", d / "waterjet.toml")
         (d / "materials").mkdir()
-        (d / "materials" / "hide.toml").write_text(BENCH_HIDE)
+        (d / "materials" / "hide.toml").write_text(HIDE)
         # written at F6000, the separation speed: in "machine uses quality" mode F is only an upper bound
         text = cam_nest(args.parts).replace("F2400.0", "F6000.0").replace(
             "%\n", "%\n" + f"(MATERIAL, hide, THICKNESS=2, QUALITY={args.quality})\n", 1)
