@@ -69,7 +69,7 @@ def test_killing_the_supervisor_ends_every_controller_process_and_the_plc_simula
     )
     try:
         assert "running on the virtual clock" in proc.stdout.readline()
-        children = _descendants(proc.pid)  # the fork server and what it forked, the resource tracker
+        children = _descendants(proc.pid)  # its processes, the resource tracker, and what they started
         assert len(children) >= 8, children  # hardware, servo, gateway, planner, logic, PLC link, simulator...
         proc.kill()  # no chance to stop anything in order
         proc.wait(10)

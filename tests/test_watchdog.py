@@ -29,7 +29,7 @@ def test_killing_the_servo_trips_the_watchdog_within_the_configured_ticks(clock)
         os.kill(sup.children["servo"].process.pid, signal.SIGKILL)
         sup.children["servo"].process.join(5.0)
         # the watchdog's own reaction: waited for without supervising, since the supervisor (which acts
-        # only when polled) would restart the servo first (a fork from its fork server takes a few ms)
+        # only when polled) might restart the servo before four missed ticks of the virtual clock)
         deadline = time.monotonic() + 10.0 * sup.wait_margin  # a hang guard, not a timing figure
         while not sup.hw()["watchdog_tripped"]:
             assert time.monotonic() < deadline, "the watchdog did not trip"

@@ -38,10 +38,7 @@ def die_with_parent() -> None:
     """Have the kernel end this process (SIGTERM) when the process that started it dies, however
     it dies (kill -9, a crash): an orphaned controller process would go on ticking, holding the
     serial port and answering on Zenoh, with no supervisor to watch it. Linux only; elsewhere a
-    no-op. The controller's processes are forked by the supervisor's fork server
-    (`supervisor.process_context`), which ends when the supervisor does, however it ends: its end
-    is the trigger."""
-    _let_the_fork_server_go()
+    no-op. The supervisor starts its processes from its main thread, whose end is the trigger."""
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
@@ -50,25 +47,6 @@ def die_with_parent() -> None:
     if os.getppid() == 1:  # the parent died before the request was in place
         os.kill(os.getpid(), signal.SIGTERM)
 
-
-def _let_the_fork_server_go() -> None:
-    """Close this process's copy of the fork server's keep-alive pipe. The fork server ends when
-    the write ends of that pipe are all closed, and hands one to every process it forks (so that
-    they could fork through it too, which ours never do): kept open here, they would keep the
-    server alive after the supervisor died, and the server would keep them alive in turn."""
-    try:
-        from multiprocessing import forkserver
-
-        server = forkserver._forkserver  # the stdlib's one fork server (its keep-alive fd is private)
-        fd = server._forkserver_alive_fd
-    except (ImportError, AttributeError):
-        return
-    if fd is not None:
-        try:
-            os.close(fd)
-        except OSError:
-            pass
-        server._forkserver_alive_fd = None
 
 
 def child_setup(rt: Runtime, name: str) -> None:

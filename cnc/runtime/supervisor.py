@@ -82,26 +82,6 @@ MOTION_ONLY = ("servo", "hardware", "planner", "gateway")  # no soft-PLC: the su
 DIRECT_FEED = ("servo", "hardware", "gateway")  # no planner: the supervisor's process feeds the FIFO (servo tests)
 TRACE_CAPACITY = 1 << 16  # ticks the trace ring holds between two drains
 MAX_RESTARTS_PER_MINUTE = 5
-# What every controller process imports, imported once by the fork server they start from. Not the
-# PLC link's modules: pymodbus imported before the fork left the forked link losing exchanges
-# (its serial and asyncio state is the process's own); the link and the simulator import it afresh.
-PRELOAD = (
-    "numpy", "zenoh", "msgspec", "cnc.runtime.procs", "cnc.hw.server", "cnc.hw.clock", "cnc.servo",
-    "cnc.planner.process", "cnc.logic.process", "cnc.gateway.process", "cnc.logger.process",
-)
-
-
-def process_context() -> multiprocessing.context.BaseContext:
-    """How the controller's processes are started: forked from a fork server that has imported
-    what they all import (`PRELOAD`: numpy, zenoh and the processes' own modules) once, so that a
-    process starts in milliseconds instead of importing them again (0.3-0.5 s each, most of a
-    controller's start on two cores; a restarted process is back sooner too). The server is a
-    fresh interpreter (started with the first process: no threads, nothing of this process's
-    state), shared by every controller this Python process starts; it ends with this process, and
-    the controller's processes with it (`child.die_with_parent`)."""
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(list(PRELOAD))
-    return ctx
 
 
 @dataclass
@@ -152,7 +132,7 @@ class Supervisor:
         self._plc_dir: tempfile.TemporaryDirectory | None = None
         self.plc_sim_times = plc_sim_times  # its plant's times (plc_link.sim_model.PlantTimes; None: realistic)
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
-        self.ctx = process_context()
+        self.ctx = multiprocessing.get_context("spawn")
         self.children: dict[str, _Child] = {}
         self.starting: dict[str, _Starting] = {}  # restarts under way
         self._release_safe = False  # give the safe state back once the hardware server has acted on it
