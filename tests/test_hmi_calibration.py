@@ -16,7 +16,7 @@ from cnc.materials import Ladder
 from hmi.calibration import CalibrationDialog, ladder_program_name, ladder_speeds
 from hmi.model import Screen
 
-from .test_hmi_cutjob import FELT, cut_controller, cut_screen, listed  # noqa: F401 - the fixtures, by import
+from .test_hmi_cutjob import FELT, cut_controller, cut_screen, listed, ready_in_auto_from_the_screen  # noqa: F401 - the fixtures, by import
 from .test_hmi_window import WAIT_MS, click, shot, take_lock
 
 
@@ -44,16 +44,12 @@ def test_the_rungs_listed_are_the_speeds_of_the_controllers_ladder():
 def test_a_material_is_calibrated_from_the_cutting_job_ladder_loaded_then_what_its_cut_showed_recorded(
         qtbot, cut_controller, cut_screen, tmp_path):
     sup, screen = cut_controller, cut_screen
-    w, model = screen.window, screen.model
+    w = screen.window
     panel = w.pages[Screen.AUTO].cut_job
     felt_file = tmp_path / "materials" / "felt.toml"
     felt_file.write_text(FELT)
     take_lock(qtbot, screen)
-    click(qtbot, screen, w.bar.reset)
-    qtbot.waitUntil(lambda: all(a.drive_enabled for a in model.status.axes), timeout=WAIT_MS)
-    click(qtbot, screen, w.pages[Screen.MANUAL].home_all)
-    qtbot.waitUntil(lambda: model.status.machine_state == "READY", timeout=WAIT_MS)
-    click(qtbot, screen, w.bar.auto)
+    ready_in_auto_from_the_screen(qtbot, screen)
     qtbot.waitUntil(lambda: w.current_screen is Screen.AUTO and "felt" in listed(panel), timeout=WAIT_MS)
     assert listed(panel)["felt"] == ("Test felt (not calibrated)", False)
 

@@ -43,6 +43,16 @@ def cut_screen(qtbot, cut_controller):
     yield from _screen_on(qtbot, cut_controller)
 
 
+def ready_in_auto_from_the_screen(qtbot, screen) -> None:
+    """With the lock taken: reset, home all, then the AUTO page, each from its button."""
+    w, model = screen.window, screen.model
+    click(qtbot, screen, w.bar.reset)
+    qtbot.waitUntil(lambda: all(a.drive_enabled for a in model.status.axes), timeout=WAIT_MS)
+    click(qtbot, screen, w.pages[Screen.MANUAL].home_all)
+    qtbot.waitUntil(lambda: model.status.machine_state == "READY", timeout=WAIT_MS)
+    click(qtbot, screen, w.bar.auto)
+
+
 def speeds_shown(panel: CutJobPanel) -> list[str]:
     return [panel.quality.itemText(i) for i in range(panel.quality.count())]
 
@@ -78,11 +88,7 @@ def test_the_cutting_job_is_chosen_on_the_auto_page_shown_in_force_and_given_bac
     panel = auto.cut_job
     assert not panel.apply.isEnabled(), "read-only: greyed"
     take_lock(qtbot, screen)
-    click(qtbot, screen, w.bar.reset)
-    qtbot.waitUntil(lambda: all(a.drive_enabled for a in model.status.axes), timeout=WAIT_MS)
-    click(qtbot, screen, w.pages[Screen.MANUAL].home_all)
-    qtbot.waitUntil(lambda: model.status.machine_state == "READY", timeout=WAIT_MS)
-    click(qtbot, screen, w.bar.auto)
+    ready_in_auto_from_the_screen(qtbot, screen)
     qtbot.waitUntil(lambda: w.current_screen is Screen.AUTO, timeout=WAIT_MS)
 
     qtbot.waitUntil(lambda: "hide" in listed(panel), timeout=WAIT_MS)  # asked for when the page is shown
