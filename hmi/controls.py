@@ -20,7 +20,7 @@ from PySide6.QtWidgets import (
 )
 
 from cnc.bus.messages import (
-    CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop, LockRequest, Override, ProcedureStart, Pump,
+    CycleStart, Drives, GoTo, InterruptedCut, Hold, Home, JetTest, Jog, JogRefresh, JogStop, LockRequest, Override, ProcedureStart, Pump,
     Recover, Reset, Resume, SetMode, Stop, StopAll,
 )
 from cnc.bus.states import Mode
@@ -358,6 +358,9 @@ class AutoPage(QWidget):
         self.continue_cut = _button("Continue cut", "Continue the interrupted cut from where the jet stopped, a little "
                                     "back along it (the machine file's overlap); no transport: the material is in place")
         self.continue_cut.clicked.connect(lambda: self.commands.send(Recover("continue")))
+        self.interrupted = QLabel()  # where "continue" takes up the cut, or that none is known
+        self.interrupted.setObjectName("auto.interrupted")
+        self.interrupted.setWordWrap(True)
         self.part = QSpinBox()
         self.part.setRange(1, 1_000_000)
         self.part.setPrefix("part ")
@@ -379,6 +382,7 @@ class AutoPage(QWidget):
             buttons.addWidget(b)
         buttons.addSpacing(12)
         buttons.addWidget(self.continue_cut)
+        buttons.addWidget(self.interrupted)
         for spin, button in ((self.part, self.start_part), (self.line, self.start_line)):
             row = QHBoxLayout()
             row.addWidget(button)
@@ -390,8 +394,28 @@ class AutoPage(QWidget):
         if self.cut_job is not None:
             layout.addWidget(self.cut_job)
         layout.addWidget(cycle)
-        enable_while_commanding(adapter, [self.cycle_start, self.hold, self.resume, self.stop, self.continue_cut,
+        enable_while_commanding(adapter, [self.cycle_start, self.hold, self.resume, self.stop,
                                           self.start_part, self.start_line])
+        self._continue_enabled = enable_while_commanding(adapter, [self.continue_cut], lambda: self._interrupted() is not None)
+        adapter.status.connect(self._show_interrupted)
+        self._show_interrupted()
+
+    def _interrupted(self) -> InterruptedCut | None:
+        status = self.model.status
+        return status.program.interrupted if status is not None and status.program is not None else None
+
+    def _show_interrupted(self) -> None:
+        """Where "Continue cut" would take up the loaded program's cut; the button only when it can."""
+        point, status = self._interrupted(), self.model.status
+        if status is None or status.program is None:
+            text = ""
+        elif point is None:
+            text = "No interrupted cut of this program is known"
+        else:
+            text = f"Interrupted cut: line {point.line}, at X {point.x_mm:.3f}  Y {point.y_mm:.3f}"
+        if self.interrupted.text() != text:
+            self.interrupted.setText(text)
+            self._continue_enabled()
 
 
 class KeyJog(QObject):

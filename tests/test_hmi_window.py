@@ -498,12 +498,29 @@ def test_the_program_library_lists_previews_loads_and_deletes_from_the_screen(qt
     shot(w, "auto_library")
 
 
-def test_continue_cut_part_and_line_are_sent_from_the_auto_page_and_a_refusal_says_why(qtbot, plc_controller, screen):
+def test_continue_cut_part_and_line_are_sent_from_the_auto_page_and_a_refusal_says_why(qtbot, plc_controller, screen,
+                                                                                        tmp_path):
+    import hashlib
+
+    from cnc.gateway.jobs import CutPoint, CutPoints, jobs_path
+
     w = screen.window
     take_lock(qtbot, screen)
     click(qtbot, screen, w.bar.auto)
     qtbot.waitUntil(lambda: w.current_screen is Screen.AUTO, timeout=WAIT_MS)
     auto = w.pages[Screen.AUTO]
+    assert auto.interrupted.text() == "" and not auto.continue_cut.isEnabled(), "no program: nothing to continue"
+    # the job record kept an interrupted cut of this program (a run before a power loss)
+    points = CutPoints(jobs_path(plc_controller.history_path))
+    points.save(CutPoint(hashlib.sha256(PART.encode()).hexdigest(), "part.ngc", 3, 121.5, 40.25, 7))
+    points.close()
+    part = tmp_path / "part.ngc"
+    part.write_text(PART)
+    with qtbot.waitSignal(auto.program.uploaded, timeout=WAIT_MS) as loaded:
+        auto.program.load_file(part)
+    assert loaded.args[0].ok, loaded.args[0].reason
+    qtbot.waitUntil(lambda: auto.interrupted.text() == "Interrupted cut: line 7, at X 121.500  Y 40.250", timeout=WAIT_MS)
+    shot(w, "auto_interrupted_cut")
     reply = click(qtbot, screen, auto.continue_cut, ok=False)
     assert "cannot start while IDLE: switch the drives on and home the machine" in reply.reason
     assert w.command_line.text().startswith("✖ Continue the interrupted cut")

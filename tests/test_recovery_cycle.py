@@ -112,7 +112,9 @@ def test_a_part_or_a_line_starts_the_cycle_there_and_impossible_starts_are_refus
     command(sup, Stop())
     sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.STOPPED, 30.0,
                    "the stopped cycle")
-    assert "has 2 parts (pierces): there is no part 3" in _planner_refusal(sup, Recover("part", 3))
+    assert "has 2 parts (pierces): there is no part 3" in refusal(sup, Recover("part", 3)), "refused before the pump ramps"
+    assert "nothing moves at or after line 999" in refusal(sup, Recover("line", 999))
+    assert logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.STOPPED, "no cycle, no fault"
     assert "must be the part (from 1) or the line" in refusal(sup, Recover("part", 0))
     assert "kind 'resume' is not one of" in refusal(sup, Recover("resume"))
     command(sup, Recover("part", 2))
@@ -122,16 +124,6 @@ def test_a_part_or_a_line_starts_the_cycle_there_and_impossible_starts_are_refus
     sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
                    "part 2 to its end and the unload")
     assert sup.motion()["run_result"] == RunResult.DONE
-
-
-def _planner_refusal(sup: Supervisor, msg) -> str:
-    """A start the planner refuses arrives as the cycle's program error: its detail says why."""
-    command(sup, msg)
-    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT, 30.0, "the refused start")
-    detail = logic(sup)["message"]
-    command(sup, Reset())
-    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready again")
-    return detail
 
 
 def _stored_x(sup: Supervisor) -> float:

@@ -40,6 +40,15 @@ class AxisStatus(msgspec.Struct, frozen=True):
     travel_max_mm: float = 0.0
 
 
+class InterruptedCut(msgspec.Struct, frozen=True):
+    """Where the jet last cut in the loaded program, a run that did not reach its end: what
+    "continue" (`cmd/recover`) takes up, backed up by the overlap."""
+
+    line: int  # its source line
+    x_mm: float  # machine coordinates
+    y_mm: float
+
+
 class ProgramProgress(msgspec.Struct, frozen=True):
     """Where the planner is with the loaded program (in Status)."""
 
@@ -56,6 +65,7 @@ class ProgramProgress(msgspec.Struct, frozen=True):
     run: int  # runs started since the controller came up
     result: str  # RunResult name of the last run
     cut: str = ""  # the cutting job in force ("leather 2 mm quality 3, by the program"); "" cuts at F
+    interrupted: InterruptedCut | None = None  # the cut "continue" would take up; None when none is known
 
 
 class Status(msgspec.Struct, frozen=True):
@@ -608,6 +618,14 @@ class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     version: int = SCHEMA_VERSION
 
 
+class CheckRestart(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Would `restart` start in the loaded program from where the head stands (the part, the line,
+    the cut point, the travel)? Asked before the cycle ramps the pump for it; nothing moves."""
+
+    restart: RestartAt
+    version: int = SCHEMA_VERSION
+
+
 class Hold(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Feed hold: decelerate along the path and stay there."""
 
@@ -713,7 +731,7 @@ class Reply(msgspec.Struct, frozen=True):
 PLANNER_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "load": LoadProgram, "start": Start, "hold": Hold, "resume": Resume, "stop": Stop, "override": Override,
     "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo, "home": Home, "mdi": Mdi,
-    "cut_setup": SetCut,
+    "cut_setup": SetCut, "check_restart": CheckRestart,
 }
 MOTION_COMMANDS = (Start, Resume, Jog, JogRefresh, GoTo, Home, Mdi)  # carried out only with the commander's Stamp
 REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset", "stop_all")  # never queued behind slow work

@@ -184,6 +184,7 @@ def motion_layout(n: int) -> BlockLayout:
             F("program_hash", "s", 64),  # sha256 of the program text, hex
             F("program_lines", "Q"),
             F("planned_s", "d"),  # cycle time of the loaded program at 100 % override (-1 while it is being planned)
+            F("pierce_s", "d"),  # the pierce dwell of the run in force: its cutting job's chart, else [jet] (the latter from the planner's start)
             F("cut", "s", 96),  # its cutting job (`cnc.cutmodel`), as the operator reads it; "" at the programmed F
             F("total_mm", "d"),  # path length of the loaded program
             F("run_seq", "Q"),  # +1 at every start
@@ -279,6 +280,9 @@ def logic_layout() -> BlockLayout:
             F("lost_seen", "Q"),  # the supervisor's lost_seq this logic (or the one before it) has reported
             F("trip_seen", "Q"),  # the servo's trip_seq the logic (or the one before it) has reported
             F("watchdog_seen", "Q"),  # the hardware server's watchdog_trip_tick the logic has reported
+            F("cut_point_hash", "s", 64),  # the program the interrupted cut below belongs to ("" none known)
+            F("cut_point_line", "q"),  # its source line
+            F("cut_point_mm", "d", 2),  # where the jet last cut: X, Y (machine coordinates)
         ],
     )
 

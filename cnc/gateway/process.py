@@ -19,7 +19,7 @@ from pathlib import Path
 import zenoh
 
 from ..bus.keys import Keys
-from ..bus.messages import AxisStatus, Position, ProgramProgress, Status, encode
+from ..bus.messages import AxisStatus, InterruptedCut, Position, ProgramProgress, Status, encode
 from .door import Door
 from ..config import MachineConfig
 from ..data.dataserver import SharedArea
@@ -128,7 +128,7 @@ class Gateway:
             feed_commanded_mm_s=math.hypot(*sv["commanded_velocity_mm_s"]),
             feed_actual_mm_s=self._actual_speed(sv["actual_mm"], sv["tick"]),
             homing_axis=names[mo["homing_axis"]] if 0 <= mo["homing_axis"] < len(names) else "",
-            program=self._program(mo),
+            program=self._program(mo, lo),
             event=mo["event"],
             error=mo["error"],
             machine_state=MachineState(lo["state"]).name,
@@ -154,15 +154,18 @@ class Gateway:
         lock = self.door.lock.state()
         return {"operator": lock.holder, "stations": lock.stations, "network_alive": bool(lock.holder) and lock.holder in lock.stations}
 
-    def _program(self, mo: dict) -> ProgramProgress | None:
+    def _program(self, mo: dict, lo: dict) -> ProgramProgress | None:
         if not mo["program_name"]:
             return None
+        interrupted = None
+        if lo["cut_point_hash"] and lo["cut_point_hash"] == mo["program_hash"]:
+            interrupted = InterruptedCut(int(lo["cut_point_line"]), *(float(v) for v in lo["cut_point_mm"]))
         total = mo["total_mm"]
         return ProgramProgress(
             name=mo["program_name"], hash=mo["program_hash"], lines=mo["program_lines"], segment=mo["segment"],
             line=mo["line"], done_mm=mo["done_mm"], remaining_mm=max(total - mo["done_mm"], 0.0),
             progress=mo["done_mm"] / total if total > 0 else 0.0, eta_s=mo["eta_s"], planned_s=mo["planned_s"],
-            run=mo["run_seq"], result=RunResult(mo["run_result"]).name, cut=mo["cut"],
+            run=mo["run_seq"], result=RunResult(mo["run_result"]).name, cut=mo["cut"], interrupted=interrupted,
         )
 
     def _actual_speed(self, actual: list[float], tick: int) -> float:

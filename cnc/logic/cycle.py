@@ -219,8 +219,13 @@ class AutoCycle:
             self._set_pump(pump.pierce_pressure_bar)
         elif self.jet_since is None:
             self.jet_since = now
-        elif now - self.jet_since >= jet.on_delay_s + jet.pierce_dwell_s:
+        elif now - self.jet_since >= jet.on_delay_s + self._pierce_s(snap):
             self._set_pump(pump.cut_pressure_bar)
+
+    def _pierce_s(self, snap: Snapshot) -> float:
+        """The pierce dwell of the run in force, as the planner times it: the cutting job's chart
+        pierce time, else the machine file's (a cut runs only on a planner that has said which)."""
+        return float(snap.motion["pierce_s"])
 
     def _unload(self, snap: Snapshot, now: float) -> None:
         out = self.host.outputs

@@ -43,7 +43,7 @@ from ..alarms.recorder import Recorder
 from ..bus.keys import Keys
 from ..bus.messages import (
     LOGIC_COMMANDS, MOTION_COMMANDS, MOTION_VERBS, AlarmEvent, GoTo, Hold, Home, InternalError, Jog, JogRefresh, JogStop,
-    LoadProgram, Mdi, Notice, Override, Recover, Reply, RestartAt, Resume, Stamp, Stop, encode,
+    LoadProgram, Mdi, Notice, Override, Recover, Reply, RestartAt, CheckRestart, Resume, Stamp, Stop, encode,
 )
 from ..bus.service import DEFERRED, CommandRefused, CommandService, Request, Route
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
@@ -141,6 +141,8 @@ class Logic:
         self.cuts = CutPoints(jobs_path(history_path))  # written by the recorder thread only
         self.cut_point: CutPoint | None = None  # where the jet last cut (for "continue")
         self.cut_saved: CutPoint | None = None  # ... as last handed to the recorder
+        self.point_asked: str = ""  # the loaded program whose stored cut point the recorder looks up
+        self.point_stored: tuple[str, CutPoint | None] | None = None  # ... and what it found (set by the recorder)
         self.cutting_program = False  # the jet's ticks belong to a program run (not to a jog, an MDI, ...)
         self.jet_ticks_seen = -1  # the servo's jet_on_ticks at the last scan (-1: none yet)
         self.run_seen = (-1, -1)  # (run_seq, run_result) of the last run recorded or seen starting
@@ -213,6 +215,7 @@ class Logic:
         self._program_events(snap)
         self._record_jobs(snap)
         self._track_cut(snap)
+        self._show_cut_point(snap)
         self.cycle.step(snap, now)
         if self.procedures.scan(signals, now):
             self._publish_procedure()
@@ -381,10 +384,25 @@ class Logic:
         broken = [b for b in ("front", "rear") if signals.get(f"plc.barrier_{b}_ok") is False]
         if broken:
             raise CommandRefused(f"the {' and '.join(broken)} light barrier{'s are' if len(broken) > 1 else ' is'} interrupted")
-        self.jet_test = False
-        self.inhibit_release = True
-        self.cycle.start(1, now, restart)
-        return Reply(True, what + ": pressure, then the cut (no transport: the material is in place)")
+        asked_in = self.state
+
+        def checked(reply: Reply) -> None:
+            """The planner's answer: a restart it would refuse is refused now, before the pump ramps
+            for it; one it would take starts the cycle, unless the machine moved on meanwhile."""
+            if reply.ok and (self.state != asked_in or self.mode != Mode.AUTO or self.cycle.active or self.procedures.running):
+                reply = Reply(False, f"the machine went {self.state.name} in {self.mode.name} while the restart was checked: "
+                                     "ask again")
+            if reply.ok:
+                self.jet_test = False
+                self.inhibit_release = True
+                self.cycle.start(1, self.now, restart)
+                reply = Reply(True, what + ": pressure, then the cut (no transport: the material is in place)")
+            else:
+                self._note(f"recover refused: {reply.reason}")
+            request.answer(reply)
+
+        self.planner.send(CheckRestart(restart=restart), checked)
+        return DEFERRED
 
     def _cmd_hold(self, msg, snap, now, request) -> str | None:
         """Hold is always passed on: a program holds on its path; a jog, go-to or homing stops."""
@@ -949,6 +967,7 @@ class Logic:
         if m["run_result"] == RunResult.DONE and self.cut_point is not None and self.cut_point.hash == m["program_hash"]:
             done = m["program_hash"]
             self.cut_point = self.cut_saved = None  # cut to its end: nothing left to continue
+            self.point_stored, self.point_asked = (done, None), done
             self.recorder.submit(lambda: self.cuts.clear(done))
         if m["run_result"] != RunResult.NONE:
             ticks = max(0, m["run_end_tick"] - m["run_start_tick"])
@@ -985,6 +1004,27 @@ class Logic:
     def _save_cut(self) -> None:
         point = self.cut_saved = self.cut_point
         self.recorder.submit(lambda: self.cuts.save(point))
+
+    def _show_cut_point(self, snap: Snapshot) -> None:
+        """The interrupted cut "continue" would take up, for the screen: this run's, or the one the
+        job record kept for the loaded program (looked up by the recorder thread when a program is
+        loaded, never by the scan)."""
+        loaded = snap.motion["program_hash"]
+        if loaded != self.point_asked:
+            self.point_asked, self.point_stored = loaded, None
+            if loaded:
+                def look_up(h: str = loaded) -> None:
+                    found = self.cuts.get(h)
+                    if self.point_asked == h and self.point_stored != (h, None):  # not cleared meanwhile
+                        self.point_stored = (h, found)
+                self.recorder.submit(look_up)
+        point = self.cut_point if self.cut_point is not None and self.cut_point.hash == loaded else None
+        if point is None and self.point_stored is not None and self.point_stored[0] == loaded:
+            point = self.point_stored[1]
+        if point is None:
+            self._put(cut_point_hash="", cut_point_line=0, cut_point_mm=[0.0, 0.0])
+        else:
+            self._put(cut_point_hash=point.hash, cut_point_line=point.line, cut_point_mm=[point.x_mm, point.y_mm])
 
     def _cut_point_for(self, program_hash: str) -> CutPoint | None:
         """The last cut point of the program with this hash: this run's, or one the job record kept

@@ -51,7 +51,7 @@ from gcode.program import Program
 from ..bus.keys import Keys
 from ..bus.messages import (
     MOTION_COMMANDS, MOTION_VERBS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Mdi, Override,
-    ProgramDiagnostic, Reply, RestartAt, SetCut,
+    ProgramDiagnostic, Reply, RestartAt, SetCut, CheckRestart,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..config import MachineConfig
@@ -70,7 +70,7 @@ from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
 from .recovery import Restart, RecoveryError, continue_at, run_from_line, start_at_part
 from .quality import CutPlan, CutPlanError, cut_plan_for
-from .sections import iter_steps, move_steps
+from .sections import iter_steps, move_steps, pierce_dwell_s
 from .steps import ProgramTiming, StepSource
 
 MDI_NAME = "MDI"  # how an MDI entry's errors name it
@@ -196,7 +196,8 @@ class Planner:
         self.last_pushed: np.ndarray | None = None
         self.params_r = area.reader("params")
         self.param_specs = [p for p in registry(config) if p.owner == "planner"]
-        self._set(state=int(PlannerState.IDLE), homing_axis=-1, override=1.0, fifo_min_fill=-1, segment=-1)
+        self._set(state=int(PlannerState.IDLE), homing_axis=-1, override=1.0, fifo_min_fill=-1, segment=-1,
+                  pierce_s=self.config.jet.pierce_dwell_s)
         self._forget_program()
         self.apply_params()  # a restarted planner takes the values in force, not the file's
         # Look-ahead windows are planned by a worker thread, away from the refills: a window of
@@ -517,15 +518,26 @@ class Planner:
                 preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
             except PreflightError as exc:
                 raise CommandRefused(str(exc)) from None
-            runner = ProgramRunner(None, self.config, steps=self.loaded.source(), timing=self.loaded.timing)
+            runner = ProgramRunner(None, self.config, steps=self.loaded.source(), timing=self.loaded.timing,
+                                   pierce_s=pierce_dwell_s(self.config, self.loaded.cut))
         self._begin(runner, PlannerState.RUNNING)
         self.restart = restart  # its segments are numbered as the loaded program's (`_push`)
         self._set(run_seq=self.out.get("run_seq") + 1, run_result=int(RunResult.NONE),
                   run_start_tick=self.hw_r.read_dict()["tick"])
 
-    def _restart_runner(self, at: RestartAt, head: tuple[float, float, float], homed: dict) -> tuple[ProgramRunner, Restart]:
-        """A run of the loaded program from inside it (`recovery.py`): the restart checked against
-        the travel like any program; timed at once when short (else its ETA is unknown)."""
+    def _cmd_check_restart(self, msg: CheckRestart) -> Reply:
+        """Whether a restart would start from where the head stands: what `start` with it would
+        refuse, refused now (before the cycle ramps the pump for it); nothing moves."""
+        if self.loaded is None:
+            raise CommandRefused("no program is loaded")
+        servo = self._require_servo("start")
+        homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
+        restart = self._restart_of(msg.restart, _xyz(self.config, servo["commanded_mm"]), homed)
+        return Reply(True, restart.description)
+
+    def _restart_of(self, at: RestartAt, head: tuple[float, float, float], homed: dict) -> Restart:
+        """The loaded program restarted from inside it (`recovery.py`), checked against the travel
+        like any program; CommandRefused says why it cannot."""
         program = self.loaded.program
         try:
             if at.kind == "continue":
@@ -539,6 +551,12 @@ class Planner:
             preflight(restart.program.segments, self.config, homed, self.loaded.name)
         except (RecoveryError, PreflightError) as exc:
             raise CommandRefused(str(exc)) from None
+        return restart
+
+    def _restart_runner(self, at: RestartAt, head: tuple[float, float, float], homed: dict) -> tuple[ProgramRunner, Restart]:
+        """A run of the loaded program from inside it: the restart (`_restart_of`) timed at once
+        when short (else its ETA is unknown)."""
+        restart = self._restart_of(at, head, homed)
         cut = None
         if self.loaded.cut is not None:  # the same job: each segment keeps its quality (the rapid has none)
             original = restart.original_segment(np.arange(len(restart.program.segments)))
@@ -549,7 +567,7 @@ class Planner:
         log.info("planner: %s: %s", self.loaded.name, restart.description)
         self._event("restart", restart.description, restart.line)
         steps = StepSource(iter_steps(restart.program, self.config, cut))
-        return ProgramRunner(None, self.config, steps=steps, timing=timing), restart
+        return ProgramRunner(None, self.config, steps=steps, timing=timing, pierce_s=pierce_dwell_s(self.config, cut)), restart
 
     def _cmd_hold(self, _msg) -> Reply:
         """A feed hold of a program; a jog, go-to or homing (which cannot continue) stops."""
@@ -754,7 +772,7 @@ class Planner:
         self.jog_continuous = False
         self.run_first = self.fifo.head()
         self.track_fill = False
-        self._set(state=int(kind), fifo_min_fill=-1, segment=-1, line=0, done_mm=0.0)
+        self._set(state=int(kind), fifo_min_fill=-1, segment=-1, line=0, done_mm=0.0, pierce_s=runner.pierce_s)
 
     def _end_run(self, result: RunResult) -> None:
         self._progress(self.servo_r.read_dict())

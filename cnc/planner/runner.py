@@ -62,8 +62,9 @@ class ProgramRunner:
     """Setpoints of one program from its first record to its last."""
 
     def __init__(self, program: Program | None, config: MachineConfig, steps: list[Step] | StepSource | None = None,
-                 timing: ProgramTiming | None = None) -> None:
+                 timing: ProgramTiming | None = None, pierce_s: float | None = None) -> None:
         self.config = config
+        self.pierce_s = config.jet.pierce_dwell_s if pierce_s is None else pierce_s  # the dwell of a re-pierce
         self.dt = config.timing.period_s
         if steps is None:
             self._again = lambda: iter_steps(program, config)  # the steps once more, for the timing
@@ -123,8 +124,7 @@ class ProgramRunner:
         was = self.state
         self.state = RunState.RUNNING
         if self.jet_closed and self._flags_ahead() & int(SetpointFlag.JET_ON):
-            jet = self.config.jet
-            self.repierce = self._ticks(jet.on_delay_s + jet.pierce_dwell_s)
+            self.repierce = self._ticks(self.config.jet.on_delay_s + self.pierce_s)
         self.jet_closed = False
         if self.stream is not None and was in (RunState.HOLDING, RunState.HELD):
             self.stream.set_override(self.override, min(self.override, 1.0))

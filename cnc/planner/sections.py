@@ -100,6 +100,13 @@ def output_flags(jet: bool, aux: int, outputs: int) -> int:
     return bits
 
 
+def pierce_dwell_s(config: MachineConfig, cut: "CutPlan | None") -> float:
+    """How long the jet stands at a pierce after its on delay: the cutting job's pierce time (its
+    material's chart, in either mode: it is the sheet's, not the feed's), else the machine file's
+    `[jet] pierce_dwell_s`."""
+    return float(cut.model.pierce_s) if cut is not None else float(config.jet.pierce_dwell_s)
+
+
 def program_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = None) -> list[Step]:
     """The program's sections and pauses, in order, all of them (`iter_steps` makes them as needed)."""
     return list(iter_steps(program, config, cut))
@@ -114,6 +121,7 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
     stops there: `_boundary`), so the pieces' sections are exactly the whole run's. `cut`: the
     cutting model's speed caps (`quality.py`), taken as the feed wherever they are lower, in its
     "quality" mode."""
+    pierce_s = pierce_dwell_s(config, cut)
     if cut is not None and not cut.applies:
         cut = None
     stops = {m.segment: m for m in program.messages if m.kind in STOP_KINDS}
@@ -148,24 +156,25 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
             where = where_last if where_last is not None else e.start
             m = stops.pop(e.segment)
             yield pause(Pause("program_stop", 0.0, _flags(last) if last else 0, where, e.segment, m.line, STOP_KINDS[m.kind]))
-        if e.kind == DWELL:
-            yield from close_run()
-            yield pause(Pause("dwell", e.dwell_s, _flags(e), e.start, e.segment, e.line, f"G4 P{e.dwell_s:g}"))
-            last = e
-            continue
+        # the jet and outputs switch first, a dwell programmed after M3 (the CAM pierce) included:
+        # the on delay and pierce dwell always come before what the program adds
         if last is not None and (last.jet, last.aux) != (e.jet, e.aux):
             yield from close_run()
             where = e.start
             if e.jet and not last.jet:
-                yield pause(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), where, e.segment, e.line, "jet on, pierce"))
+                yield pause(Pause("pierce", jet.on_delay_s + pierce_s, _flags(e), where, e.segment, e.line, "jet on, pierce"))
             elif last.jet and not e.jet:
                 yield pause(Pause("jet_off", jet.off_delay_s, _flags(e), where, e.segment, e.line, "jet off"))
         elif last is None and e.jet:
-            yield pause(Pause("pierce", jet.on_delay_s + jet.pierce_dwell_s, _flags(e), e.start, e.segment, e.line, "jet on, pierce"))
-        elif len(run) >= RUN_PIECE and _boundary(run[-1], e):
+            yield pause(Pause("pierce", jet.on_delay_s + pierce_s, _flags(e), e.start, e.segment, e.line, "jet on, pierce"))
+        elif e.kind != DWELL and len(run) >= RUN_PIECE and _boundary(run[-1], e):
             yield from close_run()
-        run.append(e)
         last = e
+        if e.kind == DWELL:
+            yield from close_run()
+            yield pause(Pause("dwell", e.dwell_s, _flags(e), e.start, e.segment, e.line, f"G4 P{e.dwell_s:g}"))
+            continue
+        run.append(e)
     yield from close_run()
     if last is not None and last.jet:
         where = where_last if where_last is not None else last.end
