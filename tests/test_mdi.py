@@ -46,6 +46,10 @@ def run_mdi(sup: Supervisor, text: str) -> list[int]:
     command(sup, Mdi(text))
     sup.wait_until(lambda: seen.append(logic(sup)["state"]) or (MachineState.MDI in seen and at_rest(sup)), 60.0,
                    f"the MDI {text!r} to run")
+    # the planner ends the run when the FIFO is empty: the servo's block may still be the tick before
+    # the last setpoint's; a few ticks more and it has taken every one
+    tick = sup.servo()["tick"]
+    sup.wait_until(lambda: sup.servo()["tick"] > tick + 3 and at_rest(sup), 20.0, "the servo past the last setpoint")
     return seen
 
 
