@@ -6,7 +6,7 @@ the axis limits of machines/waterjet.toml (X/Y velocity, acceleration, travel, s
 and both machines starting at the program's first point. LinuxCNC gets no jerk limit (2.9
 has none); ours holds its own. Programs (generated; all within the 1600 x 1200 mm table):
 
-- the paper's test contour, bench/fig10_contour.ngc (tangent lines and arcs, G64 P0.005);
+- the paper's test contour, cnc/control/fig10_contour.ngc (tangent lines and arcs, G64 P0.005);
 - corner tests: a 100 mm square, and a zigzag whose corners have interior angles of 30, 60,
   90, 120 and 150 degrees (30 = a sharp turn), at F12000 and F30000, G64 P0.05 and P0.005;
 - CAM polylines: a circle R100 as 0.5 mm chords at F6000, and a Lissajous curve as 0.2-2 mm
@@ -63,7 +63,7 @@ from gcode.program import Program
 
 BENCH = Path(__file__).resolve().parent
 MACHINE_FILE = BENCH.parent / "machines" / "waterjet.toml"
-FIG10_FILE = BENCH / "fig10_contour.ngc"
+FIG10_FILE = BENCH.parent / "cnc" / "control" / "fig10_contour.ngc"
 AXES = ("x", "y")
 # LinuxCNC has no jet: none of our jet-on, pierce and jet-off pauses may count in our time
 NO_JET_DELAYS = {"jet.on_delay_s": 0.0, "jet.pierce_dwell_s": 0.0, "jet.off_delay_s": 0.0}

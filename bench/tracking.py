@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Tracking on the paper's test contour (Fig. 10): contour error against 10 um, beside the paper's +-100 um.
 
-Runs `bench/fig10_contour.ngc` (a closed tangent contour in X 340-460, Y 100-200 at up to
+Runs `cnc/control/fig10_contour.ngc` (a closed tangent contour in X 340-460, Y 100-200 at up to
 500 mm/s, G64 P0.005) on the controller's real processes on the virtual clock (`waterjet
 simulate`: hardware server with the simulated board, servo, planner), from a homed machine,
 and compares the largest contour error (actual position against the programmed geometry,
@@ -23,7 +23,7 @@ from cnc.sim.demo import free_port
 from cnc.sim.simulate import simulate
 
 REPO = Path(__file__).resolve().parent.parent
-PROGRAM = REPO / "bench" / "fig10_contour.ngc"
+PROGRAM = REPO / "cnc" / "control" / "fig10_contour.ngc"
 TARGET_UM = 10.0
 PAPER_FOLLOWING_ERROR_UM = 100.0  # Figs. 11-12 of the paper: about +-100 um
 
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         plot_run(args.plot, t_s=(r["tick"] - r["tick"][0]) * result.dt,
                  commanded_mm=r["commanded"], actual_mm=r["actual"], velocity_mm_s=r["velocity"],
                  speed_command_v=r["speed_cmd"], programmed_xy=result.programmed_xy,
-                 title="paper's test contour, simulated (bench/fig10_contour.ngc)")
+                 title="paper's test contour, simulated (cnc/control/fig10_contour.ngc)")
         print(f"figures: {args.plot}")
     if args.json:
         Path(args.json).write_text(json.dumps({"program": PROGRAM.name, **m}, indent=2) + "\n")

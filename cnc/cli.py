@@ -134,6 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
          "cnc.simcli"),
         ("materials", "the material library: cut charts by thickness and quality, speed-ladder calibration",
          "cnc.materialscli"),
+        ("control", "the axis control programs: list them, check one on the simulated plant, select one",
+         "cnc.controlcli"),
         ("hmi", "the operator screen (Qt): connects to a controller over Zenoh", "hmi.app"),
     ):
         module = importlib.import_module(module_name)

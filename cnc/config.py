@@ -261,6 +261,28 @@ class CuttingConfig:
     )
 
 
+@dataclass(frozen=True)
+class ControlConfig:
+    """The axis control law: the control program the servo runs (`cnc.control`), its CPU budget, its parameters."""
+
+    program: str = opt(
+        "pip", doc="the control program: a shipped one (pip, friction_ff, cross_coupled, fault_injection), 'package.module:Class', "
+        "or 'file.py:Class' beside the machine file",
+    )
+    budget_share: float = opt(
+        0.5, "", "CPU time a control program may use per servo period, as a share of the period", 0.01, 0.95
+    )
+    budget_overruns: int = opt(
+        3, "periods", "consecutive periods over the budget that stop a control program (1: the first)", 1, 1000
+    )
+    check_periods: int = opt(2000, "periods", "how long `waterjet control check` runs a program on the simulated plant",
+                             10, 1000000)
+    parameters: dict = field(default_factory=dict, metadata={
+        "free_numbers": True, "unit": "", "lo": None, "hi": None, "choices": None,
+        "doc": "the control program's own parameters: name = value; per axis in [control.parameters.<axis>] "
+               "(`waterjet control list` names them)"})
+
+
 PLC_VAR_KINDS = ("discrete_input", "input_register", "coil", "holding_register")
 PLC_VAR_TYPES = ("bool", "uint16", "int16")
 MAX_PLC_VARS = 64  # per direction: the shared-memory images hold this many values
@@ -312,7 +334,7 @@ ALARM_LEVELS = ("fatal", "error", "warning", "info")
 # ids the control logic raises by name: a catalogue must declare them (the others it raises when declared)
 CONTROLLER_ALARM_IDS = (
     "estop", "mains_off", "doors_open", "barrier_interrupted", "following_error", "soft_limit", "hard_limit", "watchdog",
-    "fifo_underrun", "process_lost", "plc_link_lost",
+    "fifo_underrun", "process_lost", "plc_link_lost", "control_program",
     "plc_error", "pump_pressure_fault", "transport_timeout", "procedure_stop", "procedure_timeout", "program_error",
     "program_message", "wrong_mode", "cycle_done", "internal_error", "operator_lost", "press_button", "press_start",
     "feed_hold", "tick_overruns", "tick_overrun_rate", "simulator", "stop_all",
@@ -482,6 +504,7 @@ class MachineConfig:
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     jet: JetConfig = field(default_factory=JetConfig)
     cutting: CuttingConfig = field(default_factory=CuttingConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
     plc: PlcConfig = field(default_factory=PlcConfig)
     pump: PumpConfig = field(default_factory=PumpConfig)
     cycle: CycleConfig = field(default_factory=CycleConfig)
@@ -554,7 +577,9 @@ def _build(cls: type, table: dict[str, Any], source: str, where: str) -> Any:
     values: dict[str, Any] = {}
     for name, f in fields.items():
         sub = f"{where}.{name}" if where else name
-        if "table_of" in f.metadata:
+        if f.metadata.get("free_numbers"):
+            values[name] = _free_numbers(table.get(name, {}), source, sub)
+        elif "table_of" in f.metadata:
             values[name] = _build_table_of(f, table.get(name), source, sub, name, where)
         elif "array_of" in f.metadata:
             values[name] = _build_array_of(f.metadata["array_of"], table.get(name, []), source, sub)
@@ -565,6 +590,27 @@ def _build(cls: type, table: dict[str, Any], source: str, where: str) -> Any:
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise ConfigError(source, where, name, f"missing required key{_range_text(f.metadata)}")
     return cls(**values)
+
+
+def _free_numbers(raw: Any, source: str, where: str) -> dict:
+    """A table whose keys its user declares (a control program's parameters): numbers, and
+    per-axis tables of numbers (`[control.parameters.x]`). Which names are known is the
+    program's to say (`cnc.control.loader`)."""
+    if not isinstance(raw, dict):
+        raise ConfigError(source, where, None, f"expected a table, got {_tname(raw)}")
+    out: dict[str, Any] = {}
+    for key, value in raw.items():
+        if isinstance(value, dict):
+            if key not in AXIS_NAMES:
+                raise ConfigError(source, where, key, f"a table here is an axis' parameters (allowed: {', '.join(AXIS_NAMES)})")
+            out[key] = _free_numbers(value, source, f"{where}.{key}")
+            if any(isinstance(v, dict) for v in out[key].values()):
+                raise ConfigError(source, f"{where}.{key}", None, "an axis' parameters are numbers, not tables")
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
+            raise ConfigError(source, where, key, f"expected a number, got {value!r}")
+        out[key] = float(value)
+    return out
 
 
 def _build_table_of(f: dataclasses.Field, raw: Any, source: str, sub: str, name: str, where: str) -> dict:
@@ -621,6 +667,21 @@ def _check_value(value: Any, hint: Any, meta: dict, source: str, table: str, key
     return value
 
 
+def _check_control_program(cfg: MachineConfig) -> None:
+    """The control program the file names is found, builds, registers what it may and takes the
+    values of `[control.parameters]` (ConfigError names the key): a machine whose law cannot be
+    built never starts."""
+    from .control.loader import build  # noqa: PLC0415 - the loader imports this module
+    from .control.program import ControlProgramError  # noqa: PLC0415
+
+    try:
+        build(cfg)
+    except ControlProgramError as exc:
+        text = str(exc)
+        prefix = f"{cfg.source}: "
+        raise ConfigError(cfg.source, "", None, text[len(prefix):] if text.startswith(prefix) else text) from None
+
+
 def cross_check(cfg: MachineConfig) -> None:
     """The checks between keys and tables of a machine file (ConfigError names the key): for a
     config changed after loading, such as a control parameter changed online."""
@@ -629,6 +690,7 @@ def cross_check(cfg: MachineConfig) -> None:
 
 def _cross_check(cfg: MachineConfig) -> None:
     src = cfg.source
+    _check_control_program(cfg)
     name = cfg.machine.name
     if not name or not all(c.isalnum() or c in "-_" for c in name):
         raise ConfigError(src, "machine", "name", f"{name!r} must be letters, digits, '-' or '_'")

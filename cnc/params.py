@@ -24,8 +24,10 @@ from pathlib import Path
 from .config import MachineConfig, loads_machine
 from .data.layout import MAX_PARAMS
 
-# (table, key, owner, when it may change, when it takes effect) per option; axis options for every axis
-_AXIS_OPTIONS = ("kp_1_s", "ki_1_s2", "velocity_ff", "accel_ff_s", "integral_limit_mm_s", "following_error_limit_mm")
+# (table, key, owner, when it may change, when it takes effect) per option. The axis control law's
+# parameters are its control program's registrations (`cnc.control`); the servo's supervision
+# keeps its own: the following-error limit of every axis.
+_SERVO_AXIS_OPTIONS = ("following_error_limit_mm",)
 _OTHERS = (
     ("planner", "jog_velocity_mm_s", "planner", "always", "the next jog"),
     ("planner", "arc_normal_share", "planner", "idle", "the next program start"),
@@ -58,6 +60,7 @@ class ParamSpec:
     when: str  # "always" | "idle": changeable at any time, or only while no program runs
     effect: str  # when the machine feels it
     index: int  # slot in the params block
+    default: float | None = None  # a control program's own parameter: its registered value (the file may omit it)
 
     def check(self, value: float, planner_state: str) -> None:
         """ParamError when `value` may not be set now: not a finite number, out of range, or the state forbids it."""
@@ -72,30 +75,64 @@ class ParamSpec:
 
 
 def registry(config: MachineConfig) -> list[ParamSpec]:
-    """Every control parameter of this machine, in block-slot order."""
-    rows = [(("axis", name), key, "servo", "always", "the next tick") for name in config.axis_names
-            for key in _AXIS_OPTIONS]
-    rows += [((table,), key, owner, when, effect) for table, key, owner, when, effect in _OTHERS]
-    specs = []
-    for index, (path, key, owner, when, effect) in enumerate(rows):
-        table = _table(config, path)
-        meta = {f.name: f.metadata for f in dataclasses.fields(table)}[key]
-        specs.append(ParamSpec(".".join((*path, key)), path, key, meta["doc"], meta["unit"], float(meta["lo"]),
-                               float(meta["hi"]), owner, when, effect, index))
+    """Every control parameter of this machine, in block-slot order: its control program's (an
+    `[axis]` option per axis, `axis.<a>.<key>`; its own, `control.<name>` or `control.<a>.<name>`),
+    the servo's following-error limits, then the planner's."""
+    from .control.loader import build  # noqa: PLC0415 - the loader imports the config, as this module does
+
+    program = build(config)
+    specs: list[ParamSpec] = []
+
+    def add(path: tuple[str, ...], key: str, doc: str, unit: str, lo: float, hi: float, owner: str, when: str,
+            effect: str, default: float | None = None) -> None:
+        shown = ("control", *path[2:]) if path[:2] == ("control", "parameters") else path  # control.<a>.<name>
+        name = ".".join((*shown, key))
+        specs.append(ParamSpec(name, path, key, doc, unit, lo, hi, owner, when, effect, len(specs), default))
+
+    for axis in config.axis_names:
+        for p in program.parameters:
+            if p.option:
+                meta = _meta(config.axis[axis], p.option)
+                add(("axis", axis), p.option, meta["doc"], meta["unit"], float(meta["lo"]), float(meta["hi"]),
+                    "servo", "always", "the next tick")
+        for key in _SERVO_AXIS_OPTIONS:
+            meta = _meta(config.axis[axis], key)
+            add(("axis", axis), key, meta["doc"], meta["unit"], float(meta["lo"]), float(meta["hi"]), "servo", "always",
+                "the next tick")
+    for p in program.parameters:
+        if p.option:
+            continue
+        if p.per_axis:
+            for k, axis in enumerate(config.axis_names):
+                add(("control", "parameters", axis), p.name, p.doc, p.unit, p.lo, p.hi, "servo", "always", "the next tick",
+                    float(p.value[k]))
+        else:
+            add(("control", "parameters"), p.name, p.doc, p.unit, p.lo, p.hi, "servo", "always", "the next tick",
+                float(p.value))
+    for table, key, owner, when, effect in _OTHERS:
+        meta = _meta(_table(config, (table,)), key)
+        add((table,), key, meta["doc"], meta["unit"], float(meta["lo"]), float(meta["hi"]), owner, when, effect)
     if len(specs) > MAX_PARAMS:
         raise ValueError(f"{len(specs)} control parameters do not fit the params block ({MAX_PARAMS})")
     return specs
 
 
+def _meta(table: object, key: str) -> dict:
+    return {f.name: f.metadata for f in dataclasses.fields(table)}[key]
+
+
 def _table(config: MachineConfig, path: tuple[str, ...]) -> object:
     node: object = config
     for part in path:
-        node = node[part] if isinstance(node, dict) else getattr(node, part)
+        node = node.get(part, {}) if isinstance(node, dict) else getattr(node, part)
     return node
 
 
 def value_of(config: MachineConfig, spec: ParamSpec) -> float:
-    return float(getattr(_table(config, spec.path), spec.key))
+    table = _table(config, spec.path)
+    if isinstance(table, dict):  # [control.parameters]: what the file leaves out is the program's registered value
+        return float(table.get(spec.key, spec.default))
+    return float(getattr(table, spec.key))
 
 
 def values_of(config: MachineConfig, specs: list[ParamSpec]) -> list[float]:
@@ -107,16 +144,20 @@ def with_values(config: MachineConfig, specs: list[ParamSpec], values: list[floa
     for spec, value in zip(specs, values):
         if value_of(config, spec) == value:
             continue
-        config = _replace(config, spec.path, spec.key, type(getattr(_table(config, spec.path), spec.key))(value))
+        table = _table(config, spec.path)
+        config = _replace(config, spec.path, spec.key, float(value) if isinstance(table, dict) else
+                          type(getattr(table, spec.key))(value))
     return config
 
 
 def _replace(node: object, path: tuple[str, ...], key: str, value: object) -> object:
     if not path:
+        if isinstance(node, dict):
+            return {**node, key: value}
         return dataclasses.replace(node, **{key: value})
     head, rest = path[0], path[1:]
     if isinstance(node, dict):
-        return {**node, head: _replace(node[head], rest, key, value)}
+        return {**node, head: _replace(node.get(head, {}), rest, key, value)}
     return dataclasses.replace(node, **{head: _replace(getattr(node, head), rest, key, value)})
 
 
@@ -139,11 +180,17 @@ def save(path: str | Path, changes: dict[tuple[tuple[str, ...], str], float]) ->
     added to its table (the table too, at the end, when the file has none). The result is
     validated as a machine file before it replaces the original, which is kept as `<file>.bak`.
     Returns the dotted names written. ConfigError when the result would not load."""
+    # TOML reads Python's shortest float repr back exactly ("120.0", "1e-05")
+    return save_literals(path, {where: repr(float(value)) for where, value in changes.items()})
+
+
+def save_literals(path: str | Path, changes: dict[tuple[tuple[str, ...], str], str]) -> list[str]:
+    """`save` with the TOML literals given (`'"pip"'`, `'120.0'`): the same edit, check and backup."""
     path = Path(path)
     lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
     written = []
-    for (table, key), value in changes.items():
-        lines = _set_line(lines, ".".join(table), key, value)
+    for (table, key), literal in changes.items():
+        lines = _set_line(lines, ".".join(table), key, literal)
         written.append(".".join((*table, key)))
     text = "".join(lines)
     loads_machine(text, str(path))  # refuses, naming the key, anything the edit broke
@@ -155,9 +202,8 @@ def save(path: str | Path, changes: dict[tuple[tuple[str, ...], str], float]) ->
     return written
 
 
-def _set_line(lines: list[str], table: str, key: str, value: float) -> list[str]:
+def _set_line(lines: list[str], table: str, key: str, literal: str) -> list[str]:
     start, end = _table_span(lines, table)
-    literal = repr(float(value))  # TOML reads Python's shortest float repr back exactly ("120.0", "1e-05")
     assign = re.compile(rf"^(\s*){re.escape(key)}(\s*=\s*)([^#\n]*?)(\s*#.*)?(\n?)$")
     if start is None:
         tail = "" if not lines or lines[-1].endswith("\n") else "\n"

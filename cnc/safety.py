@@ -28,6 +28,7 @@ SAFETY_ALARMS: dict[str, str] = {
     "watchdog": ERROR,
     "fifo_underrun": ERROR,
     "process_lost": ERROR,
+    "control_program": ERROR,
 }
 
 # The alarms of the servo's faults; DRIVE_FAULT raises the faulted axis' `<axis>_drive`.
@@ -47,6 +48,7 @@ FAULT_ALARMS: dict[ServoFault, str] = {
     ServoFault.PUMP: "pump_pressure_fault",
     ServoFault.PLC_LINK: "plc_link_lost",
     ServoFault.COMMANDER: "process_lost",
+    ServoFault.CONTROL_PROGRAM: "control_program",
 }
 
 

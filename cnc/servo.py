@@ -39,6 +39,9 @@ from typing import Callable
 
 from .brake import PathBrake, PathPoint
 from .config import MachineConfig
+from .control.loader import build as build_program
+from .control.pip import PIP
+from .control.program import ControlInputs, ControlProgram, outputs_problem
 from .data.dataserver import SharedArea
 from .data.fifo import OUTPUT_MASK, SetpointFifo, SetpointFlag
 from .hw.board import AxisIn, DigitalOut
@@ -56,9 +59,7 @@ _LIMITS = int(AxisIn.LIMIT_MIN | AxisIn.LIMIT_MAX)
 _LIMIT_MIN, _LIMIT_MAX = int(AxisIn.LIMIT_MIN), int(AxisIn.LIMIT_MAX)
 _READY = int(AxisIn.DRIVE_READY)
 _CATEGORY_0 = int(CATEGORY_0)
-# the servo's list that holds each servo-owned control parameter, per axis
-_PARAM_LISTS = {"kp_1_s": "kp", "ki_1_s2": "ki", "velocity_ff": "kv", "accel_ff_s": "ka",
-                "integral_limit_mm_s": "i_lim", "following_error_limit_mm": "fe_lim"}
+_LAW_FAILED = -2  # `_control`: the control program failed this period (the fallback law computed it)
 SETTLE_TICKS = 20  # after its stop the servo holds this long, closed loop, before the drives go off
 STOP_FE_FACTOR = 4.0  # during its own stop an axis may lag this many following-error limits before the drives go off
 _EPOCH_MASK = 0xFFFF_FFFF  # a record's epoch field is 32 bits
@@ -93,11 +94,6 @@ class Servo:
         hb["pid"][Proc.SERVO] = os.getpid()
         # per-axis constants, as plain floats for the tick path
         self.res = [a.encoder_resolution_mm for a in self.axes]
-        self.kp = [a.kp_1_s for a in self.axes]
-        self.ki = [a.ki_1_s2 for a in self.axes]
-        self.kv = [a.velocity_ff for a in self.axes]
-        self.ka = [a.accel_ff_s for a in self.axes]
-        self.i_lim = [a.integral_limit_mm_s for a in self.axes]
         self.vpm = [a.volts_per_mm_s for a in self.axes]
         self.vmax = [a.drive_full_scale_v for a in self.axes]
         self.fe_lim = [a.following_error_limit_mm for a in self.axes]
@@ -106,9 +102,25 @@ class Servo:
         self.tol = [a.soft_limit_tolerance_mm for a in self.axes]
         self.stop_accel = min(a.max_accel_mm_s2 for a in self.axes)
         self.stop_jerk = min(a.max_jerk_mm_s3 for a in self.axes)
+        # the control law: the machine's control program (`cnc.control`), supervised from here; after it
+        # failed, the servo's own PI-P of the machine file's gains brings the axes to rest until a reset
+        self.program: ControlProgram = build_program(config)
+        self.program_name = f"{config.control.program} ({type(self.program).__name__})"
+        self.fallback: ControlProgram = PIP(config)
+        self.law = self.program
+        self.law_running = False
+        self.inputs = ControlInputs(n)
+        self.budget_ns = config.control.budget_share * self.dt * 1e9
+        self.budget_overruns = config.control.budget_overruns
+        self.over_budget = 0  # consecutive periods over the budget
+        self.control_ns = 0  # the control program's CPU time in the last period it ran (for the trace)
+        self.logs = self.program.log_variables
+        self.log_values = [0.0] * sum(spec.size for spec in self.logs)  # flattened, for the trace
+        ct = area.blocks["control_timing"].array
+        self.control_timing, self.control_hist = ct, ct[0]["hist"]
         # loop state
-        self.integral = [0.0] * n
         self.v_prev = [0.0] * n
+        self.actual_prev: list[float] | None = None  # the encoders' position the period before (velocity estimate)
         self.last_flags = 0
         self.dry = False  # the FIFO ran dry during a motion and nothing came since
         self.last_tick = 0
@@ -143,8 +155,7 @@ class Servo:
         block = area.blocks["params"]
         at = block.offset + block.layout.dtype.fields["change"][1]
         self._params_change_cell = block.buf[at:at + 8].cast("Q")
-        self._param_slots = [(_PARAM_LISTS[s.key], self.config.axis_names.index(s.path[1]), s.index)
-                             for s in registry(config) if s.owner == "servo"]
+        self._param_slots = [self._param_slot(s) for s in registry(config) if s.owner == "servo"]
         mx = self.motion.layout.index
         self._m_ref = (mx["position_ref_seq"], mx["position_ref_mask"], mx["position_ref_counts"], mx["position_ref_mm"],
                        mx["position_ref_unhome"])
@@ -187,6 +198,7 @@ class Servo:
             v[I["overrun_last_ticks"]] = steps - 1
         self.first = False
         self.last_tick = tick
+        self.control_ns = 0  # until the control program runs in this tick
         if self._params_change_cell[0] != v[I["params_change"]]:
             self._apply_params(tick)  # at the tick boundary: this whole tick runs with the new values
         enc = hw[self._h_enc]
@@ -233,6 +245,7 @@ class Servo:
             self.trace.write(
                 tick, v[I["commanded_mm"]], actual, v[I["commanded_velocity_mm_s"]], v[I["speed_cmd_v"]],
                 v[I["setpoint_flags"]], v[I["setpoint_segment"]], v[I["setpoint_line"]], self.fifo.fill(), latency,
+                self.control_ns, self.log_values,
             )
         if self.record_latency:
             self._record_latency(latency)
@@ -283,6 +296,7 @@ class Servo:
             v[I["max_following_error_mm"]] = [0.0] * self.n
             v[I["motion_epoch"]] += 1
             self._open_loop(actual)
+            self.law = self.program  # a control program that failed gets its next chance with the next run
             return ServoState.DISABLED
         return state
 
@@ -385,6 +399,9 @@ class Servo:
         ain = hw[self._h_ain]
         lagging = self._control(position, velocity, actual, steps, [bool(ain[i] & _READY) for i in range(self.n)],
                                 STOP_FE_FACTOR)
+        if lagging == _LAW_FAILED and self.commanded:  # the commander's stop goes on with the fallback, latched now
+            self._trip(ServoFault.CONTROL_PROGRAM, -1, 0.0, tick, 0)
+            self.commanded = False
         if lagging >= 0:  # the axes cannot follow their own stop (seized, runaway): nothing left but drives off
             log.error("servo: axis %s cannot follow the controlled stop: drives off", self.names[lagging].upper())
             return self._finish_brake(actual)
@@ -453,6 +470,8 @@ class Servo:
             flags = self.last_flags & ~_IN_MOTION
             self.last_flags = flags
         lagging = self._control(commanded, velocity, actual, steps, [True] * n, 1.0)
+        if lagging == _LAW_FAILED:  # stopped along the path by the fallback law: the alarm names the program
+            return self._brake_trip(ServoFault.CONTROL_PROGRAM, -1, 0.0, tick, 0, follow_path=True)
         if lagging >= 0:
             return self._brake_trip(ServoFault.FOLLOWING_ERROR, lagging, v[I["following_error_mm"]][lagging], tick, 0,
                                     follow_path=True)
@@ -483,10 +502,14 @@ class Servo:
 
     def _control(self, commanded: list[float], velocity: list[float], actual: list[float], steps: int,
                  watched: list[bool], fe_factor: float) -> int:
-        """PI + feed-forward towards `commanded`; the axis whose error passed fe_factor x its limit, or -1."""
+        """The control law towards `commanded` (the supervision around it is this method's): the
+        axis whose error passed fe_factor x its limit, `_LAW_FAILED` when the control program
+        failed this period (the fallback law's commands are out), or -1."""
         v, I, n, dt = self.out.values, self._i, self.n, self.dt * steps
-        errors, speed = [0.0] * n, [0.0] * n
+        inp = self.inputs
+        errors = inp.error_mm
         fe_max = v[I["max_following_error_mm"]]
+        prev = self.actual_prev if self.actual_prev is not None else actual
         lagging = -1
         for i in range(n):
             e = commanded[i] - actual[i]
@@ -495,17 +518,23 @@ class Servo:
                 fe_max[i] = abs(e)
             if watched[i] and abs(e) > self.fe_lim[i] * fe_factor and lagging < 0:
                 lagging = i
-            integ = self.integral[i] + e * dt
-            lim = self.i_lim[i] / self.ki[i] if self.ki[i] > 0.0 else 0.0
-            integ = lim if integ > lim else -lim if integ < -lim else integ
-            self.integral[i] = integ
-            accel = (velocity[i] - self.v_prev[i]) / dt
+            inp.setpoint_mm[i] = commanded[i]
+            inp.setpoint_velocity_mm_s[i] = velocity[i]
+            inp.setpoint_accel_mm_s2[i] = (velocity[i] - self.v_prev[i]) / dt
             self.v_prev[i] = velocity[i]
-            u = self.kv[i] * velocity[i] + self.ka[i] * accel + self.kp[i] * e + self.ki[i] * integ
-            volts = u * self.vpm[i]
+            inp.actual_mm[i] = actual[i]
+            inp.velocity_mm_s[i] = (actual[i] - prev[i]) / dt
+        self.actual_prev = actual
+        inp.dt_s = dt
+        inp.flags = self.last_flags
+        inp.moving = bool(self.last_flags & _IN_MOTION)
+        u, failed = self._run_law(inp, dt)
+        speed = [0.0] * n
+        for i in range(n):
+            volts = u[i] * self.vpm[i]
             vmax = self.vmax[i]
             speed[i] = vmax if volts > vmax else -vmax if volts < -vmax else volts
-        v[I["following_error_mm"]] = errors
+        v[I["following_error_mm"]] = list(errors)
         v[I["max_following_error_mm"]] = fe_max
         if lagging >= 0:
             return lagging
@@ -514,7 +543,88 @@ class Servo:
         v[I["commanded_velocity_mm_s"]] = list(velocity)
         v[I["speed_cmd_v"]] = speed
         v[I["drive_enable_mask"]] = (1 << n) - 1
-        return -1
+        return _LAW_FAILED if failed else -1
+
+    def _run_law(self, inp: ControlInputs, dt: float) -> tuple[list[float], bool]:
+        """One period of the control law, timed in CPU time against its budget: (speed commands,
+        whether the control program failed). A program that raises, returns anything but one
+        finite number per axis, or overruns its budget is replaced by the fallback law at once
+        (`_fail_law`), which computes this period."""
+        law = self.law
+        why = ""
+        if not self.law_running:
+            self.law_running = True
+            try:
+                law._started()
+            except (Exception, SystemExit) as exc:  # noqa: BLE001 - whatever the user's code raises
+                why = f"start_control raised {type(exc).__name__}: {exc}"
+        if not why:
+            t0 = time.thread_time_ns()
+            try:
+                u = law.control(inp)
+                used = time.thread_time_ns() - t0
+                law._counted(dt)
+                why = outputs_problem(u, self.names)
+            except (Exception, SystemExit) as exc:  # noqa: BLE001
+                used = time.thread_time_ns() - t0
+                why = f"raised {type(exc).__name__}: {exc}"
+            if law is self.program:
+                self._record_control(used)
+                if used > self.budget_ns:
+                    self.over_budget += 1
+                    if self.over_budget >= self.budget_overruns and not why:
+                        why = (f"used {used / 1000:.0f} us of CPU in a period, over its budget of "
+                               f"{self.budget_ns / 1000:.0f} us ({self.over_budget} periods in a row)")
+                else:
+                    self.over_budget = 0
+        if why and law is self.program:
+            self._fail_law(why)
+            u, _ = self._run_law(inp, dt)  # the fallback, this very period
+            return u, True
+        if why:  # the fallback itself failed: nothing sane to command
+            log.error("servo: the fallback control law failed: %s", why)
+            return [0.0] * self.n, True
+        if self.logs and law is self.program and self._trace_cell[0]:
+            self._take_logs()
+        return u, False
+
+    def _fail_law(self, why: str) -> None:
+        """The control program failed: say so in the block, stop it, and let the fallback law take over."""
+        v, I = self.out.values, self._i
+        text = f"control program {self.program_name} {why}"
+        self.out.set("control_failure", text)
+        v[I["control_failures"]] += 1
+        log.error("servo: %s: the servo's own PI-P takes over", text)
+        try:
+            self.program.stop_control()
+        except (Exception, SystemExit):  # noqa: BLE001 - it has failed already
+            pass
+        self.law, self.law_running, self.over_budget = self.fallback, False, 0
+
+    def _take_logs(self) -> None:
+        """The control program's log variables, flattened for the trace record."""
+        out, k, program = self.log_values, 0, self.program
+        for spec in self.logs:
+            value = getattr(program, spec.name, 0.0)
+            if spec.size == 1 and not spec.per_axis:
+                out[k] = float(value) if isinstance(value, (int, float)) else math.nan
+                k += 1
+                continue
+            for j in range(spec.size):
+                try:
+                    out[k] = float(value[j])
+                except (TypeError, IndexError, ValueError):
+                    out[k] = math.nan
+                k += 1
+
+    def _record_control(self, ns: int) -> None:
+        self.control_ns = ns
+        b = ns // 1000
+        self.control_hist[b if b < HIST_BINS - 1 else HIST_BINS - 1] += 1
+        t = self.control_timing
+        t["count"][0] += 1
+        if ns > t["max_ns"][0]:
+            t["max_ns"][0] = ns
 
     def _pop(self) -> tuple | None:
         """The next setpoint of the current motion epoch; records of another are dropped and counted."""
@@ -563,10 +673,28 @@ class Servo:
             return
         block = self.params.layout.index
         slots = values[block["values"]]
-        for attr, axis, slot in self._param_slots:
-            getattr(self, attr)[axis] = float(slots[slot])
+        for target, where, slot in self._param_slots:
+            if isinstance(where, int):
+                target[where] = float(slots[slot])
+            else:
+                setattr(target, where, float(slots[slot]))
         v, I = self.out.values, self._i
         v[I["params_change"]], v[I["params_tick"]] = values[block["change"]], tick
+
+    def _param_slot(self, spec) -> tuple[object, int | str, int]:  # noqa: ANN001 - a ParamSpec
+        """Where the servo keeps a servo-owned parameter: (a list and its axis, or an object and its
+        member name, the block slot). The following-error limits are the supervision's own; the
+        rest are the control program's registered members."""
+        axis = self.names.index(spec.path[1]) if spec.path[0] == "axis" else (
+            self.names.index(spec.path[2]) if len(spec.path) == 3 else -1)
+        if spec.key == "following_error_limit_mm":
+            return self.fe_lim, axis, spec.index
+        if spec.path[0] == "axis":
+            member = next(p.name for p in self.program.parameters if p.option == spec.key)
+            return getattr(self.program, member), axis, spec.index
+        if axis >= 0:
+            return getattr(self.program, spec.key), axis, spec.index
+        return self.program, spec.key, spec.index
 
     def _apply_reference(self, ref: tuple, enc: tuple, actual: list[float]) -> list[float]:
         """Homing: `position_ref_counts` of the masked axes is `position_ref_mm`; the axes of
@@ -584,7 +712,10 @@ class Servo:
                 offset[i] += shift
                 actual[i] += shift
                 commanded[i] = actual[i]
-                self.integral[i] = 0.0
+                if self.law_running:
+                    self.law.position_referenced(i)
+                if self.actual_prev is not None:
+                    self.actual_prev[i] += shift
         v[I["position_offset_mm"]] = offset
         v[I["commanded_mm"]] = commanded
         v[I["homed_mask"]] = (v[I["homed_mask"]] & ~ref[i_unhome]) | mask
@@ -606,9 +737,16 @@ class Servo:
         v[I["commanded_mm"]] = list(actual)
         v[I["commanded_velocity_mm_s"]] = [0.0] * n
         v[I["following_error_mm"]] = [0.0] * n
-        self.integral = [0.0] * n
         self.v_prev = [0.0] * n
+        self.actual_prev = None
         self.last_flags = 0
+        if self.law_running:  # the loop opens: the law stops (it starts afresh when the loop closes again)
+            self.law_running = False
+            try:
+                self.law.stop_control()
+            except (Exception, SystemExit) as exc:  # noqa: BLE001
+                if self.law is self.program:
+                    self._fail_law(f"stop_control raised {type(exc).__name__}: {exc}")
 
     def _record_latency(self, ns: int) -> None:
         b = ns // 1000

@@ -4,7 +4,9 @@ the right, so that gains are changed while the following error is watched (QMoto
 from __future__ import annotations
 
 from PySide6.QtCore import Qt
-from PySide6.QtWidgets import QSplitter, QTabWidget, QVBoxLayout, QWidget
+from PySide6.QtWidgets import QLabel, QSplitter, QTabWidget, QVBoxLayout, QWidget
+
+from cnc.bus.messages import ControlLaw
 
 from .adapter import ModelAdapter, TuningAdapter
 from .commands import CommandRunner
@@ -36,6 +38,32 @@ class EngineeringWindow(QWidget):
         split.addWidget(self.tabs)
         split.addWidget(self.scope)
         split.setSizes([760, 840])
+        self.law = QLabel()  # the control program and its CPU time per period, live (QMotor 2.0's control benchmark)
+        self.law.setObjectName("tuning.control_law")
+        self.law.setWordWrap(True)
         layout = QVBoxLayout(self)
+        layout.addWidget(self.law)
         layout.addWidget(split)
         self.resize(1600, 900)
+        self.model = adapter.model
+        adapter.status.connect(self._show_law)
+        self._show_law()
+
+    def _show_law(self) -> None:
+        status = self.model.status
+        text = law_text(status.control) if status is not None and status.control is not None else ""
+        if self.law.text() != text:
+            self.law.setText(text)
+
+
+def law_text(law: ControlLaw) -> str:
+    """The control program and what it costs, in one line for the engineer."""
+    if law.p50_us < 0:
+        cost = f"not running (budget {law.budget_us:.0f} µs per period)"
+    else:
+        cost = (f"CPU per period p50 {law.p50_us:.0f} µs, p99 {law.p99_us:.0f} µs, max {law.max_us:.0f} µs "
+                f"of a {law.budget_us:.0f} µs budget (last second)")
+    text = f"Control program {law.program}: {cost}"
+    if law.failures:
+        text += f"; stopped {law.failures} time{'s' if law.failures != 1 else ''}, last: {law.failure}"
+    return text

@@ -62,6 +62,12 @@ def test_a_fault_during_a_cut_closes_the_jet_stops_within_the_bound_raises_its_a
         fault.clear(sup)
     FAULT_REACTIONS.append(reaction)
     servo = sup.servo()
+    if fault.trip == ServoFault.CONTROL_PROGRAM:  # the alarm names the program and what it did
+        with AlarmHistory(sup.history_path, readonly=True) as history:
+            raised = [e for e in history.after(history.last_seq() - 50, 100).entries
+                      if e.id == "control_program" and e.action == "raised"]
+        assert raised and raised[-1].detail.startswith("control program fault_injection (Faulty) "), raised
+        assert "the servo's own PI-P stopped the axes on the path" in raised[-1].detail
     if fault.trip is not None:
         assert ServoFault(servo["trip_fault"]) == fault.trip, reaction.state
     if fault.hold:

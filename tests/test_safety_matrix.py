@@ -17,6 +17,7 @@ the real processes, each at least once, are in `test_fault_injection.py`.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -173,6 +174,31 @@ def _nothing(rig: Rig) -> None:
     return None
 
 
+def _law(control: Callable | None) -> Callable[[Rig], None]:
+    """The servo's control program's `control` replaced by `control` (None: its own again)."""
+    def put(rig: Rig) -> None:
+        if control is None:
+            rig.servo.program.__dict__.pop("control", None)
+        else:
+            rig.servo.program.control = control
+    return put
+
+
+def _raises(inputs) -> list[float]:  # noqa: ANN001
+    raise ZeroDivisionError("division by zero")
+
+
+def _nan(inputs) -> list[float]:  # noqa: ANN001
+    return [math.nan, 0.0]
+
+
+def _spins(inputs) -> list[float]:  # noqa: ANN001 - two periods of CPU time each period
+    until = time.thread_time_ns() + int(2e9 * DT)
+    while time.thread_time_ns() < until:
+        pass
+    return [0.0, 0.0]
+
+
 FAULTS = [
     Fault("e-stop", lambda r: r.board.set_estop(True), lambda r: r.board.set_estop(False), ServoFault.ESTOP, _everywhere,
           category0=True),
@@ -201,6 +227,9 @@ FAULTS = [
     Fault("logic hung", lambda r: setattr(r.alive, "commander", False), _revive_commander, ServoFault.COMMANDER, _everywhere),
     Fault("logic killed mid-write", lambda r: (setattr(r.alive, "commander", False), r.kill_mid_write("command", Proc.LOGIC)),
           _revive_commander, ServoFault.COMMANDER, _everywhere),
+    Fault("control program raises", _law(_raises), _law(None), ServoFault.CONTROL_PROGRAM, _everywhere),
+    Fault("control program returns NaN", _law(_nan), _law(None), ServoFault.CONTROL_PROGRAM, _everywhere),
+    Fault("control program over its budget", _law(_spins), _law(None), ServoFault.CONTROL_PROGRAM, _everywhere),
     Fault("servo hung", lambda r: setattr(r.alive, "servo", False), _revive_servo, ServoFault.WATCHDOG, _everywhere),
     Fault("servo killed mid-write", lambda r: (setattr(r.alive, "servo", False), r.kill_mid_write("servo", Proc.SERVO)),
           _revive_servo, ServoFault.WATCHDOG, _everywhere),

@@ -335,7 +335,7 @@ def test_control_parameters_written_between_two_ticks_apply_from_the_next_tick_w
         integral_step = config.axis["x"].ki_1_s2 * 0.010 * config.timing.period_s * config.axis["x"].volts_per_mm_s
         p_part = lambda kp: kp * 0.010 * config.axis["x"].volts_per_mm_s  # noqa: E731
         assert s["speed_cmd_v"][0] == pytest.approx(volts + p_part(values[kp_x.index] / 2) + integral_step, rel=1e-9)
-        assert bare.servo.fe_lim[1] == 0.25 and bare.servo.kp[0] == values[kp_x.index]
+        assert bare.servo.fe_lim[1] == 0.25 and bare.servo.program.kp_1_s[0] == values[kp_x.index]
         s = bare.run(3)
         assert s["params_change"] == 1 and s["params_tick"] == 2, "applied once"
 
@@ -354,7 +354,7 @@ def test_control_parameters_found_mid_write_are_taken_at_the_next_tick_never_as_
         for _ in range(4):
             bare.fifo.push_one((0.010, 0.0), (0.0, 0.0), SetpointFlag.IN_MOTION)  # 10 um of error on X
         s = bare.run(1)
-        kp_before, fe_before = list(bare.servo.kp), list(bare.servo.fe_lim)
+        kp_before, fe_before = list(bare.servo.program.kp_1_s), list(bare.servo.fe_lim)
         block = bare.area.writer("params")
         values = values_of(config, specs)
         values[kp_x.index] = 2 * values[kp_x.index]
@@ -365,10 +365,10 @@ def test_control_parameters_found_mid_write_are_taken_at_the_next_tick_never_as_
         cell[0] += 1  # the writer stopped half-way through its next write
         s = bare.run(2)
         assert s["state"] != ServoState.FAULT and s["params_change"] == 0, "nothing taken from a block mid-write"
-        assert bare.servo.kp == kp_before and bare.servo.fe_lim == fe_before
+        assert bare.servo.program.kp_1_s == kp_before and bare.servo.fe_lim == fe_before
         cell[0] += 1  # the write completes
         s = bare.run(3)
-        assert s["params_change"] == 1 and s["params_tick"] == 3 and bare.servo.kp[0] == values[kp_x.index]
+        assert s["params_change"] == 1 and s["params_tick"] == 3 and bare.servo.program.kp_1_s[0] == values[kp_x.index]
         assert s["state"] != ServoState.FAULT
 
 

@@ -7,11 +7,12 @@ from cnc.data.trace import TraceRing
 
 
 def write(ring: TraceRing, tick: int) -> None:
-    ring.write(tick, (tick * 1.0, -tick * 1.0), (tick + 0.5, 0.0), (1.0, 2.0), (0.1, 0.2), 0x101, tick // 10, tick % 7, 3, 1000 * tick)
+    ring.write(tick, (tick * 1.0, -tick * 1.0), (tick + 0.5, 0.0), (1.0, 2.0), (0.1, 0.2), 0x101, tick // 10, tick % 7, 3, 1000 * tick,
+               7 * tick, [0.5 * tick] * ring.n_extra)
 
 
 def test_records_come_out_in_order_across_the_wrap_with_every_field():
-    ring = TraceRing.create(unique_name("test", "trace"), 8, 2)
+    ring = TraceRing.create(unique_name("test", "trace"), 8, 2, 3)  # 3: a control program's log variables
     try:
         got = []
         for tick in range(1, 21):
@@ -23,7 +24,8 @@ def test_records_come_out_in_order_across_the_wrap_with_every_field():
         last = got[-1][-1]
         assert list(last["commanded"]) == [20.0, -20.0] and list(last["actual"]) == [20.5, 0.0]
         assert last["flags"] == 0x101 and last["segment"] == 2 and last["line"] == 20 % 7 and last["fifo_fill"] == 3
-        assert last["latency_ns"] == 20_000
+        assert last["latency_ns"] == 20_000 and last["control_ns"] == 140
+        assert list(last["control"]) == [10.0, 10.0, 10.0]
         assert ring.dropped() == 0
     finally:
         ring.close()

@@ -68,6 +68,19 @@ class ProgramProgress(msgspec.Struct, frozen=True):
     interrupted: InterruptedCut | None = None  # the cut "continue" would take up; None when none is known
 
 
+class ControlLaw(msgspec.Struct, frozen=True):
+    """The axis control program and what it costs (in Status): its CPU time per period over the
+    last second (-1: it did not run), its budget, and its failures (`cnc.control`)."""
+
+    program: str  # "cross_coupled (CrossCoupled)"
+    p50_us: float
+    p99_us: float
+    max_us: float
+    budget_us: float
+    failures: int  # times it was stopped since the controller started
+    failure: str = ""  # what it did the last time
+
+
 class Status(msgspec.Struct, frozen=True):
     """Cyclic controller status (`<root>/status`)."""
 
@@ -117,6 +130,7 @@ class Status(msgspec.Struct, frozen=True):
     operator: str = ""  # the station holding the command lock ("" none)
     stations: list[str] = msgspec.field(default_factory=list)  # operator stations whose liveliness token is alive
     network_alive: bool = False  # the lock holder's station is connected
+    control: ControlLaw | None = None  # the control program's timing (None: not told)
     version: int = SCHEMA_VERSION
 
 

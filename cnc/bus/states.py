@@ -107,6 +107,7 @@ class ServoFault(enum.IntEnum):
     PUMP = 14  # the pump reports a fault, or its pressure fell below the commander's floor with the jet open
     PLC_LINK = 15  # the PLC's inputs stopped being fresh (link lost, or its process hung or dead)
     COMMANDER = 16  # the commander (the control logic) stopped beating, or died while writing its block
+    CONTROL_PROGRAM = 17  # the control program raised, returned no finite command, or overran its budget
 
 
 class LinkState(enum.IntEnum):

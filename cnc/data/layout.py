@@ -127,6 +127,8 @@ def servo_layout(n: int) -> BlockLayout:
             F("jet_on_mm", "d", n),  # where the jet last cut: the setpoint of the last tick it was open ...
             F("jet_on_segment", "I"),  # ... its program segment and line (what "continue" continues from)
             F("jet_on_line", "i"),
+            F("control_failures", "Q"),  # +1 each time the control program failed (cnc.control)
+            F("control_failure", "s", 200),  # what it did, the last time (kept after a reset)
         ],
     )
 
@@ -318,6 +320,7 @@ def controller_layouts(n_axes: int) -> list[BlockLayout]:
         params_layout(),
         timing_layout("hw_timing"),
         timing_layout("servo_timing"),
+        timing_layout("control_timing"),  # the control program's CPU time per period (the servo's `_run_law`)
         timing_layout("logic_scan"),
         timing_layout("logic_wake"),
         heartbeat_layout(),

@@ -19,6 +19,7 @@ from pathlib import Path
 import zenoh
 
 from ..bus.keys import Keys
+from .control_timing import ControlTiming
 from ..bus.messages import AxisStatus, InterruptedCut, Position, ProgramProgress, Status, encode
 from .door import Door
 from ..config import MachineConfig
@@ -69,6 +70,7 @@ class Gateway:
             inject=injected_bugs(area, config),
         )
         self.param_door = ParamDoor(config, session, self.keys, area, self.door.service)
+        self.control_timing = ControlTiming(config, area)
         # last: declarations travel in order, so whoever sees this token can reach every door above
         self.token = session.liveliness().declare_token(self.keys.alive("gateway"))
         self.seq = 0
@@ -147,6 +149,7 @@ class Gateway:
             procedure=lo["procedure"],
             logic_message=lo["message"],
             plc_inputs=dict(zip(self.plc_ids, plc["inputs"])) if plc["state"] == LinkState.OK else {},
+            control=self.control_timing.law(sv),
             **self._stations(),
         )
 

@@ -2,7 +2,8 @@
 
 Two sources. The servo's trace ring gives one record per base tick, from which every tick's
 position, setpoint, following error, velocity and speed command per axis, the FIFO fill, the
-program segment and line, the jet and the tick latency are computed as numpy columns. Signals
+program segment and line, the jet and the tick latency are computed as numpy columns, and the
+control program's registered log variables (`cnc.control`: `<axis>.<name>`, `control.<name>`). Signals
 outside the servo (the PLC's input image: pump pressure, mains...; the feed override) are read
 from their shared-memory blocks each time the logger wakes and held for the ticks of that wake:
 they change at the PLC's 50 ms cycle, far slower than the logger wakes.
@@ -16,6 +17,7 @@ import numpy as np
 
 from ..bus.messages import LogVariable
 from ..config import MachineConfig
+from ..control.loader import build as build_program
 from ..data.dataserver import SharedArea
 from ..data.fifo import SetpointFlag
 
@@ -32,6 +34,7 @@ _TRACE_VARIABLES = (
     ("line", "", "program line of the setpoint"),
     ("jet", "", "the setpoint opens the jet (1) or not (0)"),
     ("tick_latency", "us", "how late the servo started the tick after its deadline (0 on the virtual clock)"),
+    ("control_time", "us", "the control program's CPU time in the tick (its budget: [control] budget_share)"),
 )
 
 
@@ -60,6 +63,10 @@ def log_variables(config: MachineConfig) -> Variables:
     trace = [LogVariable(f"{axis}.{name}", unit, f"{axis.upper()}: {text}")
              for axis in config.axis_names for name, unit, text in _AXIS_VARIABLES]
     trace += [LogVariable(name, unit, text) for name, unit, text in _TRACE_VARIABLES]
+    for spec in build_program(config).log_variables:  # the control program's, in its trace record's order
+        for k, name in enumerate(spec.names(config.axis_names)):
+            whose = config.axis_names[k].upper() if spec.per_axis else f"control program [{k}]" if spec.size > 1 else ""
+            trace.append(LogVariable(name, spec.unit, f"{whose}: {spec.doc}" if whose else spec.doc or spec.name))
     block = [LogVariable("feed_override", "", "feed override ratio in force (1 = 100 %)")]
     block += [LogVariable(f"plc.{v.id}", v.unit, v.description or f"PLC input {v.id}") for v in config.plc.inputs()]
     if any(v.id == "pump_pressure" for v in config.plc.inputs()):
@@ -83,6 +90,11 @@ def trace_columns(records: np.ndarray, config: MachineConfig) -> dict[str, np.nd
     cols["line"] = records["line"].astype(np.float64)
     cols["jet"] = ((records["flags"] & int(SetpointFlag.JET_ON)) != 0).astype(np.float64)
     cols["tick_latency"] = records["latency_ns"] / 1000.0
+    cols["control_time"] = records["control_ns"] / 1000.0
+    if "control" in records.dtype.names:
+        names = [n for spec in build_program(config).log_variables for n in spec.names(config.axis_names)]
+        for k, name in enumerate(names):
+            cols[name] = records["control"][:, k].astype(np.float64)
     return cols
 
 

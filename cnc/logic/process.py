@@ -781,6 +781,8 @@ class Logic:
             value = f" ({servo['trip_value']:.3f})" if servo["trip_value"] else ""
         causes = f": {_causes_text(servo['trip_causes'])}" if servo["trip_causes"] else ""
         speed = f", at {servo['trip_speed_mm_s']:.0f} mm/s" if servo["trip_speed_mm_s"] >= 0.5 else ""
+        if fault == ServoFault.CONTROL_PROGRAM:  # what the program did, then how the servo stopped
+            return f"{servo['control_failure']}; the servo's own PI-P stopped the axes on the path{speed}"
         return f"servo tripped: {fault.name}{where}{value}{causes}{speed}"
 
     def _pump_fault(self, snap: Snapshot, signals: dict[str, object], cutting: bool) -> str | None:

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from ..control.loader import build as build_program
 from ..bus.keys import Keys
 from ..bus.access import Plan, open_machine_router, plan_access, run_dir, write_local_login
 from ..config import MachineConfig, beside
@@ -162,7 +163,9 @@ class Supervisor:
         n = len(cfg.axis_names)
         self.area = SharedArea.create(unique_name(cfg.machine.name, "data"), controller_layouts(n))
         self.fifo = SetpointFifo.create(unique_name(cfg.machine.name, "fifo"), FIFO_CAPACITY, n)
-        self.trace = TraceRing.create(unique_name(cfg.machine.name, "trace"), TRACE_CAPACITY, n)
+        # each record carries the control program's log variables too: the ring is sized from its registrations
+        extra = sum(spec.size for spec in build_program(cfg).log_variables)
+        self.trace = TraceRing.create(unique_name(cfg.machine.name, "trace"), TRACE_CAPACITY, n, extra)
         # the commander's block: the control logic's when it runs, else this process's
         self.command: BlockWriter | None = None if "logic" in self.process_names else self.area.writer("command")
         if self.command is not None:

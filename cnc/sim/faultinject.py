@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import os
 import signal
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -65,6 +66,7 @@ STILL_FOR_TICKS = 200  # the axes stand still when no encoder moved for this lon
 FAST_PLANT = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.1, ramp_bar_s=20000.0)
 SCENARIO_OVERRIDES = {
     "cycle.transport_procedure": "",  # the cycle skips the guided transport procedure (nobody presses its button)
+    "control.program": "fault_injection",  # the PI-P, which fails on request (`cnc.control.examples.faulty`)
     "sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0,  # the table starts near home
 }
 
@@ -177,6 +179,36 @@ def _stop_all(sup: Supervisor) -> None:
         raise RuntimeError(f"stop all was refused: {reply.reason}")
 
 
+_ASKING: dict[int, threading.Thread] = {}  # per controller: a parameter change on its way
+
+
+def _control_fault(mode: int) -> Callable[[Supervisor], None]:
+    """The fault-injection control program made to fail as `mode` says (1 raise, 2 NaN, 3 over its
+    budget, 4 never return; 0 the PI-P again), set online as an engineer tunes a parameter. The
+    door answers once the servo applied it, which takes ticks: the request goes on a thread, so
+    that the injection returns and the (virtual) clock runs on meanwhile."""
+    def inject(sup: Supervisor) -> None:
+        station = _station(sup)
+        failed: list[str] = []
+
+        def ask_door() -> None:
+            reply = station.set_param("control.fault", float(mode))
+            if not reply.ok:
+                failed.append(reply.reason)
+
+        if id(sup) in _ASKING:
+            _ASKING.pop(id(sup)).join()
+        if mode == 0:
+            ask_door()
+            _bug_cleared(sup)
+        else:
+            _ASKING[id(sup)] = thread = threading.Thread(target=ask_door, name="fault-injection param", daemon=True)
+            thread.start()
+        if failed:
+            raise RuntimeError(f"fault injection: control.fault = {mode}: {failed[0]}")
+    return inject
+
+
 def _bug_cleared(sup: Supervisor) -> None:
     sup.set_sim(inject_bug="")
     if id(sup) in _STATIONS:
@@ -224,6 +256,14 @@ def catalogue() -> list[Fault]:
         Fault("bug in the logic's hold", _bug("logic/hold", Hold()), _bug_cleared, "internal_error", 500.0),
         Fault("bug in the planner's override", _bug("planner/override", Override(100.0)), _bug_cleared, "internal_error",
               500.0),
+        Fault("control program raises", _control_fault(1), _control_fault(0), "control_program", 500.0,
+              ServoFault.CONTROL_PROGRAM),
+        Fault("control program returns NaN", _control_fault(2), _control_fault(0), "control_program", 50.0,
+              ServoFault.CONTROL_PROGRAM),
+        Fault("control program over its budget", _control_fault(3), _control_fault(0), "control_program", 500.0,
+              ServoFault.CONTROL_PROGRAM),
+        Fault("control program never returns", _control_fault(4), _control_fault(0), "watchdog", 50.0,
+              ServoFault.RESTARTED, process="servo"),
         Fault("kill -9 gateway", _kill("gateway"), _nothing, "process_lost", 500.0, process="gateway"),
         Fault("kill -9 logger", _kill("logger"), _nothing, "process_lost", 50.0, process="logger"),
         Fault("kill -9 plc_link", _kill("plc_link"), _nothing, "process_lost", 50.0, process="plc_link"),
