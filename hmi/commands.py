@@ -72,6 +72,10 @@ def describe(msg: msgspec.Struct) -> str:
         lines = [line.strip() for line in msg.text.splitlines() if line.strip()]
         text = " / ".join(lines)
         return f"MDI: {text if len(text) <= 60 else text[:57] + '...'}"
+    if isinstance(msg, m.ControlRun):
+        return f"Control run: {msg.trajectory} for {msg.duration_s:g} s"
+    if isinstance(msg, m.ControlSelect):
+        return f"Select control program {msg.program} (from the next start)"
     if isinstance(msg, m.Recover):
         if msg.kind == "continue":
             return "Continue the interrupted cut" + (f", {msg.overlap_mm:g} mm back" if msg.overlap_mm is not None else "")

@@ -15,7 +15,7 @@ import zenoh
 from cnc.bus.certs import TlsFiles
 from cnc.bus.keys import Keys
 from cnc.bus.messages import (
-    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState, MaterialList,
+    AlarmEvent, AlarmList, HistoryPage, LockRequest, LockState, LogLive, LogRunData, LogStart, LogState, MaterialList, ControlProgramList,
     ParamList, Position, ProcedureCatalogue, ProcedureState, ProgramInfo, ProgramList, Reply, SimInput, SimInputs, Status,
     StopAll, decode,
 )
@@ -400,6 +400,11 @@ class Connection:
         """The controller's material library, for the job set-up (blocking: off the GUI thread); NoAnswer
         when it does not answer."""
         return self._query(self.keys.materials, MaterialList)
+
+    def control_programs(self) -> ControlProgramList:
+        """The axis control programs, the running and the selected one (blocking: off the GUI thread);
+        NoAnswer when the controller does not answer."""
+        return self._query(self.keys.control_programs, ControlProgramList)
 
     def preview(self, name: str) -> ProgramInfo:
         """A stored program's text and path, without loading it (blocking); NoAnswer says why not."""

@@ -11,6 +11,7 @@ from cnc.bus.messages import ControlLaw
 from .adapter import ModelAdapter, TuningAdapter
 from .commands import CommandRunner
 from .connection import Connection
+from .control_panel import ControlPanel
 from .log_panel import LogPanel
 from .params_panel import ParamsPanel
 from .scope import ScopePanel, WatchPanel
@@ -29,11 +30,13 @@ class EngineeringWindow(QWidget):
         self.log = LogPanel(tuning, commands, connection)
         self.watch = WatchPanel(tuning)
         self.scope = ScopePanel(tuning, connection)
+        self.control = ControlPanel(adapter, commands, connection)
         self.log.plot_run.connect(self.scope.show_run)
         self.tabs = QTabWidget()
         self.tabs.addTab(self.params, "Control parameters")
         self.tabs.addTab(self.log, "Log variables")
         self.tabs.addTab(self.watch, "Watch")
+        self.tabs.addTab(self.control, "Control program")
         split = QSplitter(Qt.Orientation.Horizontal)
         split.addWidget(self.tabs)
         split.addWidget(self.scope)
@@ -42,8 +45,8 @@ class EngineeringWindow(QWidget):
         self.law.setObjectName("tuning.control_law")
         self.law.setWordWrap(True)
         layout = QVBoxLayout(self)
-        layout.addWidget(self.law)
-        layout.addWidget(split)
+        layout.addWidget(self.law, 0)
+        layout.addWidget(split, 1)
         self.resize(1600, 900)
         self.model = adapter.model
         adapter.status.connect(self._show_law)

@@ -338,5 +338,8 @@ class MainWindow(QMainWindow):
             if panel is not None:
                 panel.close_worker()
         if self.engineering is not None:
+            control = getattr(self.engineering, "control", None)
+            if control is not None:  # its query's worker ends before the widgets go
+                control.close_worker()
             self.engineering.close()
         super().closeEvent(event)

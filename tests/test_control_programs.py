@@ -330,3 +330,77 @@ def test_the_screen_shows_the_program_s_cpu_time_over_the_last_second_beside_its
     finally:
         del timing, hist
         area.close()
+
+
+def test_an_engineer_runs_the_control_alone_for_a_duration_and_selects_a_program_for_the_next_start(tmp_path):
+    from cnc.bus.keys import Keys
+    from cnc.bus.messages import ControlProgramList, ControlRun, ControlSelect, GoTo, SetMode, decode
+    from cnc.bus.operator import OperatorStation
+    from cnc.bus.session import open_client
+    from cnc.data.layout import PlannerState
+    from cnc.logic.states import MachineState
+
+    from .conftest import NEAR_HOME, free_port, full_controller, logic, reset_and_home
+
+    machine = tmp_path / "machine.toml"
+    shutil.copy(MACHINE_FILE, machine)
+    config = load_machine(machine, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **NEAR_HOME})
+    keys = Keys(config.zenoh.key_prefix, config.machine.name)
+
+    def programs() -> ControlProgramList:
+        [answer] = list(session.get(keys.control_programs, timeout=10.0))
+        return decode(answer.ok.payload.to_bytes(), ControlProgramList)
+
+    with full_controller(config, tmp_path / "history.sqlite") as sup:
+        session = open_client([config.zenoh.listen[0]])
+        station = OperatorStation(session, keys, "engineer")
+        try:
+            listed = programs()
+            assert (listed.running, listed.selected, listed.budget_us) == ("pip", "pip", 500.0)
+            info = {p.name: p for p in listed.programs}
+            assert set(SHIPPED) <= set(info) and info["cross_coupled"].log_variables == ["control.contour_error"]
+            assert [p.name for p in info["pip"].parameters][:2] == ["kp_1_s", "ki_1_s2"]
+            assert station.take_lock().ok
+            assert "cannot start a control run while IDLE" in station.request(ControlRun("circle", 1.0)).reason
+            reset_and_home(sup, station.request)
+            sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
+                           60.0, "homing")
+            assert "trajectory 'spiral' is not one of: hold, step, ramp, circle, fig10" in station.request(
+                ControlRun("spiral", 1.0)).reason
+            assert "duration_s 0.01 is out of range" in station.request(ControlRun("hold", 0.01)).reason
+            beyond = station.request(ControlRun("circle", 1.0))  # near home: the circle would leave the travel
+            assert not beyond.ok and "outside the travel 0 to 1600 mm" in beyond.reason, beyond.reason
+            assert station.request(GoTo({"x": 100.0, "y": 100.0})).ok
+            sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and logic(sup)["state"] == MachineState.READY
+                           and sup.servo()["commanded_mm"][0] == 100.0, 60.0, "the go-to")
+            x0, y0 = sup.servo()["commanded_mm"][:2]
+            points, ticks = [], []
+
+            def sample() -> bool:
+                s = sup.servo()
+                if logic(sup)["state"] == MachineState.MDI:
+                    points.append(tuple(s["commanded_mm"][:2]))
+                    ticks.append(s["tick"])
+                return bool(points) and logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE
+            reply = station.request(ControlRun("circle", 1.0))
+            assert reply.ok, reply.reason
+            sup.wait_until(sample, 60.0, "the control run")
+            radius = [math.dist(p, (x0 - 20.0, y0)) for p in points]
+            assert len(points) > 20 and max(abs(r - 20.0) for r in radius) < 0.01, "on the circle from the head, all along"
+            seconds = (ticks[-1] - ticks[0]) * config.timing.period_s
+            assert 0.9 <= seconds <= 1.5, f"ran {seconds:.3f} s of machine time for a 1 s run (then a stop on the path)"
+            assert "control run: its time is up" in logic(sup)["message"]
+            assert station.request(SetMode("AUTO")).ok
+            assert "wrong operation mode" in station.request(ControlRun("hold", 1.0)).reason
+            assert station.request(SetMode("MANUAL")).ok
+
+            refused = station.request(ControlSelect("nothing"))
+            assert not refused.ok and "'nothing' is neither a shipped program" in refused.reason
+            chosen = station.request(ControlSelect("cross_coupled"))
+            assert chosen.ok and "the controller runs it from its next start" in chosen.reason, chosen.reason
+            assert load_machine(machine).control.program == "cross_coupled"
+            listed = programs()
+            assert (listed.running, listed.selected) == ("pip", "cross_coupled")
+        finally:
+            station.close()
+            session.close()

@@ -18,7 +18,7 @@ from cnc.bus.messages import (
     LOGIC_COMMANDS, MAX_CYCLES, PLANNER_COMMANDS, Acknowledge, CycleStart, Drives, GoTo, Hold, Home, JetTest, Jog, JogRefresh, JogStop,
     LoadProgram, LockRequest, LogSetting, LogStart, LogStop, Override, ProcedureConfirm, ProcedureEnd, ProcedureStart,
     ProcedureStop, Pump, Reset, Resume, SaveParams, SchemaVersionError, SetMode, SetParam, SimInput, Start, Stop, StopAll,
-    UploadProgram, Mdi, DeleteProgram, Recover, RestartAt, SetCut, CalibrationLadder, CalibrationRecord, CheckRestart,
+    UploadProgram, Mdi, DeleteProgram, Recover, RestartAt, SetCut, CalibrationLadder, CalibrationRecord, CheckRestart, ControlRun, ControlSelect,
     decode, encode,
 )
 
@@ -32,7 +32,7 @@ VALID: list[msgspec.Struct] = [  # one well-formed command of every kind a door 
     ProcedureEnd(), LockRequest(False), UploadProgram("part.ngc", "G0 X1\nM2\n"), SetParam(120.0), SaveParams(),
     SimInput("doors_open", 1.0), StopAll("station x (local)"), Mdi("G0 X10 Y20\nG1 X30 F600"), DeleteProgram("part.ngc"),
     Recover("continue", overlap_mm=3.0), Recover("part", 4), Start(restart=RestartAt("line", number=12)),
-    CheckRestart(RestartAt("part", number=3)),
+    CheckRestart(RestartAt("part", number=3)), ControlRun("circle", 10.0), ControlSelect("cross_coupled"),
     SetCut("leather", 2.5, 3, "quality", 5), LoadProgram("part.ngc", cut=SetCut("leather", 2.5, 3)),
     CalibrationLadder("leather", 2.0, 3000.0, 24000.0, 8, 0.3),
     CalibrationRecord("leather", 2.0, 20000.0, [20000.0, 16000.0, 12000.0, 9000.0, 6000.0], 0.3, 0.2, [1.0] * 5),

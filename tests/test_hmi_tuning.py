@@ -14,7 +14,7 @@ from cnc.config import load_machine
 from hmi.model import Screen
 
 from .conftest import MACHINE_FILE, MID_TRAVEL, NEAR_HOME, free_port, full_controller
-from .test_hmi_window import WAIT_MS, click, open_screen, shot, take_lock
+from .test_hmi_window import WAIT_MS, click, home_from_the_screen, open_screen, shot, take_lock
 
 pytest.importorskip("pytestqt")
 
@@ -106,5 +106,90 @@ def test_an_engineer_tunes_x_while_watching_the_following_error_and_exports_the_
             assert mat["param_changes"]["name"] == "axis.x.kp_1_s" and mat["title"] == "X gain"
             eng.tabs.setCurrentWidget(log)
             shot(eng, "14_log_runs")
+        finally:
+            screen.close()
+
+
+def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_logs_and_exports_it(qtbot, machine_copy,
+                                                                                                   tmp_path):
+    """QMotor's loop with a program of one's choice: chosen in the tuning window (checked, named in the
+    machine file), running from the controller's next start, run alone for a set duration while its
+    own log variable is logged, tuned online, exported to MATLAB with its parameters."""
+    config = load_machine(machine_copy, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **NEAR_HOME})
+    with full_controller(config, tmp_path / "history.sqlite"):
+        screen = open_screen(qtbot, config)
+        try:
+            w = screen.window
+            qtbot.waitUntil(lambda: screen.model.reachable, timeout=WAIT_MS)
+            take_lock(qtbot, screen)
+            qtbot.mouseClick(w.bar.tuning, Qt.MouseButton.LeftButton)
+            eng = w.engineering
+            qtbot.waitExposed(eng)
+            eng.tabs.setCurrentWidget(eng.control)
+            control = eng.control
+            qtbot.waitUntil(lambda: control.listing is not None, timeout=WAIT_MS)
+            assert control.state.text() == "Running: pip"
+            names = [control.programs.item(i).data(Qt.ItemDataRole.UserRole) for i in range(control.programs.count())]
+            control.programs.setCurrentRow(names.index("cross_coupled"))
+            assert "contour_gain_1_s = 80 1/s" in control.details.text() and "control.contour_error" in control.details.text()
+            click(qtbot, screen, control.select)
+            qtbot.waitUntil(lambda: control.state.text() == "Running: pip; from the next start: cross_coupled",
+                            timeout=WAIT_MS)
+            shot(eng, "15_control_program_selected")
+        finally:
+            screen.close()
+    assert load_machine(machine_copy).control.program == "cross_coupled"
+
+    config = load_machine(machine_copy, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **NEAR_HOME})
+    with full_controller(config, tmp_path / "history2.sqlite"):  # the next start: it runs the program chosen
+        screen = open_screen(qtbot, config)
+        w, tuning = screen.window, screen.tuning
+        try:
+            qtbot.waitUntil(lambda: screen.model.reachable and bool(tuning.params) and bool(tuning.variables), timeout=WAIT_MS)
+            assert "control.contour_gain_1_s" in [p.name for p in tuning.params]
+            assert "control.contour_error" in [v.name for v in tuning.variables]
+            home_from_the_screen(qtbot, screen)  # the command lock, reset, homing
+            qtbot.mouseClick(w.bar.tuning, Qt.MouseButton.LeftButton)
+            eng = w.engineering
+            qtbot.waitExposed(eng)
+            qtbot.waitUntil(lambda: eng.law.text().startswith("Control program cross_coupled (CrossCoupled): CPU per "
+                                                              "period p50"), timeout=WAIT_MS)
+            params, log, control = eng.params, eng.log, eng.control
+            qtbot.waitUntil(lambda: params.value_of("control.contour_gain_1_s") == "80", timeout=WAIT_MS)
+            with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as done:
+                params.set_value("control.contour_gain_1_s", "120")
+            assert done.args[1].ok and "applied by the servo at tick" in params.note.text(), params.note.text()
+            log.choose("control.contour_error", "continuous", window_s=10.0)
+            log.choose("control_time", "continuous", window_s=10.0)
+            click(qtbot, screen, log.start)
+            qtbot.waitUntil(lambda: tuning.running > 0, timeout=WAIT_MS)
+            run = tuning.running
+            from cnc.bus.messages import GoTo
+
+            assert screen.commands.send(GoTo({"x": 100.0, "y": 100.0})).result(timeout=30.0).ok  # room for the circle
+            qtbot.waitUntil(lambda: screen.model.status.planner_state == "IDLE"
+                            and abs(screen.model.status.axes[0].commanded_mm - 100.0) < 1e-9, timeout=WAIT_MS)
+            eng.tabs.setCurrentWidget(control)
+            control.trajectory.setCurrentIndex(control.trajectory.findData("circle"))
+            control.duration.setValue(1.0)
+            click(qtbot, screen, control.start_run)
+            qtbot.waitUntil(lambda: screen.model.status.machine_state == "MDI", timeout=WAIT_MS)
+            qtbot.waitUntil(lambda: screen.model.status.machine_state == "READY"
+                            and screen.model.status.planner_state == "IDLE", timeout=WAIT_MS)
+            shot(eng, "16_control_run")
+            click(qtbot, screen, log.stop)
+            qtbot.waitUntil(lambda: any(r.run == run and r.state == "done" for r in tuning.runs), timeout=WAIT_MS)
+            out = tmp_path / "control.mat"
+            with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as exported:
+                log.export(run, out, "mat")
+            assert exported.args[1].ok, exported.args[1].reason
+            from scipy.io import loadmat
+
+            mat = loadmat(out, simplify_cells=True)
+            contour = np.atleast_1d(mat["log"]["control_contour_error"]["v"])
+            cpu = np.atleast_1d(mat["log"]["control_time"]["v"])
+            assert np.abs(contour).max() > 0.0, "the circle's contour error, as the program logged it"
+            assert cpu.max() > 0.0 and mat["log"]["control_time"]["unit"] == "us"
+            assert mat["params_start"]["control_contour_gain_1_s"] == 120.0
         finally:
             screen.close()

@@ -28,7 +28,8 @@ def test_every_operator_command_kind_is_covered_here():
 
 def test_the_words_say_what_the_command_does():
     from cnc.bus.messages import (
-        CalibrationLadder, CalibrationRecord, DeleteProgram, GoTo, Hold, Jog, LockRequest, Mdi, Override, SetCut,
+        CalibrationLadder, CalibrationRecord, ControlRun, ControlSelect, DeleteProgram, GoTo, Hold, Jog, LockRequest, Mdi,
+        Override, SetCut,
     )
 
     assert describe(LockRequest(take=True)) == "Take the command lock"
@@ -37,6 +38,8 @@ def test_the_words_say_what_the_command_does():
     assert describe(GoTo({"x": 10.0, "y": 20.5}, 50.0)) == "Go to X10 Y20.5"
     assert describe(Override(80.0)) == "Feed override 80 %"
     assert describe(Mdi("G0 X10\nG1 X20 F600")) == "MDI: G0 X10 / G1 X20 F600"
+    assert describe(ControlRun("circle", 10.0)) == "Control run: circle for 10 s"
+    assert describe(ControlSelect("cross_coupled")) == "Select control program cross_coupled (from the next start)"
     assert describe(SetCut("leather", 2.5, 3)) == "Cutting job: leather 2.5 mm quality 3"
     assert describe(SetCut("leather", 2.5, 3, mode="feed")) == "Cutting job: leather 2.5 mm quality 3, feed as programmed"
     assert describe(SetCut()) == "Cutting job: the program's own"

@@ -297,7 +297,8 @@ def test_with_access_control_only_authenticated_operators_command_the_running_co
 
 def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_allow_it(controller, session, keys):
     from cnc.bus.messages import (
-        Acknowledge, CalibrationLadder, CalibrationRecord, DeleteProgram, Drives, GoTo, Hold, Jog, JogRefresh, JogStop,
+        Acknowledge, CalibrationLadder, CalibrationRecord, ControlRun, ControlSelect, DeleteProgram, Drives, GoTo, Hold, Jog,
+        JogRefresh, JogStop,
         JetTest, LoadProgram, Mdi, Override,
         ProcedureConfirm, Recover, ProcedureEnd, ProcedureStart, ProcedureStop, Pump, Resume, SetCut, SimInput, Stop,
     )
@@ -319,6 +320,8 @@ def test_every_command_verb_is_refused_with_a_reason_when_the_state_does_not_all
         "jog_refresh": (JogRefresh(), "no continuous jog to refresh"),
         "goto": (GoTo({"x": 100.0}), "drives"),
         "mdi": (Mdi("G0 X10"), "switch the drives on and home the machine"),
+        "control_run": (ControlRun("circle", 5.0), "cannot start a control run while IDLE"),
+        "control_select": (ControlSelect("no_such_law"), "'no_such_law' is neither a shipped program"),
         "recover": (Recover("continue"), "wrong operation mode: continuing a cut needs AUTO"),
         "program_delete": (DeleteProgram("../credentials"), "plain name"),
         "load": (LoadProgram("/nonexistent/part.ngc"), "outside the program directory"),

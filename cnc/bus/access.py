@@ -71,7 +71,7 @@ ALL_MESSAGES = (
 
 # Public key groups, relative to the machine root `<prefix>/<machine>`.
 WATCH_KEYS = ("status", "position", "event/**", "procedure", "lock", "log/live")  # subscribed to
-READ_KEYS = ("alarms/**", "jobs/**", "audit/**", "program", "programs", "programs/**", "materials", "lock", "procedures",
+READ_KEYS = ("alarms/**", "jobs/**", "audit/**", "program", "programs", "programs/**", "materials", "control/programs", "lock", "procedures",
              "param/**", "params", "log/**", "sim")  # queried
 # (reading a parameter is a query on param/**; changing one goes to the sender's own u/<user>/param/**, and
 # starting or stopping a log run is a query that never moves the machine)

@@ -100,6 +100,11 @@ class Keys:
         return f"{self.root}/materials"
 
     @property
+    def control_programs(self) -> str:
+        """Query: the axis control programs, the one running and the one selected (`ControlProgramList`)."""
+        return f"{self.root}/control/programs"
+
+    @property
     def program_preview(self) -> str:
         """Query `?name=<percent-encoded name>`: a stored program's text and path (`ProgramInfo`)."""
         return f"{self.root}/programs/preview"

@@ -261,6 +261,50 @@ class MaterialList(msgspec.Struct, frozen=True):
     version: int = SCHEMA_VERSION
 
 
+class ControlParameter(msgspec.Struct, frozen=True):
+    """One registered parameter of a control program (its value as the machine file gives it)."""
+
+    name: str  # as the program registered it ("contour_gain_1_s")
+    values: list[float]  # one, or one per axis
+    unit: str
+    lo: float
+    hi: float
+    doc: str
+    per_axis: bool
+
+
+class ControlProgramInfo(msgspec.Struct, frozen=True):
+    """One control program the machine can run (`cnc.control`)."""
+
+    name: str  # as `[control] program` names it
+    class_name: str
+    description: str
+    parameters: list[ControlParameter]
+    log_variables: list[str]  # the logger's names
+    error: str = ""  # why it cannot be built ("" it can)
+
+
+class ControlProgramList(msgspec.Struct, frozen=True):
+    """Answer of `<root>/control/programs`: the shipped programs and the machine file's, which one
+    the servo runs and which one the machine file names now (the next start's)."""
+
+    programs: list[ControlProgramInfo]
+    running: str
+    selected: str
+    budget_us: float
+    version: int = SCHEMA_VERSION
+
+
+class ControlSelect(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Make `program` the machine's control program (an engineer holding the lock; no program or
+    control run under way): built and run on the simulated plant first (`waterjet control
+    check`), then written into the machine file's `[control] program`; the controller runs it
+    from its next start (its registrations size the shared-memory layouts at start)."""
+
+    program: Annotated[str, msgspec.Meta(max_length=200)]
+    version: int = SCHEMA_VERSION
+
+
 class CalibrationLadder(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Make the speed ladder of a library material (`cnc.calibration`): `rungs` straight cuts from
     `slowest_mm_min` to `fastest_mm_min` in equal ratios, a `pierce_s` dwell each; checked against
@@ -724,6 +768,17 @@ class Mdi(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     version: int = SCHEMA_VERSION
 
 
+class ControlRun(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """QMotor's timed run of the control alone: in MANUAL, on a homed machine at rest, the axes
+    hold position ("hold") or follow a test trajectory from where the head stands ("step",
+    "ramp", "circle", or "fig10", the paper's contour) for `duration_s`, the jet closed; then
+    they stop on the path. Stop and hold end it earlier (`cnc.control.trial.run_text`)."""
+
+    trajectory: str
+    duration_s: float
+    version: int = SCHEMA_VERSION
+
+
 class ProgramDiagnostic(msgspec.Struct, frozen=True):
     """Where a program is wrong: its line and column (1-based) and what is wrong there."""
 
@@ -752,10 +807,11 @@ REALTIME_VERBS = ("stop", "hold", "jog_stop", "jog_refresh", "reset", "stop_all"
 # Verbs whose handlers command motion or the jet: a bug met while serving one brings the machine to
 # its safe state (cnc.bus.service). A stop is among them: a stop that failed must still stop.
 MOTION_VERBS = frozenset({
-    "start", "resume", "jog", "jog_refresh", "goto", "home", "mdi", "recover", "drives", "pump", "jet_test", "override",
+    "start", "resume", "jog", "jog_refresh", "goto", "home", "mdi", "control_run", "recover", "drives", "pump", "jet_test", "override",
     "stop", "hold", "jog_stop", "reset", "procedure_start", "procedure_confirm", "procedure_stop", "stop_all",
 })
 LOCK_FREE_VERBS = frozenset({"stop_all"})  # any operator station, with or without the command lock
+ENGINEER_VERBS = frozenset({"control_run"})  # the tuning tools: the engineer's role (where logins are on)
 
 
 class InternalError(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -912,7 +968,7 @@ class Notice(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 LOGIC_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "mode": SetMode, "start": CycleStart, "hold": Hold, "resume": Resume, "stop": Stop, "reset": Reset,
     "drives": Drives, "home": Home, "jog": Jog, "jog_stop": JogStop, "jog_refresh": JogRefresh, "goto": GoTo,
-    "mdi": Mdi, "recover": Recover, "load": LoadProgram, "cut_setup": SetCut,
+    "mdi": Mdi, "control_run": ControlRun, "recover": Recover, "load": LoadProgram, "cut_setup": SetCut,
     "override": Override, "pump": Pump, "jet_test": JetTest, "acknowledge": Acknowledge,
     "procedure_start": ProcedureStart, "procedure_confirm": ProcedureConfirm, "procedure_stop": ProcedureStop,
     "procedure_end": ProcedureEnd, "stop_all": StopAll,

@@ -11,14 +11,14 @@ import zenoh
 from .keys import Keys
 from .session import LOCAL_USER
 from .messages import (
-    LOGIC_COMMANDS, CalibrationLadder, CalibrationRecord, DeleteProgram, LoadProgram, LockRequest, LogStart, LogStop,
+    LOGIC_COMMANDS, CalibrationLadder, CalibrationRecord, ControlSelect, DeleteProgram, LoadProgram, LockRequest, LogStart, LogStop,
     ParamList, Reply, SaveParams, SetParam, SimInput, UploadProgram,
     decode, encode,
 )
 
 OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {
     **LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram, "sim": SimInput, "program_delete": DeleteProgram,
-    "calibration_ladder": CalibrationLadder, "calibration_record": CalibrationRecord,
+    "calibration_ladder": CalibrationLadder, "calibration_record": CalibrationRecord, "control_select": ControlSelect,
 }
 _VERBS = {kind: verb for verb, kind in OPERATOR_COMMANDS.items()}
 # An upload or load is answered once the planner has checked and planned the program: minutes for

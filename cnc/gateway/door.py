@@ -39,16 +39,17 @@ from ..bus.access import Roles
 from ..bus.client import CommandClient
 from ..bus.keys import Keys
 from ..bus.messages import (
-    LOCK_FREE_VERBS, LOGIC_COMMANDS, MOTION_VERBS, REALTIME_VERBS, AuditPage, DeleteProgram, Hold, JobPage, LoadProgram,
+    ENGINEER_VERBS, LOCK_FREE_VERBS, LOGIC_COMMANDS, ControlSelect, MOTION_VERBS, REALTIME_VERBS, AuditPage, DeleteProgram, Hold, JobPage, LoadProgram,
     LockRequest, Notice, ProcedureCatalogue, ProcedureInfo, ProgramDiagnostic, ProgramInfo, ProgramList, ProgramPath, Reply,
     SCHEMA_VERSION, CalibrationLadder, CalibrationRecord, MaterialEntry, MaterialList, SetCut, SimInput, SimInputs, StopAll, UploadProgram, decode, encode,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
-from ..bus.states import MachineState
+from ..bus.states import MachineState, PlannerState
 from ..config import MachineConfig
 from ..cutmodel import library_of
 from ..calibration import ladder_name, library_material, machine_ladder
 from ..materials import QUALITIES, Ladder, MaterialError, load_material, record_calibration
+from . import control_door
 from .jobs import CutSetups, JobHistory, jobs_path
 from .library import ProgramLibrary, library_path
 from .lock import OperatorLock, Token
@@ -97,7 +98,8 @@ class Door:
         stop_all_role = "observer" if config.zenoh.access.observers_may_stop_all else "operator"
         commands = [
             Route(verb, keys.cmd_any(verb), self._forward, LOGIC_COMMANDS[verb],
-                  role=stop_all_role if verb == "stop_all" else "operator", lock=verb not in LOCK_FREE_VERBS,
+                  role=stop_all_role if verb == "stop_all" else "engineer" if verb in ENGINEER_VERBS else "operator",
+                  lock=verb not in LOCK_FREE_VERBS,
                   motion=verb in MOTION_VERBS, lane="realtime" if verb in REALTIME_VERBS else "cmd", audit=True)
             for verb in LOGIC_COMMANDS
         ]
@@ -107,7 +109,8 @@ class Door:
                 ("audit", keys.audit_history, self._audit), ("program", keys.program, self._program),
                 ("lock", keys.lock, lambda _params: self.lock.state()), ("procedures", keys.procedures, self._procedures),
                 ("programs", keys.programs, self._library), ("program preview", keys.program_preview, self._preview),
-                ("materials", keys.materials, self._materials))
+                ("materials", keys.materials, self._materials),
+                ("control programs", keys.control_programs, lambda _params: control_door.program_list(self.config)))
         ]
         self.service.serve(
             *commands,
@@ -121,6 +124,8 @@ class Door:
                   lock=True, lane="upload", audit=True),
             Route("calibration_record", keys.cmd_any("calibration_record"), self._record, CalibrationRecord, role="engineer",
                   lock=True, lane="cmd", audit=True),
+            Route("control_select", keys.cmd_any("control_select"), self._control_select, ControlSelect, role="engineer",
+                  lock=True, lane="upload", audit=True),
             Route("sim", keys.sim, self._read(lambda _params: self._sim_inputs()), read=True, lane="query"),
             *reads,
         )
@@ -352,6 +357,13 @@ class Door:
         speeds = ", ".join(f"{s:.0f}" for s in ladder.speeds())
         return Reply(True, f"{name} loaded: {ladder.rungs} rungs at {speeds} mm/min; cut it, then record per quality "
                            "the fastest rung whose edge is good enough")
+
+    def _control_select(self, request: Request) -> Reply:
+        """The machine's control program for its next start (`control_door.select`)."""
+        reply = control_door.select(self.config, request.message.program, PlannerState(self.motion()["state"]))
+        if not reply.ok:
+            raise CommandRefused(reply.reason)
+        return reply
 
     def _record(self, request: Request) -> Reply:
         """The guided calibration's last step: what the operator judged, into the material's chart."""

@@ -43,10 +43,11 @@ from ..alarms.recorder import Recorder
 from ..bus.keys import Keys
 from ..bus.messages import (
     LOGIC_COMMANDS, MOTION_COMMANDS, MOTION_VERBS, AlarmEvent, GoTo, Hold, Home, InternalError, Jog, JogRefresh, JogStop,
-    LoadProgram, Mdi, Notice, Override, Recover, Reply, RestartAt, CheckRestart, Resume, Stamp, Stop, encode,
+    LoadProgram, Mdi, Notice, Override, Recover, Reply, ControlRun, RestartAt, CheckRestart, Resume, Stamp, Stop, encode,
 )
 from ..bus.service import DEFERRED, CommandRefused, CommandService, Request, Route
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
+from ..control.trial import run_text
 from ..data.dataserver import SharedArea
 from ..data.injection import injected_bugs
 from ..hw.board import AxisIn, DigitalOut
@@ -141,6 +142,7 @@ class Logic:
         self.cuts = CutPoints(jobs_path(history_path))  # written by the recorder thread only
         self.cut_point: CutPoint | None = None  # where the jet last cut (for "continue")
         self.cut_saved: CutPoint | None = None  # ... as last handed to the recorder
+        self.control_run: tuple[int, bool] | None = None  # a timed control run: (its ticks, then its end tick; seen running)
         self.point_asked: str = ""  # the loaded program whose stored cut point the recorder looks up
         self.point_stored: tuple[str, CutPoint | None] | None = None  # ... and what it found (set by the recorder)
         self.cutting_program = False  # the jet's ticks belong to a program run (not to a jog, an MDI, ...)
@@ -216,6 +218,7 @@ class Logic:
         self._record_jobs(snap)
         self._track_cut(snap)
         self._show_cut_point(snap)
+        self._control_run_time(snap, now)
         self.cycle.step(snap, now)
         if self.procedures.scan(signals, now):
             self._publish_procedure()
@@ -527,6 +530,59 @@ class Logic:
             raise CommandRefused("the jet test is on: switch it off before running MDI")
         msg = msgspec.structs.replace(msg, jet_refused=self._jet_refused(snap))
         return self._forward(msg, request)
+
+    def _cmd_control_run(self, msg: ControlRun, snap, now, request) -> str:
+        """QMotor's timed run of the control alone: the trajectory's G-code from where the head
+        stands (`cnc.control.trial.run_text`), run as an MDI with the jet refused, and stopped on
+        the path when its duration is up (`_control_run_time`)."""
+        try:
+            text = run_text(msg.trajectory, msg.duration_s, self.config)
+        except ValueError as exc:
+            raise CommandRefused(str(exc)) from None
+        self._require_mode(Mode.MANUAL, "a control run")
+        self._require_no_blocking("start a control run")
+        if self.state != MachineState.READY:
+            raise CommandRefused(f"cannot start a control run while {self.state.name}" + (
+                ": switch the drives on and home the machine" if self.state == MachineState.IDLE else ""))
+        if self.procedures.running:
+            raise CommandRefused(f"a procedure is running ({self.procedures.state().title}): end it first")
+        if self.jet_test:
+            raise CommandRefused("the jet test is on: switch it off before a control run")
+        what = f"control run: {msg.trajectory} for {msg.duration_s:g} s"
+
+        ticks = int(round(msg.duration_s / self.config.timing.period_s))
+
+        def started(reply: Reply) -> None:
+            if reply.ok:  # its duration counts in machine time (the ticks), from its first motion
+                self.control_run = (ticks, False)
+                self._note(what)
+                reply = Reply(True, f"{what} from where the head stands, the jet closed; the axes stop on the path "
+                                    "when the time is up")
+            else:
+                self._note(reply.reason)
+            request.answer(reply)
+        self.planner.send(self._stamp(Mdi(text, jet_refused="a control run cuts nothing: the jet stays closed")), started)
+        return DEFERRED
+
+    def _control_run_time(self, snap: Snapshot, now: float) -> None:
+        """A control run under way: once its ticks are up, the servo stops the axes on the path."""
+        if self.control_run is None:
+            return
+        until, running = self.control_run
+        state, tick = snap.motion["state"], snap.hw["tick"]
+        if state == PlannerState.MDI and not running:
+            self.control_run = (tick + until, True)  # `until` was its length in ticks: now the tick it ends at
+        elif running and state != PlannerState.MDI:
+            self.control_run = None  # it ended (its time, a stop, a hold, a fault)
+        elif running and tick >= until:
+            # the servo's own stop on the path, from its next tick (so the duration holds to the tick
+            # whatever the network does); the planner is told to end the run
+            self.control_run = (1 << 62, True)
+            self.command.set("stop_seq", self.command.get("stop_seq") + 1)
+            self._write_command()
+            self._stop_epoch()
+            self.planner.send(Stop())
+            self._note("control run: its time is up, stopping on the path")
 
     def _jet_refused(self, snap: Snapshot) -> str:
         """Why the jet may not open by hand now ("" when it may): what holds it closed in the tick,
