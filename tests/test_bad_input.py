@@ -332,6 +332,7 @@ VALID = {  # a well-formed payload per command (without version); mutated below,
     "load": {"path": "/nonexistent.ngc"}, "override": {"percent": 100.0}, "pump": {"on": False, "pressure_bar": 1000.0},
     "jet_test": {"on": False}, "acknowledge": {"code": 1}, "procedure_start": {"id": "transport"},
     "lock": {"take": True}, "program": {"name": "p.ngc", "text": "M2\n"},
+    "control_run": {"trajectory": "hold", "duration_s": 1.0},
 }
 KINDS = {**LOGIC_COMMANDS, "lock": LockRequest, "program": UploadProgram}
 WRONG = {"nested": "object"}  # a JSON value of the wrong type for every field but a dict

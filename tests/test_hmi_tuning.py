@@ -112,36 +112,14 @@ def test_an_engineer_tunes_x_while_watching_the_following_error_and_exports_the_
 
 def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_logs_and_exports_it(qtbot, machine_copy,
                                                                                                    tmp_path):
-    """QMotor's loop with a program of one's choice: chosen in the tuning window (checked, named in the
-    machine file), running from the controller's next start, run alone for a set duration while its
-    own log variable is logged, tuned online, exported to MATLAB with its parameters."""
+    """QMotor's loop with a program of one's choice. The controller runs cross_coupled (chosen on the
+    screen before this start: its `[control] program`); the engineer sees it running, chooses the
+    next start's program on the screen (checked, named in the machine file), tunes cross_coupled's
+    own gain online, runs the control alone for a set duration while its log variable and CPU time
+    are logged, and exports the run to MATLAB with its parameters and its control benchmark."""
+    machine_copy.write_text(machine_copy.read_text() + '\n[control]\nprogram = "cross_coupled"\n')
     config = load_machine(machine_copy, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **NEAR_HOME})
     with full_controller(config, tmp_path / "history.sqlite"):
-        screen = open_screen(qtbot, config)
-        try:
-            w = screen.window
-            qtbot.waitUntil(lambda: screen.model.reachable, timeout=WAIT_MS)
-            take_lock(qtbot, screen)
-            qtbot.mouseClick(w.bar.tuning, Qt.MouseButton.LeftButton)
-            eng = w.engineering
-            qtbot.waitExposed(eng)
-            eng.tabs.setCurrentWidget(eng.control)
-            control = eng.control
-            qtbot.waitUntil(lambda: control.listing is not None, timeout=WAIT_MS)
-            assert control.state.text() == "Running: pip"
-            names = [control.programs.item(i).data(Qt.ItemDataRole.UserRole) for i in range(control.programs.count())]
-            control.programs.setCurrentRow(names.index("cross_coupled"))
-            assert "contour_gain_1_s = 80 1/s" in control.details.text() and "control.contour_error" in control.details.text()
-            click(qtbot, screen, control.select)
-            qtbot.waitUntil(lambda: control.state.text() == "Running: pip; from the next start: cross_coupled",
-                            timeout=WAIT_MS)
-            shot(eng, "15_control_program_selected")
-        finally:
-            screen.close()
-    assert load_machine(machine_copy).control.program == "cross_coupled"
-
-    config = load_machine(machine_copy, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **NEAR_HOME})
-    with full_controller(config, tmp_path / "history2.sqlite"):  # the next start: it runs the program chosen
         screen = open_screen(qtbot, config)
         w, tuning = screen.window, screen.tuning
         try:
@@ -155,6 +133,19 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             qtbot.waitUntil(lambda: eng.law.text().startswith("Control program cross_coupled (CrossCoupled): CPU per "
                                                               "period p50"), timeout=WAIT_MS)
             params, log, control = eng.params, eng.log, eng.control
+
+            eng.tabs.setCurrentWidget(control)
+            qtbot.waitUntil(lambda: control.listing is not None, timeout=WAIT_MS)
+            assert control.state.text() == "Running: cross_coupled"
+            names = [control.programs.item(i).data(Qt.ItemDataRole.UserRole) for i in range(control.programs.count())]
+            assert "contour_gain_1_s = 80 1/s" in control.details.text() and "control.contour_error" in control.details.text()
+            control.programs.setCurrentRow(names.index("friction_ff"))
+            click(qtbot, screen, control.select)
+            qtbot.waitUntil(lambda: control.state.text() == "Running: cross_coupled; from the next start: friction_ff",
+                            timeout=WAIT_MS)
+            assert load_machine(machine_copy).control.program == "friction_ff"
+            shot(eng, "15_control_program_selected")
+
             qtbot.waitUntil(lambda: params.value_of("control.contour_gain_1_s") == "80", timeout=WAIT_MS)
             with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as done:
                 params.set_value("control.contour_gain_1_s", "120")
@@ -169,7 +160,6 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             assert screen.commands.send(GoTo({"x": 100.0, "y": 100.0})).result(timeout=30.0).ok  # room for the circle
             qtbot.waitUntil(lambda: screen.model.status.planner_state == "IDLE"
                             and abs(screen.model.status.axes[0].commanded_mm - 100.0) < 1e-9, timeout=WAIT_MS)
-            eng.tabs.setCurrentWidget(control)
             control.trajectory.setCurrentIndex(control.trajectory.findData("circle"))
             control.duration.setValue(1.0)
             click(qtbot, screen, control.start_run)
@@ -191,5 +181,7 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             assert np.abs(contour).max() > 0.0, "the circle's contour error, as the program logged it"
             assert cpu.max() > 0.0 and mat["log"]["control_time"]["unit"] == "us"
             assert mat["params_start"]["control_contour_gain_1_s"] == 120.0
+            assert mat["control"]["program"] == "cross_coupled (CrossCoupled)", "each run says which law ran ..."
+            assert 0.0 < mat["control"]["p50_us"] <= mat["control"]["p99_us"] <= mat["control"]["max_us"], "... at what cost"
         finally:
             screen.close()

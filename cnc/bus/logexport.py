@@ -52,6 +52,8 @@ def to_mat(data: LogRunData, path: str | Path) -> Path:
                           "name": np.array([c[1] for c in changes], dtype=object),
                           "value": np.array([c[2] for c in changes], dtype=float)},
         "truncated": np.array(data.truncated, dtype=object),
+        "control": {"program": data.control_program,
+                    **dict(zip(("p50_us", "p99_us", "max_us"), data.control_us or [-1.0, -1.0, -1.0]))},
     }, do_compression=True, oned_as="column")
     return path
 

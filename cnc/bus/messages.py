@@ -614,6 +614,8 @@ class LogRunData(msgspec.Struct, frozen=True):
     params_end: dict[str, float]  # ... and when it ended
     param_changes: list[tuple[float, str, float]]  # (s since the start, name, new value) during the run
     truncated: list[str]  # variables that hit the sample limit
+    control_program: str = ""  # the axis control program that ran ("cross_coupled (CrossCoupled)")
+    control_us: list[float] = msgspec.field(default_factory=list)  # its CPU time per period during the run: p50, p99, max
     version: int = SCHEMA_VERSION
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from ..bus.messages import ControlLaw
 from ..config import MachineConfig
 from ..control.loader import build
+from ..control.timing import histogram_figures
 from ..data.dataserver import SharedArea
 
 WINDOW_S = 1.0
@@ -37,18 +38,7 @@ class ControlTiming:
         while len(self.snapshots) > 1 and now - self.snapshots[1][0] >= WINDOW_S:
             self.snapshots.popleft()
         window = hist - self.snapshots[0][1] if len(self.snapshots) > 1 else hist
-        p50, p99, peak = _figures(window)
+        p50, p99, peak = histogram_figures(window)
         return ControlLaw(self.program, p50, p99, peak, self.budget_us, int(servo["control_failures"]),
                           servo["control_failure"])
 
-
-def _figures(hist: np.ndarray) -> tuple[float, float, float]:
-    """p50, p99 and max in us of a 1 us histogram (each a bin's upper edge); -1 when it is empty."""
-    total = int(hist.sum())
-    if total <= 0:
-        return -1.0, -1.0, -1.0
-    cum = np.cumsum(hist)
-    p50 = int(np.searchsorted(cum, 0.5 * total)) + 1
-    p99 = int(np.searchsorted(cum, 0.99 * total)) + 1
-    peak = int(np.flatnonzero(hist)[-1]) + 1
-    return float(p50), float(p99), float(peak)

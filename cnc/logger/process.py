@@ -33,6 +33,8 @@ from ..bus.messages import (
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..config import MachineConfig
+from ..control.loader import build as build_program
+from ..control.timing import histogram_figures
 from ..data.dataserver import SharedArea
 from ..data.injection import injected_bugs
 from ..data.layout import Proc
@@ -58,6 +60,9 @@ class Logger:
         self.variables = log_variables(config)
         self.sampler = BlockSampler(config, area)
         self.params_r = area.reader("params")
+        # the control benchmark of each run: the servo's histogram of the program's CPU time, at its start and end
+        self.control_hist = area.blocks["control_timing"].array[0]["hist"]
+        self.control_program = f"{config.control.program} ({type(build_program(config)).__name__})"
         self.param_names = [p.name for p in registry(config)]
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
         self.shutdown = area.blocks["supervisor"].array["shutdown"]
@@ -178,7 +183,8 @@ class Logger:
         self.run_obj, self.seen = run, {s.name: 0 for s in msg.variables}
         self.run_info = {"run": self.next_run, "title": msg.title, "started_ns": time.time_ns(), "tick0": tick0,
                          "params_start": params, "params_now": dict(params), "changes": [],
-                         "change_seq": self.params_r.read_dict()["change"]}
+                         "change_seq": self.params_r.read_dict()["change"],
+                         "control_hist": self.control_hist.astype(np.int64)}
         self.next_run += 1
         names = ", ".join(f"{s.name} ({s.mode})" for s in msg.variables)
         log.info("logger: run %d started at tick %d: %s", self.run_info["run"], tick0, names)
@@ -197,7 +203,8 @@ class Logger:
         data = LogRunData(
             info["run"], info["title"], info["started_ns"], time.time_ns(), self.period_s, run.settings, columns,
             {s.name: units[s.name] for s in run.settings}, info["params_start"], self._params(), info["changes"],
-            run.truncated,
+            run.truncated, self.control_program,
+            list(histogram_figures(self.control_hist.astype(np.int64) - info["control_hist"])),
         )
         self.run_obj = None
         self._keep(data)
