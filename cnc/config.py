@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import sys
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -528,6 +529,21 @@ class MachineConfig:
 
 # ---------------------------------------------------------------------------------------
 # loading
+
+
+def machine_for_command(path: str, command: str) -> MachineConfig | None:
+    """The machine file a shell command (`waterjet <command>`) names, loaded; the default one is
+    also found beside this package when the command runs elsewhere. None (the error printed,
+    naming the file and the key) when it does not load."""
+    if not Path(path).exists() and path == DEFAULT_MACHINE:
+        here = Path(__file__).resolve().parent.parent / DEFAULT_MACHINE
+        if here.exists():
+            path = str(here)
+    try:
+        return load_machine(path)
+    except ConfigError as exc:
+        print(f"waterjet {command}: {exc}", file=sys.stderr)
+        return None
 
 
 def load_machine(path: str | Path, overrides: dict[str, Any] | None = None) -> MachineConfig:

@@ -17,9 +17,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-from .config import DEFAULT_MACHINE, ConfigError, load_machine
+from .config import DEFAULT_MACHINE, ConfigError, machine_for_command
 from .control.loader import SHIPPED, build
 from .control.pip import PIP
 from .control.program import ControlProgram, ControlProgramError
@@ -40,10 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """0 done, 1 the program is refused (it does not build, or fails on the plant), 2 a bad machine file."""
-    try:
-        config = load_machine(_machine_path(args.machine))
-    except ConfigError as exc:
-        print(f"waterjet control: {exc}", file=sys.stderr)
+    config = machine_for_command(args.machine, "control")
+    if config is None:
         return 2
     action = args.action or "list"
     if action == "list":
@@ -117,11 +114,3 @@ def _check(config, program: ControlProgram, name: str, kind: str) -> TrialResult
 
 def _toml_string(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
-
-
-def _machine_path(path: str) -> str:
-    if not Path(path).exists() and path == DEFAULT_MACHINE:
-        here = Path(__file__).resolve().parent.parent / DEFAULT_MACHINE
-        if here.exists():
-            return str(here)
-    return path

@@ -17,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .config import DEFAULT_MACHINE, ConfigError, load_machine
+from .config import DEFAULT_MACHINE, machine_for_command
 from .calibration import machine_ladder
 from .cutmodel import library_of
 from .materials import QUALITIES, Ladder, MaterialError, load_library, record_calibration
@@ -56,10 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """0 done, 1 refused (a material or a request its chart cannot answer), 2 a bad machine file or argument."""
-    try:
-        config = load_machine(_machine_path(args.machine))
-    except ConfigError as exc:
-        print(f"waterjet materials: {exc}", file=sys.stderr)
+    config = machine_for_command(args.machine, "materials")
+    if config is None:
         return 2
     directory = library_of(config)
     try:
@@ -101,13 +99,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"waterjet materials: {exc}", file=sys.stderr)
         return 2
 
-
-def _machine_path(path: str) -> str:
-    if not Path(path).exists() and path == DEFAULT_MACHINE:
-        here = Path(__file__).resolve().parent.parent / DEFAULT_MACHINE
-        if here.exists():
-            return str(here)
-    return path
 
 
 def _list(library: dict, directory: Path) -> int:

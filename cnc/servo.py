@@ -619,12 +619,7 @@ class Servo:
 
     def _record_control(self, ns: int) -> None:
         self.control_ns = ns
-        b = ns // 1000
-        self.control_hist[b if b < HIST_BINS - 1 else HIST_BINS - 1] += 1
-        t = self.control_timing
-        t["count"][0] += 1
-        if ns > t["max_ns"][0]:
-            t["max_ns"][0] = ns
+        _count(self.control_timing, self.control_hist, ns)
 
     def _pop(self) -> tuple | None:
         """The next setpoint of the current motion epoch; records of another are dropped and counted."""
@@ -749,12 +744,16 @@ class Servo:
                     self._fail_law(f"stop_control raised {type(exc).__name__}: {exc}")
 
     def _record_latency(self, ns: int) -> None:
-        b = ns // 1000
-        self.hist[b if b < HIST_BINS - 1 else HIST_BINS - 1] += 1
-        t = self.timing
-        t["count"][0] += 1
-        if ns > t["max_ns"][0]:
-            t["max_ns"][0] = ns
+        _count(self.timing, self.hist, ns)
+
+
+def _count(timing, hist, ns: int) -> None:  # noqa: ANN001 - a timing block's array and its histogram
+    """One duration into a timing block: its 1 us histogram bin (the last collects what is later), count, max."""
+    b = ns // 1000
+    hist[b if b < HIST_BINS - 1 else HIST_BINS - 1] += 1
+    timing["count"][0] += 1
+    if ns > timing["max_ns"][0]:
+        timing["max_ns"][0] = ns
 
 
 class _QueuedPath:

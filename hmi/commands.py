@@ -14,7 +14,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 import msgspec
-from PySide6.QtCore import QObject, Qt, Signal, Slot
+from PySide6.QtCore import QObject, Qt, Signal, SignalInstance, Slot
 from PySide6.QtWidgets import QWidget
 
 from cnc.bus import messages
@@ -153,6 +153,19 @@ class CommandRunner(QObject):
         """Send what is queued, then stop the workers."""
         self._executor.shutdown(wait=True)
         self._loads.shutdown(wait=True)
+
+
+def ask_in_background(worker: ThreadPoolExecutor, ask: Callable[[], object], deliver: SignalInstance) -> None:
+    """Run the blocking query `ask` on `worker` and emit its answer, or the exception it raised
+    (no answer, an error the controller sent: shown, never raised), with `deliver`: a signal
+    connected queued, so the answer is taken on the GUI thread."""
+    def run() -> None:
+        try:
+            answer: object = ask()
+        except Exception as exc:  # noqa: BLE001 - whatever the query met is the answer to show
+            answer = exc
+        deliver.emit(answer)
+    worker.submit(run)
 
 
 def enable_while_commanding(adapter: ModelAdapter, widgets: list[QWidget], extra: Callable[[], bool] | None = None

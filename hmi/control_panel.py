@@ -17,7 +17,7 @@ from PySide6.QtWidgets import (
 from cnc.bus.messages import ControlProgramInfo, ControlProgramList, ControlRun, ControlSelect, Reply, Stop
 
 from .adapter import ModelAdapter
-from .commands import CommandRunner, enable_while_commanding
+from .commands import CommandRunner, ask_in_background, enable_while_commanding
 
 TRAJECTORIES = (("hold position", "hold"), ("position step", "step"), ("ramp", "ramp"), ("circle", "circle"),
                 ("the paper's Fig. 10 contour", "fig10"))
@@ -119,16 +119,8 @@ class ControlPanel(QWidget):
     # -- asking ---------------------------------------------------------------------------------
     def refresh(self) -> None:
         """Ask for the programs again (answered on the GUI thread)."""
-        if self._closed:
-            return
-
-        def ask() -> None:
-            try:
-                answer: object = self.source.control_programs()
-            except Exception as exc:  # no answer: shown, never raised
-                answer = exc
-            self._listing.emit(answer)
-        self._worker.submit(ask)
+        if not self._closed:
+            ask_in_background(self._worker, self.source.control_programs, self._listing)
 
     def close_worker(self) -> None:
         self._closed = True

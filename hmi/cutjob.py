@@ -25,7 +25,7 @@ from cnc.bus.states import CyclePhase
 
 from .adapter import ModelAdapter
 from .calibration import CalibrationDialog
-from .commands import CommandRunner, enable_while_commanding
+from .commands import CommandRunner, ask_in_background, enable_while_commanding
 
 QUALITIES = (1, 2, 3, 4, 5)  # 1 separation (fastest, rough lower edge) to 5 the finest edge
 MODES = (("machine uses quality", "quality"), ("machine uses feed", "feed"))  # (shown, SetCut.mode)
@@ -151,16 +151,8 @@ class CutJobPanel(QGroupBox):
     # -- asking the controller ----------------------------------------------------------------
     def refresh(self) -> None:
         """Ask for the material library again (answered on the GUI thread)."""
-        if self._closed:
-            return
-
-        def run() -> None:
-            try:
-                answer: object = self.source.materials()
-            except Exception as exc:  # no answer, or an error the controller sent: shown, never raised
-                answer = exc
-            self._listing.emit(answer)
-        self._worker.submit(run)
+        if not self._closed:
+            ask_in_background(self._worker, self.source.materials, self._listing)
 
     def close_worker(self) -> None:
         """Wait for a query under way and take no more: the window is closing (the calibration with it)."""

@@ -27,6 +27,16 @@ def machine_copy(tmp_path):
     return machine
 
 
+def exported_mat(qtbot, screen, log, run: int, path) -> dict:  # noqa: ANN001
+    """Export log run `run` from the log panel to a .mat file, and read it back."""
+    from scipy.io import loadmat
+
+    with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as exported:
+        log.export(run, path, "mat")
+    assert exported.args[1].ok, exported.args[1].reason
+    return loadmat(path, simplify_cells=True)
+
+
 def test_an_engineer_tunes_x_while_watching_the_following_error_and_exports_the_run_to_matlab(qtbot, machine_copy, tmp_path):
     config = load_machine(machine_copy, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **NEAR_HOME})
     with full_controller(config, tmp_path / "history.sqlite"):
@@ -93,13 +103,7 @@ def test_an_engineer_tunes_x_while_watching_the_following_error_and_exports_the_
             qtbot.waitUntil(lambda: "saved 1 parameter(s)" in params.note.text(), timeout=WAIT_MS)
             assert load_machine(machine_copy).axis["x"].kp_1_s == 150.0
 
-            out = tmp_path / "tuning.mat"
-            with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as exported:
-                log.export(run, out, "mat")
-            assert exported.args[1].ok, exported.args[1].reason
-            from scipy.io import loadmat
-
-            mat = loadmat(out, simplify_cells=True)
+            mat = exported_mat(qtbot, screen, log, run, tmp_path / "tuning.mat")
             fe = np.atleast_1d(mat["log"]["x_following_error"]["v"])
             assert len(fe) == finished and np.abs(fe).max() > 0.001, "the following error of the two moves"
             assert mat["params_start"]["axis_x_kp_1_s"] == 100.0 and mat["params_end"]["axis_x_kp_1_s"] == 150.0
@@ -169,13 +173,7 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             shot(eng, "16_control_run")
             click(qtbot, screen, log.stop)
             qtbot.waitUntil(lambda: any(r.run == run and r.state == "done" for r in tuning.runs), timeout=WAIT_MS)
-            out = tmp_path / "control.mat"
-            with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as exported:
-                log.export(run, out, "mat")
-            assert exported.args[1].ok, exported.args[1].reason
-            from scipy.io import loadmat
-
-            mat = loadmat(out, simplify_cells=True)
+            mat = exported_mat(qtbot, screen, log, run, tmp_path / "control.mat")
             contour = np.atleast_1d(mat["log"]["control_contour_error"]["v"])
             cpu = np.atleast_1d(mat["log"]["control_time"]["v"])
             assert np.abs(contour).max() > 0.0, "the circle's contour error, as the program logged it"

@@ -515,19 +515,24 @@ class Logic:
         self.jet_test = False
         return self._forward(msg, request)
 
-    def _cmd_mdi(self, msg: Mdi, snap, now, request) -> str:
-        """G-code typed by hand, in MANUAL, on a homed machine at rest; the planner checks the lines
-        and the travel. Whether the jet may open is decided here, where the pressure is known: the
-        planner refuses lines that open it when it may not."""
-        self._require_mode(Mode.MANUAL, "MDI")
-        self._require_no_blocking("run MDI")
+    def _require_manual_at_rest(self, what: str, to_do: str, before: str) -> None:
+        """MANUAL, no blocking alarm, READY (homed, at rest), no procedure and no jet test: where
+        lines typed by hand or a control run may move the machine; CommandRefused says what is not."""
+        self._require_mode(Mode.MANUAL, what)
+        self._require_no_blocking(to_do)
         if self.state != MachineState.READY:
-            raise CommandRefused(f"cannot run MDI while {self.state.name}" + (
+            raise CommandRefused(f"cannot {to_do} while {self.state.name}" + (
                 ": switch the drives on and home the machine" if self.state == MachineState.IDLE else ""))
         if self.procedures.running:
             raise CommandRefused(f"a procedure is running ({self.procedures.state().title}): end it first")
         if self.jet_test:
-            raise CommandRefused("the jet test is on: switch it off before running MDI")
+            raise CommandRefused(f"the jet test is on: switch it off before {before}")
+
+    def _cmd_mdi(self, msg: Mdi, snap, now, request) -> str:
+        """G-code typed by hand, in MANUAL, on a homed machine at rest; the planner checks the lines
+        and the travel. Whether the jet may open is decided here, where the pressure is known: the
+        planner refuses lines that open it when it may not."""
+        self._require_manual_at_rest("MDI", "run MDI", "running MDI")
         msg = msgspec.structs.replace(msg, jet_refused=self._jet_refused(snap))
         return self._forward(msg, request)
 
@@ -539,17 +544,8 @@ class Logic:
             text = run_text(msg.trajectory, msg.duration_s, self.config)
         except ValueError as exc:
             raise CommandRefused(str(exc)) from None
-        self._require_mode(Mode.MANUAL, "a control run")
-        self._require_no_blocking("start a control run")
-        if self.state != MachineState.READY:
-            raise CommandRefused(f"cannot start a control run while {self.state.name}" + (
-                ": switch the drives on and home the machine" if self.state == MachineState.IDLE else ""))
-        if self.procedures.running:
-            raise CommandRefused(f"a procedure is running ({self.procedures.state().title}): end it first")
-        if self.jet_test:
-            raise CommandRefused("the jet test is on: switch it off before a control run")
+        self._require_manual_at_rest("a control run", "start a control run", "a control run")
         what = f"control run: {msg.trajectory} for {msg.duration_s:g} s"
-
         ticks = int(round(msg.duration_s / self.config.timing.period_s))
 
         def started(reply: Reply) -> None:
