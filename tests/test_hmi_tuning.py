@@ -4,16 +4,20 @@ machine file, and export the run to MATLAB. Screenshots go where test_hmi_window
 
 from __future__ import annotations
 
+import math
 import shutil
 
 import numpy as np
 import pytest
 from PySide6.QtCore import Qt
 
+from cnc.bus.messages import ControlRun, ControlSelect, GoTo, Reply, SetMode
 from cnc.config import load_machine
+from cnc.data.layout import PlannerState
+from cnc.logic.states import MachineState
 from hmi.model import Screen
 
-from .conftest import MACHINE_FILE, MID_TRAVEL, NEAR_HOME, free_port, full_controller
+from .conftest import MACHINE_FILE, MID_TRAVEL, NEAR_HOME, free_port, full_controller, logic
 from .test_hmi_window import WAIT_MS, click, home_from_the_screen, open_screen, shot, take_lock
 
 pytest.importorskip("pytestqt")
@@ -116,14 +120,47 @@ def test_an_engineer_tunes_x_while_watching_the_following_error_and_exports_the_
 
 def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_logs_and_exports_it(qtbot, machine_copy,
                                                                                                    tmp_path):
-    """QMotor's loop with a program of one's choice. The controller runs cross_coupled (chosen on the
-    screen before this start: its `[control] program`); the engineer sees it running, chooses the
-    next start's program on the screen (checked, named in the machine file), tunes cross_coupled's
-    own gain online, runs the control alone for a set duration while its log variable and CPU time
-    are logged, and exports the run to MATLAB with its parameters and its control benchmark."""
-    machine_copy.write_text(machine_copy.read_text() + '\n[control]\nprogram = "cross_coupled"\n')
-    config = load_machine(machine_copy, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **NEAR_HOME})
-    with full_controller(config, tmp_path / "history.sqlite"):
+    """QMotor's loop with a program of one's choice: chosen in the tuning window (checked on the
+    simulated plant, named in the machine file), running from the controller's next start, its own
+    gain tuned online, run alone for a set duration while its log variable and CPU time are
+    logged, and the run exported to MATLAB with its parameters and its control benchmark."""
+    def started(history: str):  # noqa: ANN202 - the controller and a screen on it, its lock taken
+        config = load_machine(machine_copy, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **MID_TRAVEL, **NEAR_HOME})
+        return full_controller(config, tmp_path / history), config
+
+    controller, config = started("history.sqlite")
+    with controller:
+        screen = open_screen(qtbot, config)
+        try:
+            w = screen.window
+            qtbot.waitUntil(lambda: screen.model.reachable, timeout=WAIT_MS)
+            take_lock(qtbot, screen)
+            qtbot.mouseClick(w.bar.tuning, Qt.MouseButton.LeftButton)
+            eng = w.engineering
+            qtbot.waitExposed(eng)
+            eng.tabs.setCurrentWidget(eng.control)
+            control = eng.control
+            qtbot.waitUntil(lambda: control.listing is not None, timeout=WAIT_MS)
+            assert control.state.text() == "Running: pip" and control.listing.budget_us == 500.0
+            listed = {p.name: p for p in control.listing.programs}
+            assert {"pip", "friction_ff", "cross_coupled", "fault_injection"} <= set(listed)
+            assert [p.name for p in listed["pip"].parameters][:2] == ["kp_1_s", "ki_1_s2"]
+            names = [control.programs.item(i).data(Qt.ItemDataRole.UserRole) for i in range(control.programs.count())]
+            control.programs.setCurrentRow(names.index("cross_coupled"))
+            assert "contour_gain_1_s = 80 1/s" in control.details.text() and "control.contour_error" in control.details.text()
+            click(qtbot, screen, control.select)
+            qtbot.waitUntil(lambda: control.state.text() == "Running: pip; from the next start: cross_coupled",
+                            timeout=WAIT_MS)
+            shot(eng, "15_control_program_selected")
+            with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS):
+                refused = screen.commands.send(ControlSelect("nothing")).result(timeout=30.0)
+            assert not refused.ok and "'nothing' is neither a shipped program" in refused.reason
+        finally:
+            screen.close()
+    assert load_machine(machine_copy).control.program == "cross_coupled"
+
+    controller, config = started("history2.sqlite")
+    with controller as sup:  # the next start: the program chosen runs
         screen = open_screen(qtbot, config)
         w, tuning = screen.window, screen.tuning
         try:
@@ -137,19 +174,8 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             qtbot.waitUntil(lambda: eng.law.text().startswith("Control program cross_coupled (CrossCoupled): CPU per "
                                                               "period p50"), timeout=WAIT_MS)
             params, log, control = eng.params, eng.log, eng.control
-
             eng.tabs.setCurrentWidget(control)
-            qtbot.waitUntil(lambda: control.listing is not None, timeout=WAIT_MS)
-            assert control.state.text() == "Running: cross_coupled"
-            names = [control.programs.item(i).data(Qt.ItemDataRole.UserRole) for i in range(control.programs.count())]
-            assert "contour_gain_1_s = 80 1/s" in control.details.text() and "control.contour_error" in control.details.text()
-            control.programs.setCurrentRow(names.index("friction_ff"))
-            click(qtbot, screen, control.select)
-            qtbot.waitUntil(lambda: control.state.text() == "Running: cross_coupled; from the next start: friction_ff",
-                            timeout=WAIT_MS)
-            assert load_machine(machine_copy).control.program == "friction_ff"
-            shot(eng, "15_control_program_selected")
-
+            qtbot.waitUntil(lambda: control.state.text() == "Running: cross_coupled", timeout=WAIT_MS)
             qtbot.waitUntil(lambda: params.value_of("control.contour_gain_1_s") == "80", timeout=WAIT_MS)
             with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as done:
                 params.set_value("control.contour_gain_1_s", "120")
@@ -159,17 +185,40 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             click(qtbot, screen, log.start)
             qtbot.waitUntil(lambda: tuning.running > 0, timeout=WAIT_MS)
             run = tuning.running
-            from cnc.bus.messages import GoTo
+            def ask(msg) -> Reply:  # noqa: ANN001 - its answer taken before the next command's
+                with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS):
+                    reply = screen.commands.send(msg).result(timeout=30.0)
+                return reply
 
-            assert screen.commands.send(GoTo({"x": 100.0, "y": 100.0})).result(timeout=30.0).ok  # room for the circle
+            for msg, why in ((ControlRun("spiral", 1.0), "trajectory 'spiral' is not one of: hold, step, ramp, circle, fig10"),
+                             (ControlRun("hold", 0.01), "duration_s 0.01 is out of range"),
+                             (ControlRun("circle", 1.0), "outside the travel 0 to 1600 mm")):  # near home: no room
+                reply = ask(msg)
+                assert not reply.ok and why in reply.reason, reply.reason
+            assert ask(SetMode("AUTO")).ok
+            assert "wrong operation mode" in ask(ControlRun("hold", 1.0)).reason
+            assert ask(SetMode("MANUAL")).ok
+            assert ask(GoTo({"x": 100.0, "y": 100.0})).ok  # room for the circle
             qtbot.waitUntil(lambda: screen.model.status.planner_state == "IDLE"
                             and abs(screen.model.status.axes[0].commanded_mm - 100.0) < 1e-9, timeout=WAIT_MS)
             control.trajectory.setCurrentIndex(control.trajectory.findData("circle"))
             control.duration.setValue(1.0)
+            x0, y0 = sup.servo()["commanded_mm"][:2]
+            points, ticks = [], []
+
+            def sample() -> bool:  # the head while the control run runs, from the servo's block
+                s = sup.servo()
+                if logic(sup)["state"] == MachineState.MDI:
+                    points.append(tuple(s["commanded_mm"][:2]))
+                    ticks.append(s["tick"])
+                return bool(points) and logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE
             click(qtbot, screen, control.start_run)
-            qtbot.waitUntil(lambda: screen.model.status.machine_state == "MDI", timeout=WAIT_MS)
-            qtbot.waitUntil(lambda: screen.model.status.machine_state == "READY"
-                            and screen.model.status.planner_state == "IDLE", timeout=WAIT_MS)
+            qtbot.waitUntil(sample, timeout=WAIT_MS)
+            radius = [math.dist(p, (x0 - 20.0, y0)) for p in points]
+            assert len(points) > 20 and max(abs(r - 20.0) for r in radius) < 0.01, "on the circle from the head, all along"
+            seconds = (ticks[-1] - ticks[0]) * config.timing.period_s
+            assert 0.9 <= seconds <= 1.5, f"ran {seconds:.3f} s of machine time for a 1 s run (then a stop on the path)"
+            assert "control run: its time is up" in logic(sup)["message"]
             shot(eng, "16_control_run")
             click(qtbot, screen, log.stop)
             qtbot.waitUntil(lambda: any(r.run == run and r.state == "done" for r in tuning.runs), timeout=WAIT_MS)

@@ -77,10 +77,10 @@ class TrialResult:
 def trajectory(kind: str, config: MachineConfig, start: list[float], duration_s: float = 1.0) -> Trajectory:
     """A test trajectory from `start` (machine mm per axis): "hold", "step" (STEP_MM on the first
     axis at a tenth of the duration), "ramp" (RAMP_MM_S on the first axis from a tenth), "circle"
-    and "fig10" (planned as programs; their duration is their own)."""
+    and "fig10" (planned as programs: their own length, then at rest to the duration)."""
     dt, n = config.timing.period_s, len(config.axis_names)
     if kind in ("circle", "fig10"):
-        return _planned(kind, config, start)
+        return _planned(kind, config, start, duration_s)
     if kind not in TRAJECTORIES:
         raise ValueError(f"trajectory {kind!r} is not one of: {', '.join(TRAJECTORIES)}")
     count = max(2, int(round(duration_s / dt)))
@@ -96,7 +96,7 @@ def trajectory(kind: str, config: MachineConfig, start: list[float], duration_s:
     return Trajectory(kind, pos, vel)
 
 
-def _planned(kind: str, config: MachineConfig, start: list[float]) -> Trajectory:
+def _planned(kind: str, config: MachineConfig, start: list[float], duration_s: float) -> Trajectory:
     import dataclasses  # noqa: PLC0415
 
     from gcode.interp import Interpreter  # noqa: PLC0415
@@ -123,7 +123,8 @@ def _planned(kind: str, config: MachineConfig, start: list[float]) -> Trajectory
         if len(records):
             chunks.append(records)
     records = np.concatenate(chunks)
-    settle = int(round(0.1 / config.timing.period_s))  # a tenth of a second at rest at the end
+    # at rest at the end: a tenth of a second, or what the duration asks for beyond the program
+    settle = max(int(round(0.1 / config.timing.period_s)), int(round(duration_s / config.timing.period_s)) - len(records))
     pos = np.vstack((records["position"], np.tile(records["position"][-1], (settle, 1))))
     vel = np.vstack((records["velocity"], np.zeros((settle, len(names)))))
     return Trajectory(kind, pos, vel)

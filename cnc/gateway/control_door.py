@@ -62,7 +62,7 @@ def select(config: MachineConfig, name: str, planner_state: PlannerState) -> Rep
     except (ConfigError, ControlProgramError) as exc:
         return Reply(False, f"control program: {exc}")
     budget_ns = fresh.control.budget_share * fresh.timing.period_s * 1e9
-    result = run_trial(program, fresh, "circle", budget_ns=budget_ns)
+    result = run_trial(program, fresh, "circle", fresh.control.check_periods * fresh.timing.period_s, budget_ns=budget_ns)
     if result.failure:
         return Reply(False, f"control program: {name} ({type(program).__name__}) {result.failure} (period "
                             f"{result.failed_at} of a circle on the simulated plant)")
