@@ -116,7 +116,11 @@ def _cut_short(s: np.void, into_mm: float) -> np.void:
         cx, cy = s["center"]
         swept = sweep(x0, y0, x1, y1, cx, cy, bool(s["cw"]), int(s["turns"]))
         remaining = abs(swept) * (1.0 - into_mm / segment_length(s))
-        out["turns"] = max(int(math.ceil(remaining / _TWO_PI - 1e-9)) - 1, 0)
+        # the whole turns beyond the sweep from the new start to the end: counted against that sweep
+        # itself, so that a start a hair past a turn's boundary (where it meets the end) keeps the
+        # turn left instead of becoming a zero-length arc, a turn never cut
+        base = abs(sweep(float(start[0]), float(start[1]), x1, y1, cx, cy, bool(s["cw"]), 0))
+        out["turns"] = max(int(round((remaining - base) / _TWO_PI)), 0)
     out["start"] = start
     return out
 
