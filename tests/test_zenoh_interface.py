@@ -21,7 +21,7 @@ from cnc.data.layout import LinkState, PlannerState, RunResult
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.runtime.supervisor import Supervisor
 
-from .conftest import NEAR_HOME, fast_plant, logic, machine_config, press_button_when_asked, reset_and_home
+from .conftest import NEAR_HOME, fast_plant, full_controller, logic, machine_config, press_button_when_asked, reset_and_home
 
 PART = """(square part)
 G21 G90 G64 P0.05 F6000
@@ -38,8 +38,12 @@ M2
 
 
 @pytest.fixture
-def controller(plc_controller):
-    return plc_controller
+def controller(request, tmp_path):
+    """`plc_controller`; for a test marked `quick_runaway`, one whose interpreter gives up on a
+    runaway program after 3 s (its endless upload then ends before the controller is stopped)."""
+    quick = {"gcode.interpret_timeout_s": 3.0} if request.node.get_closest_marker("quick_runaway") else {}
+    with full_controller(machine_config(**NEAR_HOME, **quick), tmp_path / "history.sqlite") as sup:
+        yield sup
 
 
 @pytest.fixture
@@ -79,6 +83,7 @@ def test_only_the_station_holding_the_lock_commands_and_observers_are_refused(co
     sup.wait_until(lambda: get(session, keys.lock, LockState).holder == "", 10.0, "the lock released with bob's token")
 
 
+@pytest.mark.quick_runaway
 def test_malformed_and_refused_commands_get_a_reason_and_never_crash_or_block_the_gateway(controller, session, keys):
     op = OperatorStation(session, keys, "op")
     assert op.take_lock().ok
@@ -106,6 +111,7 @@ def test_malformed_and_refused_commands_get_a_reason_and_never_crash_or_block_th
     assert "nothing to hold" in op.request(Hold()).reason
     assert time.monotonic() - started < 5.0, "answered beside the endless upload, not after it"
     assert slow.is_alive(), "the endless program is still being interpreted (its own time limit ends it)"
+    slow.join(30.0)  # refused as a runaway after its 3 s: the gateway is free to stop
     op.close()
 
 
