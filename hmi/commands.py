@@ -155,17 +155,31 @@ class CommandRunner(QObject):
         self._loads.shutdown(wait=True)
 
 
-def ask_in_background(worker: ThreadPoolExecutor, ask: Callable[[], object], deliver: SignalInstance) -> None:
-    """Run the blocking query `ask` on `worker` and emit its answer, or the exception it raised
-    (no answer, an error the controller sent: shown, never raised), with `deliver`: a signal
-    connected queued, so the answer is taken on the GUI thread."""
-    def run() -> None:
-        try:
-            answer: object = ask()
-        except Exception as exc:  # noqa: BLE001 - whatever the query met is the answer to show
-            answer = exc
-        deliver.emit(answer)
-    worker.submit(run)
+class BackgroundQuery:
+    """Blocking queries of one panel on a worker thread of its own: `ask(call, deliver)` runs
+    `call` there and emits its answer, or the exception it raised (no answer, an error the
+    controller sent: shown, never raised), with `deliver`, a signal connected queued, so the answer
+    is taken on the GUI thread. `close()` waits for a query under way and takes no more."""
+
+    def __init__(self, name: str) -> None:
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix=name)
+        self._closed = False
+
+    def ask(self, call: Callable[[], object], deliver: SignalInstance) -> None:
+        if self._closed:
+            return
+
+        def run() -> None:
+            try:
+                answer: object = call()
+            except Exception as exc:  # noqa: BLE001 - whatever the query met is the answer to show
+                answer = exc
+            deliver.emit(answer)
+        self._worker.submit(run)
+
+    def close(self) -> None:
+        self._closed = True
+        self._worker.shutdown(wait=True)
 
 
 def enable_while_commanding(adapter: ModelAdapter, widgets: list[QWidget], extra: Callable[[], bool] | None = None

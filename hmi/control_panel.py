@@ -6,7 +6,6 @@ stop with a control duration. The list is asked for on a worker thread: the scre
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from typing import Protocol
 
 from PySide6.QtCore import Qt, Signal
@@ -17,7 +16,7 @@ from PySide6.QtWidgets import (
 from cnc.bus.messages import ControlProgramInfo, ControlProgramList, ControlRun, ControlSelect, Reply, Stop
 
 from .adapter import ModelAdapter
-from .commands import CommandRunner, ask_in_background, enable_while_commanding
+from .commands import BackgroundQuery, CommandRunner, enable_while_commanding
 
 TRAJECTORIES = (("hold position", "hold"), ("position step", "step"), ("ramp", "ramp"), ("circle", "circle"),
                 ("the paper's Fig. 10 contour", "fig10"))
@@ -56,8 +55,7 @@ class ControlPanel(QWidget):
                  parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.model, self.commands, self.source = adapter.model, commands, source
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hmi-control")
-        self._closed = False
+        self.queries = BackgroundQuery("hmi-control")
         self.listing: ControlProgramList | None = None
         self.state = QLabel("")
         self.state.setWordWrap(True)
@@ -119,12 +117,10 @@ class ControlPanel(QWidget):
     # -- asking ---------------------------------------------------------------------------------
     def refresh(self) -> None:
         """Ask for the programs again (answered on the GUI thread)."""
-        if not self._closed:
-            ask_in_background(self._worker, self.source.control_programs, self._listing)
+        self.queries.ask(self.source.control_programs, self._listing)
 
     def close_worker(self) -> None:
-        self._closed = True
-        self._worker.shutdown(wait=True)
+        self.queries.close()
 
     def select_program(self) -> None:
         item = self.programs.currentItem()

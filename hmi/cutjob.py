@@ -11,7 +11,6 @@ refuses with the reason. The library is asked for on a worker thread: the screen
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from typing import Protocol
 
 from PySide6.QtCore import Qt, Signal
@@ -25,7 +24,7 @@ from cnc.bus.states import CyclePhase
 
 from .adapter import ModelAdapter
 from .calibration import CalibrationDialog
-from .commands import CommandRunner, ask_in_background, enable_while_commanding
+from .commands import BackgroundQuery, CommandRunner, enable_while_commanding
 
 QUALITIES = (1, 2, 3, 4, 5)  # 1 separation (fastest, rough lower edge) to 5 the finest edge
 MODES = (("machine uses quality", "quality"), ("machine uses feed", "feed"))  # (shown, SetCut.mode)
@@ -74,8 +73,7 @@ class CutJobPanel(QGroupBox):
         super().__init__("Cutting job", parent)
         self.adapter, self.model, self.commands, self.source = adapter, adapter.model, commands, source
         self.calibration: CalibrationDialog | None = None  # made when first asked for
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hmi-materials")
-        self._closed = False
+        self.queries = BackgroundQuery("hmi-materials")
         self.entries: dict[str, MaterialEntry] = {}
         self.listing: MaterialList | None = None
         self.in_force = QLabel(PROGRAMMED_FEED)
@@ -151,13 +149,11 @@ class CutJobPanel(QGroupBox):
     # -- asking the controller ----------------------------------------------------------------
     def refresh(self) -> None:
         """Ask for the material library again (answered on the GUI thread)."""
-        if not self._closed:
-            ask_in_background(self._worker, self.source.materials, self._listing)
+        self.queries.ask(self.source.materials, self._listing)
 
     def close_worker(self) -> None:
         """Wait for a query under way and take no more: the window is closing (the calibration with it)."""
-        self._closed = True
-        self._worker.shutdown(wait=True)
+        self.queries.close()
         if self.calibration is not None:
             self.calibration.close()
 

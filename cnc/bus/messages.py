@@ -774,7 +774,7 @@ class ControlRun(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """QMotor's timed run of the control alone: in MANUAL, on a homed machine at rest, the axes
     hold position ("hold") or follow a test trajectory from where the head stands ("step",
     "ramp", "circle", or "fig10", the paper's contour) for `duration_s`, the jet closed; then
-    they stop on the path. Stop and hold end it earlier (`cnc.control.trial.run_text`)."""
+    they stop on the path. Stop and hold end it earlier (`cnc.control.trajectories.run_text`)."""
 
     trajectory: str
     duration_s: float

@@ -63,10 +63,7 @@ def log_variables(config: MachineConfig) -> Variables:
     trace = [LogVariable(f"{axis}.{name}", unit, f"{axis.upper()}: {text}")
              for axis in config.axis_names for name, unit, text in _AXIS_VARIABLES]
     trace += [LogVariable(name, unit, text) for name, unit, text in _TRACE_VARIABLES]
-    for spec in build_program(config).log_variables:  # the control program's, in its trace record's order
-        for k, name in enumerate(spec.names(config.axis_names)):
-            whose = config.axis_names[k].upper() if spec.per_axis else f"control program [{k}]" if spec.size > 1 else ""
-            trace.append(LogVariable(name, spec.unit, f"{whose}: {spec.doc}" if whose else spec.doc or spec.name))
+    trace += list(_control_variables(config))  # the control program's, in its trace record's order
     block = [LogVariable("feed_override", "", "feed override ratio in force (1 = 100 %)")]
     block += [LogVariable(f"plc.{v.id}", v.unit, v.description or f"PLC input {v.id}") for v in config.plc.inputs()]
     if any(v.id == "pump_pressure" for v in config.plc.inputs()):
@@ -92,10 +89,27 @@ def trace_columns(records: np.ndarray, config: MachineConfig) -> dict[str, np.nd
     cols["tick_latency"] = records["latency_ns"] / 1000.0
     cols["control_time"] = records["control_ns"] / 1000.0
     if "control" in records.dtype.names:
-        names = [n for spec in build_program(config).log_variables for n in spec.names(config.axis_names)]
-        for k, name in enumerate(names):
-            cols[name] = records["control"][:, k].astype(np.float64)
+        for k, variable in enumerate(_control_variables(config)):
+            cols[variable.name] = records["control"][:, k].astype(np.float64)
     return cols
+
+
+_CONTROL_VARIABLES: dict[tuple, tuple[LogVariable, ...]] = {}
+
+
+def _control_variables(config: MachineConfig) -> tuple[LogVariable, ...]:
+    """The control program's log variables, flattened as the servo's trace record carries them;
+    made once per program and axes (the logger asks at every wake)."""
+    key = (config.source, config.control.program, config.axis_names)
+    known = _CONTROL_VARIABLES.get(key)
+    if known is None:
+        known = []
+        for spec in build_program(config).log_variables:
+            for k, name in enumerate(spec.names(config.axis_names)):
+                whose = config.axis_names[k].upper() if spec.per_axis else f"control program [{k}]" if spec.size > 1 else ""
+                known.append(LogVariable(name, spec.unit, f"{whose}: {spec.doc}" if whose else spec.doc or spec.name))
+        known = _CONTROL_VARIABLES[key] = tuple(known)
+    return known
 
 
 class BlockSampler:

@@ -47,7 +47,7 @@ from ..bus.messages import (
 )
 from ..bus.service import DEFERRED, CommandRefused, CommandService, Request, Route
 from ..config import CONTROLLER_ALARM_IDS, MachineConfig
-from ..control.trial import run_text
+from ..control.trajectories import run_text
 from ..data.dataserver import SharedArea
 from ..data.injection import injected_bugs
 from ..hw.board import AxisIn, DigitalOut
@@ -538,7 +538,7 @@ class Logic:
 
     def _cmd_control_run(self, msg: ControlRun, snap, now, request) -> str:
         """QMotor's timed run of the control alone: the trajectory's G-code from where the head
-        stands (`cnc.control.trial.run_text`), run as an MDI with the jet refused, and stopped on
+        stands (`cnc.control.trajectories.run_text`), run as an MDI with the jet refused, and stopped on
         the path when its duration is up (`_control_run_time`)."""
         try:
             text = run_text(msg.trajectory, msg.duration_s, self.config)
