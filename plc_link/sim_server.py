@@ -389,7 +389,7 @@ def launch_simulator_process(
     plc = config.plc if isinstance(config, MachineConfig) else config
     ctx = ctx or mp.get_context("spawn")
     parent, child = ctx.Pipe()
-    process = ctx.Process(target=_child_main, args=(plc, times, child), name="plc-sim", daemon=True)
+    process = ctx.Process(target=_child_main, args=(plc, times, child, os.getpid()), name="plc-sim", daemon=True)
     process.start()
     child.close()
     started = time.monotonic()
@@ -406,10 +406,10 @@ def launch_simulator_process(
     return serving
 
 
-def _child_main(plc: PlcConfig, times: PlantTimes | None, conn: Connection) -> None:
-    from cnc.runtime.child import die_with_parent
+def _child_main(plc: PlcConfig, times: PlantTimes | None, conn: Connection, launcher_pid: int) -> None:
+    from cnc.runtime.child import die_with
 
-    die_with_parent()  # a simulator outliving its controller would hold the pty for the next one
+    die_with(launcher_pid)  # a simulator outliving its controller would hold the pty for the next one
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us in order
     try:  # it stands for a PLC with a CPU of its own: the host's load is not its load
         os.nice(-10)

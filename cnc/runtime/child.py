@@ -6,7 +6,9 @@ import ctypes
 import faulthandler
 import logging
 import os
+import select
 import signal
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,27 +34,46 @@ class Runtime:
     plc_port: str = ""  # serial device of the PLC link: the machine file's, or the simulator's pty
     history_path: str = ""  # the alarm and message history (SQLite)
     zenoh_credentials: tuple[str, str] | None = None  # the controller user's, when access control is on
+    supervisor_pid: int = 0  # the processes end with it (`die_with`)
 
 
-def die_with_parent() -> None:
-    """Have the kernel end this process (SIGTERM) when the process that started it dies, however
-    it dies (kill -9, a crash): an orphaned controller process would go on ticking, holding the
-    serial port and answering on Zenoh, with no supervisor to watch it. Linux only; elsewhere a
-    no-op. The supervisor starts its processes from its main thread, whose end is the trigger."""
+def die_with(launcher_pid: int) -> None:
+    """Have this process ended (SIGTERM) when the process that launched it dies, however it dies
+    (kill -9, a crash): an orphaned controller process would go on ticking, holding the serial
+    port and answering on Zenoh, with no supervisor to watch it. Linux only; elsewhere a no-op.
+
+    Started by the launcher itself, the kernel's parent-death signal does it (the launcher starts
+    its processes from its main thread, whose end is the trigger). Forked by the fork server
+    (`table.process_context`), the parent is that server, which lives as long as any process it
+    forked: a thread then waits on the launcher's pidfd, readable once it has ended."""
+    if os.getppid() == launcher_pid:
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+        except (OSError, AttributeError):
+            return
+        if os.getppid() != launcher_pid:  # it died before the request was in place
+            os.kill(os.getpid(), signal.SIGTERM)
+        return
     try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+        pidfd = os.pidfd_open(launcher_pid)
+    except ProcessLookupError:  # gone already
+        os.kill(os.getpid(), signal.SIGTERM)
+        return
     except (OSError, AttributeError):
         return
-    if os.getppid() == 1:  # the parent died before the request was in place
-        os.kill(os.getpid(), signal.SIGTERM)
+    threading.Thread(target=_term_when_readable, args=(pidfd,), name="die-with-launcher", daemon=True).start()
 
+
+def _term_when_readable(pidfd: int) -> None:
+    select.select([pidfd], [], [])  # blocks without the interpreter lock until the launcher has ended
+    os.kill(os.getpid(), signal.SIGTERM)
 
 
 def child_setup(rt: Runtime, name: str) -> None:
     """Logging, ending with the supervisor, and leave Ctrl-C to the supervisor: it stops the
     processes in order."""
-    die_with_parent()
+    die_with(rt.supervisor_pid or os.getppid())
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # written from the signal handler itself, so even a process stuck holding the interpreter
     # says where it was when the supervisor finds its heartbeat stopped

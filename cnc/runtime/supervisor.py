@@ -44,7 +44,7 @@ from ..data.layout import Proc, ServoFault, ServoState, controller_layouts
 from ..bus.messages import Drives, Reset, Stamp
 from ..logic.client import LogicClient
 from ..planner.client import PlannerClient
-from .table import BY_NAME, START_ORDER, START_STAGES
+from .table import BY_NAME, START_ORDER, START_STAGES, process_context
 from .child import HANG_DUMP_SIGNAL, Runtime
 from ..data.trace import TraceRing
 
@@ -133,7 +133,7 @@ class Supervisor:
         self._plc_dir: tempfile.TemporaryDirectory | None = None
         self.plc_sim_times = plc_sim_times  # its plant's times (plc_link.sim_model.PlantTimes; None: realistic)
         self.keys = Keys(config.zenoh.key_prefix, config.machine.name)
-        self.ctx = multiprocessing.get_context("spawn")
+        self.ctx = process_context()
         self.children: dict[str, _Child] = {}
         self.starting: dict[str, _Starting] = {}  # restarts under way
         self._release_safe = False  # give the safe state back once the hardware server has acted on it
@@ -216,6 +216,7 @@ class Supervisor:
                 plc_port=plc_port,
                 history_path=self.history_path,
                 zenoh_credentials=self.access.controller,
+                supervisor_pid=os.getpid(),
             )
             self.planner = PlannerClient(self.router, self.keys, stamp=self.stamp if self.command is not None else None)
             self.logic = LogicClient(self.router, self.keys)
@@ -249,8 +250,9 @@ class Supervisor:
         return proc, ready
 
     def _spawn(self, *names: str) -> None:
-        """Start these processes together and wait until each reports ready (a start-up is mostly
-        imports: on two cores, processes that do not depend on each other start in half the time)."""
+        """Start these processes together and wait until each reports ready (forked from the fork
+        server with their modules imported, `table.process_context`: what is left of a start-up is
+        attaching the shared memory and opening a session, and the stages follow each other)."""
         started = [(name, *self._launch(name)) for name in names]
         deadline = time.monotonic() + self.config.supervisor.start_timeout_s
         for name, proc, ready in started:
