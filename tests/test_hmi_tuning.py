@@ -182,6 +182,8 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             assert done.args[1].ok and "applied by the servo at tick" in params.note.text(), params.note.text()
             log.choose("control.contour_error", "continuous", window_s=10.0)
             log.choose("control_time", "continuous", window_s=10.0)
+            for axis in "xy":  # the head's path, every tick of the run's last minute
+                log.choose(f"{axis}.setpoint", "continuous", window_s=60.0)
             click(qtbot, screen, log.start)
             qtbot.waitUntil(lambda: tuning.running > 0, timeout=WAIT_MS)
             run = tuning.running
@@ -204,20 +206,10 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             control.trajectory.setCurrentIndex(control.trajectory.findData("circle"))
             control.duration.setValue(1.0)
             x0, y0 = sup.servo()["commanded_mm"][:2]
-            points, ticks = [], []
-
-            def sample() -> bool:  # the head while the control run runs, from the servo's block
-                s = sup.servo()
-                if logic(sup)["state"] == MachineState.MDI:
-                    points.append(tuple(s["commanded_mm"][:2]))
-                    ticks.append(s["tick"])
-                return bool(points) and logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE
             click(qtbot, screen, control.start_run)
-            qtbot.waitUntil(sample, timeout=WAIT_MS)
-            radius = [math.dist(p, (x0 - 20.0, y0)) for p in points]
-            assert len(points) > 20 and max(abs(r - 20.0) for r in radius) < 0.01, "on the circle from the head, all along"
-            seconds = (ticks[-1] - ticks[0]) * config.timing.period_s
-            assert 0.9 <= seconds <= 1.5, f"ran {seconds:.3f} s of machine time for a 1 s run (then a stop on the path)"
+            qtbot.waitUntil(lambda: "control run: its time is up" in logic(sup)["message"]
+                            and logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
+                            timeout=WAIT_MS)
             assert "control run: its time is up" in logic(sup)["message"]
             shot(eng, "16_control_run")
             click(qtbot, screen, log.stop)
@@ -226,6 +218,16 @@ def test_an_engineer_selects_an_example_program_on_the_screen_then_runs_tunes_lo
             contour = np.atleast_1d(mat["log"]["control_contour_error"]["v"])
             cpu = np.atleast_1d(mat["log"]["control_time"]["v"])
             assert np.abs(contour).max() > 0.0, "the circle's contour error, as the program logged it"
+            xs, ys = (np.atleast_1d(mat["log"][f"{axis}_setpoint"]["v"]) for axis in "xy")
+            there = np.flatnonzero(np.hypot(xs - x0, ys - y0) < 1e-9)
+            assert len(there), "the go-to's end, then the control run from there"
+            xs, ys = xs[there[0]:], ys[there[0]:]
+            radius = np.hypot(xs - (x0 - 20.0), ys - y0)
+            assert np.abs(radius - 20.0).max() < 0.01, "on the circle from the head, all along"
+            moving = np.flatnonzero(np.hypot(np.diff(xs), np.diff(ys)) > 0.0)
+            assert len(moving) > 20 and math.dist((xs[-1], ys[-1]), (x0, y0)) > 1.0, "it went round part of the circle"
+            seconds = (moving[-1] - moving[0] + 1) * config.timing.period_s
+            assert 0.9 <= seconds <= 1.5, f"ran {seconds:.3f} s of machine time for a 1 s run (then a stop on the path)"
             assert cpu.max() > 0.0 and mat["log"]["control_time"]["unit"] == "us"
             assert mat["params_start"]["control_contour_gain_1_s"] == 120.0
             assert mat["control"]["program"] == "cross_coupled (CrossCoupled)", "each run says which law ran ..."
