@@ -24,7 +24,7 @@ the programmed one, so tests check the bound rather than trust the formula.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
@@ -55,26 +55,47 @@ class Element:
     line: int
     dwell_s: float = 0.0
     blend: bool = False  # a corner blend inserted by the planner
+    # what the planner asks of an element again and again (its sections, blends and limits each
+    # look at it), worked out once: elements never change once made
+    _length: float = field(default=-1.0, init=False, repr=False, compare=False)
+    _sweep: float | None = field(default=None, init=False, repr=False, compare=False)
+    _dir_start: tuple[float, float] | None = field(default=None, init=False, repr=False, compare=False)
+    _dir_end: tuple[float, float] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def length_mm(self) -> float:
-        if self.kind == DWELL:
-            return 0.0
-        if self.kind == ARC:
-            r = math.hypot(self.start[0] - self.center[0], self.start[1] - self.center[1])
-            return math.hypot(r * abs(self.sweep_rad), self.end[2] - self.start[2])
-        return math.dist(self.start, self.end)
+        length = self._length
+        if length < 0.0:
+            if self.kind == DWELL:
+                length = 0.0
+            elif self.kind == ARC:
+                r = math.hypot(self.start[0] - self.center[0], self.start[1] - self.center[1])
+                length = math.hypot(r * abs(self.sweep_rad), self.end[2] - self.start[2])
+            else:
+                length = math.dist(self.start, self.end)
+            self._length = length
+        return length
 
     @property
     def sweep_rad(self) -> float:
         """Signed swept angle of an arc (negative clockwise), full circles and extra turns included."""
-        return sweep(self.start[0], self.start[1], self.end[0], self.end[1], *self.center, self.cw, self.turns)
+        swept = self._sweep
+        if swept is None:
+            swept = self._sweep = sweep(self.start[0], self.start[1], self.end[0], self.end[1], *self.center, self.cw,
+                                        self.turns)
+        return swept
 
     def direction_at_start(self) -> tuple[float, float]:
-        return self._direction(self.start)
+        d = self._dir_start
+        if d is None:
+            d = self._dir_start = self._direction(self.start)
+        return d
 
     def direction_at_end(self) -> tuple[float, float]:
-        return self._direction(self.end)
+        d = self._dir_end
+        if d is None:
+            d = self._dir_end = self._direction(self.end) if self.kind == ARC else self.direction_at_start()
+        return d
 
     def _direction(self, p) -> tuple[float, float]:
         if self.kind == ARC:
