@@ -102,6 +102,14 @@ class CutSetups:
         self.db.close()
 
 
+def _add_columns(db: sqlite3.Connection) -> None:
+    """A history written before these were kept gets their columns."""
+    have = {row[1] for row in db.execute("PRAGMA table_info(jobs)")}
+    for name, kind in _ADDED:
+        if name not in have:
+            db.execute(f"ALTER TABLE jobs ADD COLUMN {name} {kind}")
+
+
 def jobs_path(history_path: str | Path) -> Path:
     """The job history beside the alarm history."""
     return Path(history_path).with_name("jobs.sqlite")
@@ -112,13 +120,7 @@ class JobHistory:
 
     def __init__(self, path: str | Path, readonly: bool = False) -> None:
         self.path = Path(path)
-        self.db = open_store(self.path, _TABLE, "job history", readonly)
-        if not readonly:  # a history written before these were kept
-            have = self._columns()
-            for name, kind in _ADDED:
-                if name not in have:
-                    self.db.execute(f"ALTER TABLE jobs ADD COLUMN {name} {kind}")
-            self.db.commit()
+        self.db = open_store(self.path, _TABLE, "job history", readonly, setup=None if readonly else _add_columns)
 
     def _columns(self) -> set[str]:
         return {row[1] for row in self.db.execute("PRAGMA table_info(jobs)")}
