@@ -126,25 +126,28 @@ class HardwareServer:
     def run(self) -> None:
         self.clock.start()
         i_until, i_shutdown = self._sup[2], self._sup[0]
-        clients = [(c, c.divisor) for c in self.clients]
+        # each client with its process's bit in the supervisor's shutdown word
+        clients = [(c, c.divisor, 1 << Proc[c.name.upper()]) for c in self.clients]
         hist, last_bin = self.hist, HIST_BINS - 1
         tick_i = self._i["tick"]
+        stopped = 0  # the shutdown word: processes told to stop
         while True:
             if self.clock.synchronous:
-                self._gate(self.hw.values[tick_i], i_until, i_shutdown)
+                stopped = self._gate(self.hw.values[tick_i], i_until, i_shutdown)
             deadline, woke = self.clock.wait()
             if not self.step(deadline, woke):
                 break
             tick = self.hw.values[tick_i]
-            woken = [c for c, div in clients if tick % div == 0]
-            for c in woken:
+            woken = [(c, bit) for c, div, bit in clients if tick % div == 0]
+            for c, _ in woken:
                 if self.clock.synchronous:
                     while c.done.acquire(False):
                         pass  # a late `done` from a tick that timed out must not stand for this one
                 c.wake.release()
             if self.clock.synchronous:
-                for c in woken:
-                    c.done.acquire(True, self.client_timeout_s)
+                for c, bit in woken:
+                    if not stopped & bit:  # a process told to stop answers no more ticks: time goes on without it
+                        c.done.acquire(True, self.client_timeout_s)
             else:
                 lat = (woke - deadline) // 1000
                 hist[lat if lat < last_bin else last_bin] += 1
@@ -246,8 +249,9 @@ class HardwareServer:
                 and v[idx["watchdog_trip_tick"]] <= cmd[i_reset_tick]):
             v[idx["watchdog_tripped"]] = 0
 
-    def _gate(self, tick: int, i_until: int, i_shutdown: int) -> None:
-        """Virtual clock: hold time still while the commander has set a tick not to pass."""
+    def _gate(self, tick: int, i_until: int, i_shutdown: int) -> int:
+        """Virtual clock: hold time still while the commander has set a tick not to pass; returns
+        the supervisor's shutdown word (the processes told to stop)."""
         i_paused = self.hw.layout.index["paused"]
         while True:
             sup, _ = self.supervisor.read()
@@ -256,7 +260,7 @@ class HardwareServer:
                 if self.hw.values[i_paused]:
                     self.hw.values[i_paused] = 0
                     self.hw.publish()
-                return
+                return int(sup[i_shutdown])
             if not self.hw.values[i_paused]:
                 self.hw.values[i_paused] = 1
                 self.hw.publish()

@@ -94,6 +94,8 @@ def run_servo(rt: Runtime, ready) -> None:
     try:
         while not shutdown[0] & my_bit:
             if timer.wait_tick(0.25):
+                if shutdown[0] & my_bit:
+                    break  # woken by the supervisor's stop (`Supervisor._stop_child`), not by a tick
                 while timer.wake.acquire(False):
                     pass  # ticks missed while late: run once on the newest, the tick counter counts the overrun
                 if stall is not None and stall.sit_out():

@@ -143,6 +143,7 @@ class Supervisor:
         self.fifo: SetpointFifo | None = None
         self.trace: TraceRing | None = None
         self.router = None
+        self.runtime: Runtime | None = None  # what every process is handed, once started
         self._sim_inputs_close: Callable[[], None] | None = None
         self.access: Plan | None = None
         self._socket: Path | None = None
@@ -365,6 +366,10 @@ class Supervisor:
             self.control.set("shutdown", self.control.get("shutdown") | 1 << BY_NAME[name].slot)
         if children:
             self.control.publish()
+        if any(name == "servo" for name, _ in children) and self.runtime is not None:
+            # it stops last, with no ticks left to wake it: woken now, it reads the word at once
+            # (`procs.run_servo`) instead of after its 0.25 s wait for a tick
+            self.runtime.timer_clients["servo"].wake.release()
         for name, child in children:
             child.process.join(5.0)
             if child.process.is_alive():
