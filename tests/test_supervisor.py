@@ -189,6 +189,44 @@ def test_a_terminated_hardware_server_leaves_the_board_safe_first(virtual_contro
     assert hw["safe_state"] == 1 and not hw["digital_out"] & DigitalOut.JET_VALVE, "the last image: safe, jet closed"
 
 
+def test_killing_the_fork_server_ends_the_processes_it_forked_the_board_left_safe(virtual_controller):
+    """The processes are forked by the fork server (`table.process_context`), their parent. Were it
+    killed, the supervisor would see them all gone (their exit statuses come through it): they must
+    be gone indeed, not left running without it, the hardware server's board safe first."""
+    from cnc.data.fifo import SetpointFlag
+    from cnc.hw.board import DigitalOut
+
+    sup = virtual_controller
+    held = enable_and_hold(sup)
+    sup.fifo.push_one(held, (0.0, 0.0), SetpointFlag.JET_ON, epoch=sup.servo()["motion_epoch"])
+    sup.wait_until(lambda: sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 5.0, "the jet open")
+    pids = [child.process.pid for child in sup.children.values()]
+    servers = [p for p in _descendants(os.getpid()) if "multiprocessing.forkserver" in _cmdline(p) and p not in pids]
+    forked = [p for p in pids if _parent(p) in servers]
+    assert len(servers) == 1 and sorted(forked) == sorted(pids), (servers, forked, pids)
+    os.kill(servers[0], signal.SIGKILL)
+    deadline = time.monotonic() + 60.0
+    while [p for p in pids if _state(p) not in ("Z", "gone")] and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert [p for p in pids if _state(p) not in ("Z", "gone")] == [], "processes left running without their parent"
+    hw = sup.hw()
+    assert hw["safe_state"] == 1 and not hw["digital_out"] & DigitalOut.JET_VALVE, "the last image: safe, jet closed"
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def _parent(pid: int) -> int:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, ValueError, IndexError):
+        return -1
+
+
 def test_the_process_table_names_every_process_once_and_every_entry_point_resolves():
     from cnc.data.layout import Proc
     from cnc.runtime.table import BY_NAME, PROCESSES, START_STAGES, realtime_priority

@@ -42,18 +42,22 @@ def die_with(launcher_pid: int) -> None:
     (kill -9, a crash): an orphaned controller process would go on ticking, holding the serial
     port and answering on Zenoh, with no supervisor to watch it. Linux only; elsewhere a no-op.
 
-    Started by the launcher itself, the kernel's parent-death signal does it (the launcher starts
-    its processes from its main thread, whose end is the trigger). Forked by the fork server
+    The kernel's parent-death signal ends it with its parent (the launcher starts its processes
+    from its main thread, whose end is the trigger). Forked by the fork server
     (`table.process_context`), the parent is that server, which lives as long as any process it
-    forked: a thread then waits on the launcher's pidfd, readable once it has ended."""
-    if os.getppid() == launcher_pid:
-        try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-        except (OSError, AttributeError):
-            return
-        if os.getppid() != launcher_pid:  # it died before the request was in place
-            os.kill(os.getpid(), signal.SIGTERM)
+    forked: a thread then also waits on the launcher's pidfd, readable once it has ended. (Were
+    the server killed, its processes end with it: the supervisor, which then sees them all gone,
+    must not find the old ones still holding the board and the port.)"""
+    parent = os.getppid()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # it died before the request was in place
+        os.kill(os.getpid(), signal.SIGTERM)
+        return
+    if parent == launcher_pid:
         return
     try:
         pidfd = os.pidfd_open(launcher_pid)
