@@ -85,3 +85,30 @@ def test_stopping_a_homing_brings_the_axis_to_rest_and_reports_it():
         assert s["state"] == ServoState.HOLDING and s["commanded_velocity_mm_s"][0] == 0.0 and s["underruns"] == 0
         m = sup.motion()
         assert m["state"] == PlannerState.IDLE and "stopped by the operator" in m["error"] and not s["homed_mask"]
+        # the control logic's own stop (a safe stop) says its cause, not the operator
+        ask(sup, Home(["x"]))
+        sup.run_ticks(400)
+        ask(sup, Stop(reason="safe stop: estop: the e-stop is pressed"))
+        sup.run_ticks(600)
+        m = sup.motion()
+        assert m["state"] == PlannerState.IDLE and m["error"] == "homing stopped: safe stop: estop: the e-stop is pressed"
+
+
+def test_a_safe_stop_during_homing_is_reported_with_its_cause_not_as_the_operator(plc_controller):
+    from cnc.alarms import AlarmHistory
+
+    from .conftest import reset_and_home
+
+    sup = plc_controller
+    reset_and_home(sup, sup.logic.request)
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.HOMING, 30.0, "the homing under way")
+    sup.set_sim(estop_pressed=1)
+    sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.motion()["error"], 30.0, "the homing ended")
+    error = sup.motion()["error"]
+    # whichever the planner sees first, the servo's trip or the logic's safe stop, it names the e-stop
+    assert "operator" not in error and ("homing stopped: safe stop: estop" in error or "(ESTOP)" in error), error
+
+    def recorded() -> bool:
+        with AlarmHistory(sup.history_path, readonly=True) as history:
+            return any(error in e.detail for e in history.query(limit=50).entries)
+    sup.wait_until(recorded, 10.0, "the homing's end in the alarm history")

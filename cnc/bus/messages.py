@@ -704,6 +704,9 @@ class Stop(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Decelerate to rest and end the program (or the manual motion)."""
 
     version: int = SCHEMA_VERSION
+    # why, when the control logic stops the planner for a cause of its own (a safe stop, a control
+    # run's end): what the planner reports instead of "by the operator" (a station's is not passed on)
+    reason: Annotated[str, msgspec.Meta(max_length=200)] = ""
 
 
 class Override(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

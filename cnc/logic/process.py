@@ -577,7 +577,7 @@ class Logic:
             self.command.set("stop_seq", self.command.get("stop_seq") + 1)
             self._write_command()
             self._stop_epoch()
-            self.planner.send(Stop())
+            self.planner.send(Stop(reason="the control run's time is up"))
             self._note("control run: its time is up, stopping on the path")
 
     def _jet_refused(self, snap: Snapshot) -> str:
@@ -866,7 +866,7 @@ class Logic:
         self._write_command()
         self._stop_epoch()
         if self.snap is not None and self.snap.motion["state"] not in (PlannerState.IDLE,):
-            self.planner.send(Stop())
+            self.planner.send(Stop(reason=f"safe stop: {why}"[:200]))
         if self.cycle.active:
             self.cycle.abort()
         if self.present & {"pump_pressure_fault", "estop"}:

@@ -51,7 +51,7 @@ from gcode.program import Program
 from ..bus.keys import Keys
 from ..bus.messages import (
     MOTION_COMMANDS, MOTION_VERBS, PLANNER_COMMANDS, GoTo, Home, Jog, JogRefresh, LoadProgram, Mdi, Override,
-    ProgramDiagnostic, Reply, RestartAt, SetCut, CheckRestart,
+    ProgramDiagnostic, Reply, RestartAt, SetCut, CheckRestart, Stop,
 )
 from ..bus.service import CommandRefused, CommandService, Request, Route, report_to_logic
 from ..config import MachineConfig
@@ -594,9 +594,9 @@ class Planner:
         self.track_fill = False  # the refill after a standstill starts from an empty FIFO
         self._publish_state()
 
-    def _cmd_stop(self, _msg) -> Reply:
+    def _cmd_stop(self, msg: Stop) -> Reply:
         if self.homing is not None:
-            self._abort_homing("stopped by the operator")
+            self._abort_homing(f"stopped: {msg.reason}" if msg.reason else "stopped by the operator")
             return Reply(True)
         if self.runner is None:
             raise CommandRefused("nothing to stop: nothing moves")
