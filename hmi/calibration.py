@@ -32,6 +32,7 @@ from cnc.bus.states import CyclePhase
 
 from .adapter import ModelAdapter
 from .commands import CommandRunner, enable_while_commanding
+from .style import show_reply
 
 QUALITIES = (1, 2, 3, 4, 5)  # as the cutting job's: 1 separation (fastest, rough lower edge) to 5 the finest edge
 QUALITY_WORDS = {1: "separation edge", 5: "finest edge"}
@@ -65,12 +66,6 @@ def programmed_speed(speed_mm_min: float) -> float:
 def ladder_program_name(material_id: str, thickness_mm: float) -> str:
     """The name the controller stores and loads a ladder under (`cnc.calibration.ladder_name`)."""
     return f"ladder-{material_id}-{thickness_mm:g}mm.ngc"
-
-
-def show_reply(label: QLabel, ok: bool, text: str) -> None:
-    """A reply as the cutting job shows one: green when taken, ✖ and the reason in red when refused."""
-    label.setStyleSheet("color: #1b5e20;" if ok else "color: #b00020; font-weight: bold;")
-    label.setText(text if ok else f"✖ {text}")
 
 
 def _material_text(entry: MaterialEntry) -> str:

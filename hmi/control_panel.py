@@ -17,6 +17,7 @@ from cnc.bus.messages import ControlProgramInfo, ControlProgramList, ControlRun,
 
 from .adapter import ModelAdapter
 from .commands import BackgroundQuery, CommandRunner, enable_while_commanding
+from .style import show_reply
 
 TRAJECTORIES = (("hold position", "hold"), ("position step", "step"), ("ramp", "ramp"), ("circle", "circle"),
                 ("the paper's Fig. 10 contour", "fig10"))
@@ -174,8 +175,7 @@ class ControlPanel(QWidget):
         self.answered.emit(reply)
 
     def _show_reply(self, ok: bool, text: str) -> None:
-        self.reply.setStyleSheet("color: #1b5e20;" if ok else "color: #b00020; font-weight: bold;")
-        self.reply.setText(text if ok else f"✖ {text}")
+        show_reply(self.reply, ok, text)
 
     def showEvent(self, event) -> None:  # noqa: ANN001, N802 - Qt's override
         super().showEvent(event)

@@ -25,6 +25,7 @@ from cnc.bus.states import CyclePhase
 from .adapter import ModelAdapter
 from .calibration import CalibrationDialog
 from .commands import BackgroundQuery, CommandRunner, enable_while_commanding
+from .style import show_reply
 
 QUALITIES = (1, 2, 3, 4, 5)  # 1 separation (fastest, rough lower edge) to 5 the finest edge
 MODES = (("machine uses quality", "quality"), ("machine uses feed", "feed"))  # (shown, SetCut.mode)
@@ -208,8 +209,7 @@ class CutJobPanel(QGroupBox):
         self.answered.emit(reply)
 
     def _show_reply(self, ok: bool, text: str) -> None:
-        self.reply.setStyleSheet("color: #1b5e20;" if ok else "color: #b00020; font-weight: bold;")
-        self.reply.setText(text if ok else f"✖ {text}")
+        show_reply(self.reply, ok, text)
 
     # -- showing ------------------------------------------------------------------------------
     def _show_in_force(self) -> None:

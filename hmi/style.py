@@ -83,3 +83,9 @@ def value_label(text: str = "-") -> QLabel:
     label.setObjectName("value")
     label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
     return label
+
+
+def show_reply(label: QLabel, ok: bool, text: str) -> None:
+    """A command's reply in its panel's line: green when taken, ✖ and the reason in red when refused."""
+    label.setStyleSheet("color: #1b5e20;" if ok else "color: #b00020; font-weight: bold;")
+    label.setText(text if ok else f"✖ {text}")
