@@ -26,7 +26,10 @@ nearest element anywhere in the program (in the JSON; a line is printed where th
 
 From the repository root, with the project installed (LinuxCNC runs in real time: minutes):
 
-    .venv/bin/python bench/linuxcnc_compare.py [--quick] [--json OUT]
+    .venv/bin/python bench/linuxcnc_compare.py [--quick] [--only PREFIX] [--json OUT]
+
+For the nest it also gives each planner's time by what the lines do (rapids, lead-ins, contours,
+lead-outs: `line_kinds`).
 
 Exits 0 when every program ran on both (or LinuxCNC is unavailable here: then only our
 figures are shown, with the reason), 1 when a LinuxCNC run failed.
@@ -282,6 +285,42 @@ def figures(path: ProgrammedPath, xy: np.ndarray, deviation: np.ndarray, dt: flo
                    **peak_figures(xy, dt), extra=extra)
 
 
+LINE_KINDS = ("rapids", "lead-ins", "contours", "lead-outs")
+
+
+def line_kinds(text: str) -> dict[int, str]:
+    """Each motion line of a nest by what it does: a rapid; the first feed move after a rapid (the
+    lead-in); the last one before the next rapid (the lead-out); the contour between them."""
+    kinds: dict[int, str] = {}
+    feeds: list[int] = []
+
+    def close() -> None:
+        for k, line in enumerate(feeds):
+            kinds[line] = "lead-ins" if k == 0 else "lead-outs" if k == len(feeds) - 1 else "contours"
+        feeds.clear()
+    for number, raw in enumerate(text.splitlines(), 1):
+        words = raw.split()
+        if not words or not re.fullmatch(r"G0?[0-3]", words[0]):
+            continue
+        if words[0] in ("G0", "G00"):
+            close()
+            kinds[number] = "rapids"
+        else:
+            feeds.append(number)
+    close()
+    return kinds
+
+
+def seconds_by_kind(sample_lines: np.ndarray, kinds: dict[int, str], dt: float) -> dict[str, float]:
+    """Servo periods counted to the program line each sample carries, summed by `line_kinds`."""
+    out = dict.fromkeys(LINE_KINDS, 0.0)
+    lines, counts = np.unique(np.asarray(sample_lines, dtype=np.int64), return_counts=True)
+    for line, n in zip(lines.tolist(), counts.tolist()):
+        if line in kinds:
+            out[kinds[line]] += n * dt
+    return out
+
+
 # --------------------------------------------------------------------------------------
 # Running
 # --------------------------------------------------------------------------------------
@@ -397,7 +436,7 @@ def _stretch_bound_s(elements: list, speeds: list[float], a_axis: float, j_axis:
     return max(cruise, 2.0 * _ramp(lo, a, j)[0])
 
 
-def run_ours(program: Program, start: tuple[float, float], config: MachineConfig) -> Figures:
+def run_ours(program: Program, start: tuple[float, float], config: MachineConfig, kinds: dict[int, str]) -> Figures:
     dt = config.timing.period_s
     runner = ProgramRunner(program, config)
     planned = runner.planned_ticks()
@@ -413,11 +452,12 @@ def run_ours(program: Program, start: tuple[float, float], config: MachineConfig
     path = ProgrammedPath(program.segments)
     deviation = path.distance(xy, tags, TAG_WINDOW)
     return figures(path, xy, deviation, dt,
-                   records_s=len(records) * dt, planned_s=planned * dt, planning_wall_s=wall)
+                   records_s=len(records) * dt, planned_s=planned * dt, planning_wall_s=wall,
+                   by_line_kind_s=seconds_by_kind(program.segments["line"][records["segment"]], kinds, dt))
 
 
 def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
-               config: MachineConfig) -> Figures:
+               config: MachineConfig, kinds: dict[int, str]) -> Figures:
     dt = config.timing.period_s
     wall = time.monotonic()
     res = linuxcnc_sim.run_linuxcnc(
@@ -431,18 +471,21 @@ def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
     path = ProgrammedPath(program.segments)
     return figures(path, xy, deviation_by_line(path, program, xy, res["line"]), dt,
                    linuxcnc_cycle_time_s=res["cycle_time_s"], in_position_time_s=res["in_position_time_s"],
-                   version=res["version"], how=res["how"], run_wall_s=wall)
+                   version=res["version"], how=res["how"], run_wall_s=wall,
+                   by_line_kind_s=seconds_by_kind(res["line"], kinds, dt))
 
 
 def compare(bench: Bench, config: MachineConfig, workdir: Path, with_linuxcnc: bool) -> Comparison:
     program, start = interpret_from_start(bench.text, config)
     tolerance_mm = float(program.segments["tolerance"].max())
-    result = Comparison(bench, tolerance_mm, start, run_ours(program, start, config), jerk_bound_s=jerk_bound_s(program, config))
+    kinds = line_kinds(bench.text)
+    result = Comparison(bench, tolerance_mm, start, run_ours(program, start, config, kinds),
+                        jerk_bound_s=jerk_bound_s(program, config))
     if with_linuxcnc:
         program_file = workdir / (re.sub(r"[^\w.]+", "_", bench.name) + ".ngc")
         program_file.write_text(bench.text)
         try:
-            result.linuxcnc = run_theirs(program_file, program, start, config)
+            result.linuxcnc = run_theirs(program_file, program, start, config, kinds)
         except linuxcnc_sim.LinuxCNCRunError as exc:
             result.linuxcnc_error = str(exc)
     return result
@@ -522,6 +565,20 @@ def render_summary(rows: list[Comparison], config: MachineConfig) -> list[str]:
     return out
 
 
+def render_by_line(rows: list[Comparison]) -> list[str]:
+    """Where each planner spends the nest's time, by what its lines do (`line_kinds`; a sample
+    counts to the program line it carries, so time near a corner may go to either neighbour)."""
+    out = []
+    for c in rows:
+        if c.linuxcnc is None or not c.bench.name.startswith("nest"):
+            continue
+        ours, theirs = c.ours.extra["by_line_kind_s"], c.linuxcnc.extra["by_line_kind_s"]
+        out += [f"{c.bench.name}: time by line kind", f"{'lines':<12}{'ours s':>10}{'LCNC s':>10}{'ours - LCNC':>13}"]
+        for kind in LINE_KINDS:
+            out.append(f"{kind:<12}{ours[kind]:10.2f}{theirs[kind]:10.2f}{ours[kind] - theirs[kind]:+13.2f}")
+    return out
+
+
 def to_json(rows: list[Comparison], config: MachineConfig, linuxcnc: str, wall_s: float) -> dict[str, Any]:
     keys = ("max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3", "travel_min_mm", "travel_max_mm")
     limits = {ax: {k: getattr(config.axis[ax], k) for k in keys} for ax in AXES}
@@ -538,6 +595,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="run a few programs only")
     ap.add_argument("--json", type=Path, metavar="OUT", help="write every figure here")
+    ap.add_argument("--only", metavar="PREFIX", default="", help="run only the programs whose name starts so")
     ap.add_argument("--bounds", action="store_true",
                     help="print only each program's feed and jerk-limited bounds (`feed_bound_s`, `jerk_bound_s`) and exit")
     args = ap.parse_args(argv)
@@ -552,7 +610,7 @@ def main(argv: list[str] | None = None) -> int:
     available, reason = linuxcnc_sim.available()
     rows: list[Comparison] = []
     with tempfile.TemporaryDirectory(prefix="linuxcnc_compare-") as tmp:
-        for bench in (b for b in benches() if b.quick or not args.quick):
+        for bench in (b for b in benches() if (b.quick or not args.quick) and b.name.startswith(args.only)):
             try:
                 rows.append(compare(bench, config, Path(tmp), available))
             except linuxcnc_sim.LinuxCNCUnavailable as exc:
@@ -563,7 +621,8 @@ def main(argv: list[str] | None = None) -> int:
     peer = reason if available else f"LinuxCNC (unavailable: {reason})"
     print(f"ours vs {peer}; same limits: {MACHINE_FILE.name}, period {config.timing.period_s * 1e3:g} ms, "
           "start at each program's first point")
-    print("\n".join([*render_targets(rows), "", *render_peaks(rows), "", *render_summary(rows, config)]))
+    print("\n".join([*render_targets(rows), "", *render_peaks(rows), "", *render_summary(rows, config), "",
+                     *render_by_line(rows)]))
     print(f"ran in {wall_s:.0f} s")
     if args.json:
         args.json.write_text(json.dumps(to_json(rows, config, reason, wall_s), indent=1))

@@ -49,3 +49,13 @@ def test_our_planner_never_beats_the_bounds(text):
     program, _ = lc.interpret_from_start(text, CONFIG)
     ours_s = ProgramRunner(program, CONFIG).planned_ticks() * CONFIG.timing.period_s
     assert lc.feed_bound_s(program, CONFIG) < lc.jerk_bound_s(program, CONFIG) <= ours_s
+
+
+def test_the_nest_comparison_tells_rapids_lead_ins_contours_and_lead_outs_apart():
+    text = ("G21 G90\nG0 X0 Y0\nG1 X0 Y3 F2400\nG1 X10 Y3\nG3 X10 Y9 I0 J3\nG1 X-2 Y1\n"
+            "G0 X50 Y0\nG1 X50 Y3\nG1 X48 Y1\nM2\n")
+    kinds = lc.line_kinds(text)
+    assert kinds == {2: "rapids", 3: "lead-ins", 4: "contours", 5: "contours", 6: "lead-outs",
+                     7: "rapids", 8: "lead-ins", 9: "lead-outs"}
+    seconds = lc.seconds_by_kind([2, 2, 3, 4, 4, 5, 6, 1, 10], kinds, 0.001)  # lines 1 and 10 move nothing
+    assert seconds == pytest.approx({"rapids": 0.002, "lead-ins": 0.001, "contours": 0.003, "lead-outs": 0.001})
