@@ -239,7 +239,7 @@ class PlannerConfig:
         "the screen refreshes every 100 ms)", 150.0, 10000.0,
     )
     load_timeout_s: float = opt(
-        900.0, "s", "how long loading a program may take: checking and planning it (minutes for a million lines)", 10.0, 7200.0
+        900.0, "s", "how long loading a program may take: interpreting and checking it, its first steps planned (seconds for a million lines)", 10.0, 7200.0
     )
 
 

@@ -21,8 +21,8 @@ OPERATOR_COMMANDS: dict[str, type[msgspec.Struct]] = {
     "calibration_ladder": CalibrationLadder, "calibration_record": CalibrationRecord, "control_select": ControlSelect,
 }
 _VERBS = {kind: verb for verb, kind in OPERATOR_COMMANDS.items()}
-# An upload or load is answered once the planner has checked and planned the program: minutes for
-# a million lines, bounded by the controller's own `[planner] load_timeout_s` (at most 7200 s) and
+# An upload or load is answered once the planner has interpreted and checked the program and planned
+# its first steps: seconds for a million lines on a fast host, bounded by the controller's own `[planner] load_timeout_s` (at most 7200 s) and
 # the gateway's margin. The station waits that long, so the controller's answer always comes first.
 LOAD_WAIT_S = 7200.0 + 60.0
 LOADS = (UploadProgram, LoadProgram, CalibrationLadder)
