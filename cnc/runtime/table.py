@@ -71,8 +71,8 @@ def process_context() -> BaseContext:
     modules' memory. The server holds no session, no shared memory and no thread of the
     controller's, so a fork of it is as clean as a spawned process. It inherits the supervisor's
     environment and working directory when the first process starts (nothing the controller
-    reads from either changes after that), lives as long as a process it forked does, and the
-    processes end with the supervisor, not with the server (`child.die_with`)."""
+    reads from either changes after that) and lives as long as a process it forked does. The
+    processes end with the supervisor, and with the server were it killed (`child.die_with`)."""
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(list(PRELOAD))
     return ctx
