@@ -28,7 +28,7 @@ def open_store(path: Path, table_sql: str, what: str, readonly: bool = False,
     Two processes may set up the same new file at once (the control logic's job history and the
     gateway's cutting jobs share one, and start together). SQLite answers the loser's switch to WAL
     "database is locked" at once, without waiting for its busy timeout; the set-up is then tried
-    again, after 10, 20, 30 ... ms (12 s in all before it gives up): the winner's takes milliseconds."""
+    again, after 10, 20, 30 ... ms (13 s in all before it gives up): the winner's takes milliseconds."""
     try:
         if readonly:
             return sqlite3.connect(f"file:{path}?mode=ro", uri=True, check_same_thread=False)
