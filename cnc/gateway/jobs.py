@@ -102,9 +102,13 @@ class CutSetups:
         self.db.close()
 
 
+def _columns(db: sqlite3.Connection) -> set[str]:
+    return {row[1] for row in db.execute("PRAGMA table_info(jobs)")}
+
+
 def _add_columns(db: sqlite3.Connection) -> None:
     """A history written before these were kept gets their columns."""
-    have = {row[1] for row in db.execute("PRAGMA table_info(jobs)")}
+    have = _columns(db)
     for name, kind in _ADDED:
         if name not in have:
             db.execute(f"ALTER TABLE jobs ADD COLUMN {name} {kind}")
@@ -122,12 +126,9 @@ class JobHistory:
         self.path = Path(path)
         self.db = open_store(self.path, _TABLE, "job history", readonly, setup=None if readonly else _add_columns)
 
-    def _columns(self) -> set[str]:
-        return {row[1] for row in self.db.execute("PRAGMA table_info(jobs)")}
-
     def _select(self) -> str:
         """The columns a JobRecord takes, as far as this file has them (an older one may lack the last)."""
-        have = self._columns()
+        have = _columns(self.db)
         extra = []
         for name, _ in _ADDED:
             if name not in have:

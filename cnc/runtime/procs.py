@@ -92,10 +92,11 @@ def run_servo(rt: Runtime, ready) -> None:
     keep_gc_out()
     set_ready(ready)
     try:
-        while not shutdown[0] & my_bit:
-            if timer.wait_tick(0.25):
-                if shutdown[0] & my_bit:
-                    break  # woken by the supervisor's stop (`Supervisor._stop_child`), not by a tick
+        while True:
+            woke = timer.wait_tick(0.25)
+            if shutdown[0] & my_bit:  # read once a tick, after the wait: the supervisor's stop wakes it too
+                break
+            if woke:
                 while timer.wake.acquire(False):
                     pass  # ticks missed while late: run once on the newest, the tick counter counts the overrun
                 if stall is not None and stall.sit_out():
