@@ -232,3 +232,33 @@ def test_a_stop_from_a_cruise_comes_to_rest_and_ends_without_creeping():
     records = np.concatenate(out)
     assert speed(records)[-1] == 0.0 and not records["flags"][-1] & IN_MOTION
     within_limits(records)
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 4, 7])
+def test_a_hold_or_a_zero_override_lifted_at_once_keeps_the_jerk_limit_whatever_the_take_size(chunk):
+    """The stop's last samples settle at rest; the stream counts as at rest only after a few more
+    samples there (as at a section's end), so a resume or raised override in the very next period
+    never meets the stop's deceleration in one third difference. Once, a take of one or two
+    records and a resume at once made twice the axis jerk."""
+    text = "G21 G90\nG0 X100 Y100\nG1 X120 F600\nM2\n"
+    for at in (700, 711, 723):
+        _, _, held, _ = run(text, chunk=chunk, actions={at: lambda r: r.hold(), 10**9: lambda r: r.resume()})
+        within_limits(held)
+        assert held["position"][-1] == pytest.approx([120, 100], abs=1e-9)
+        _, _, stalled, _ = run(text, chunk=chunk, actions={at: lambda r: r.set_override(0.0),
+                                                           10**9: lambda r: r.set_override(1.0)})
+        within_limits(stalled)
+        assert stalled["position"][-1] == pytest.approx([120, 100], abs=1e-9)
+
+
+def test_a_runner_taken_one_record_at_a_time_makes_the_same_records_as_in_chunks():
+    """A FIFO with room for one record asks for one: the first take of a run keeps its only sample
+    back (its velocity needs the next) instead of failing, and a segment's start is marked on its
+    first record whatever the takes (a pause's records once moved it by the take size)."""
+    text = "G21 G90 G64 P0.05\nG0 X100 Y100\nM3\nG1 X150 F3000\nG2 X170 Y120 R20\nM5\nG0 X0 Y0\nM2\n"
+    _, _, ones, _ = run(text, chunk=1)
+    _, _, chunks, _ = run(text, chunk=64)
+    assert len(ones) == len(chunks)
+    assert np.allclose(ones["position"], chunks["position"], rtol=0.0, atol=1e-9)  # windows committed at other times
+    for field in ("flags", "segment", "line"):  # a segment's first record marked once, in the same place
+        assert np.array_equal(ones[field], chunks[field]), field

@@ -88,6 +88,7 @@ class ProgramRunner:
         self.repierce = 0  # samples of re-pierce still to make before motion continues
         self.flags_now = 0  # output bits of the last record made
         self.segment_now = 0
+        self._released_segment = -1  # segment of the last record released (its next marks SEGMENT_START on a change)
         self.line_now = 0
         self.jet_closed = False
         self._pending: tuple | None = None  # (position, flags, segment, line, s_program) of the last sample made
@@ -258,14 +259,17 @@ class ProgramRunner:
             line, prog = np.concatenate(([l0], line)), np.concatenate(([s0], prog))
         if not len(pos):
             return np.zeros(0, dtype=self.dtype), np.zeros(0)
-        before = self._before if self._before is not None else pos[0]
         count = len(pos) if final else len(pos) - 1
+        if not count:  # only the newest sample (a take of one at a run's start or after a hold): it waits for the next
+            self._pending = (pos[-1], flags[-1], seg[-1], line[-1], prog[-1])
+            return np.zeros(0, dtype=self.dtype), np.zeros(0)
+        before = self._before if self._before is not None else pos[0]
         ext = np.concatenate((before[None, :], pos, pos[-1:] if final else np.zeros((0, pos.shape[1]))))
         out = np.zeros(count, dtype=self.dtype)
         out["position"] = pos[:count]
         out["velocity"] = (ext[2:count + 2] - ext[:count]) / (2.0 * self.dt)
         f = flags[:count].astype(np.int64) | _IN_MOTION
-        starts = np.concatenate(([seg[0] != self.segment_now or self.made == 0], seg[1:count] != seg[: count - 1]))
+        starts = np.concatenate(([seg[0] != self._released_segment], seg[1:count] != seg[: count - 1]))
         f[starts] |= _SEGMENT_START
         if final:
             f[-1] &= ~_IN_MOTION
@@ -281,6 +285,7 @@ class ProgramRunner:
         out["flags"] = f
         out["segment"], out["line"] = seg[:count], line[:count]
         self.flags_now, self.segment_now, self.line_now = int(f[-1]), int(seg[count - 1]), int(line[count - 1])
+        self._released_segment = self.segment_now
         self._before = pos[count - 1]
         self._pending = None if final else (pos[-1], flags[-1], seg[-1], line[-1], prog[-1])
         self.made += count

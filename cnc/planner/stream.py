@@ -91,13 +91,15 @@ class SectionStream:
 
     @property
     def at_rest(self) -> bool:
-        """Stopping and come to rest: the raw motion stopped and both averages have caught up."""
+        """Stopping and come to rest: the raw motion stopped, both averages have caught up, and
+        `REST_SAMPLES` samples at rest have been made after (as at a section's end), so that a
+        resume or a raised override right away never meets the stop in one third difference."""
         if not self.stopping or not self.pieces_end_at_rest():
             return False
+        if len(self.pieces) and self.k < math.ceil(self.pieces.t_end / self.dt - 1e-9) + self.ma_path.n + self.ma_axis.n - 2 + REST_SAMPLES:
+            return False
         s_stop = self.pieces.end_state()[0] if len(self.pieces) else 0.0
-        return self.k * self.dt >= self.pieces.t_end and self.ma_path.converged(s_stop) and self.ma_axis.converged(
-            self.section.path.points(np.array([s_stop]))[0], 1e-12
-        )
+        return self.ma_path.converged(s_stop) and self.ma_axis.converged(self.section.path.points(np.array([s_stop]))[0], 1e-12)
 
     def pieces_end_at_rest(self) -> bool:
         return len(self.pieces) == 0 or abs(self.pieces.end_state()[1]) < 1e-9
