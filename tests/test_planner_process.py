@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cnc.bus.keys import Keys
-from cnc.bus.messages import GoTo, Hold, Jog, JogStop, LoadProgram, Override, Resume, Start, Status, Stop, decode
+from cnc.bus.messages import GoTo, Hold, Jog, JogRefresh, JogStop, LoadProgram, Override, Resume, Start, Status, Stop, decode
 from cnc.bus.session import open_client
 from cnc.data.layout import PlannerState, RunResult, ServoState
 from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
@@ -198,7 +198,9 @@ def test_jog_continuous_and_incremental_and_go_to_move_through_the_planner(homed
     sup.pause_virtual_clock()
     try:
         ask(sup, Jog("x", -40.0))
-        sup.run_ticks(1000)
+        for _ in range(10):  # a held key: the station refreshes the jog every 100 ms (the dead-man)
+            sup.run_ticks(100)
+            ask(sup, JogRefresh())
         assert sup.motion()["state"] == PlannerState.JOGGING
         assert sup.servo()["commanded_velocity_mm_s"][0] == pytest.approx(-40.0)
         ask(sup, JogStop())
