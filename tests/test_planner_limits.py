@@ -81,3 +81,26 @@ def test_a_near_tangent_kink_gets_a_speed_cap_and_a_smooth_join_none():
 def test_an_envelope_is_the_lowest_cap_widened_to_where_it_reaches():
     edges, values = envelope(np.array([0.0, 10.0]), np.array([10.0, 20.0]), np.array([100.0, 5.0]), np.array([1.0, 1.0]), 0.0, 20.0)
     assert list(edges) == [0.0, 9.0, 20.0] and list(values) == [100.0, 5.0]
+
+
+def test_a_slow_section_accelerates_at_what_its_top_speed_needs_and_its_arcs_keep_their_share():
+    """At a waterjet feed (10 mm/s; 20 at the override's 200 %) the section's acceleration is
+    sqrt(v_top J) (the least-time jerk-limited ramps to that speed), and a small arc's share of
+    it is reckoned at the speed it can reach, not at the far higher speed its curvature alone
+    would allow (at that speed the centripetal acceleration left it almost none: 1.7 mm/s^2)."""
+    cfg = machine_config()
+    j = cfg.axis["x"].max_jerk_mm_s3
+    lines = [element(LINE, (0, -50, 0), (0, 0, 0), feed=10.0), element(LINE, (0, 0, 0), (50, 0, 0), feed=10.0)]
+    straight = limits_of(lines, config=cfg)
+    assert straight.smoothing.accel_cap == pytest.approx(math.sqrt(20.0 * j))
+    assert straight.smoothing.jerk_path <= j * (1 + 1e-12)
+    assert (straight.accel <= straight.smoothing.accel_cap).all()
+    fast = limits_of([element(LINE, (0, -50, 0), (0, 0, 0))], config=cfg)
+    assert fast.smoothing.accel_cap == 5000.0 and fast.smoothing.n_path == 25, "a fast section keeps the machine's"
+    r = 1.5
+    arc = [element(LINE, (0, -50, 0), (0, 0, 0), feed=10.0),
+           element(ARC, (0, 0, 0), (r, r, 0), center=(r, 0), cw=True, feed=10.0),
+           element(LINE, (r, r, 0), (r + 50, r, 0), feed=10.0)]
+    lim = limits_of(arc, config=cfg)
+    assert lim.v_hard[1] <= 20.0
+    assert lim.accel[1] >= 0.5 * lim.smoothing.accel_cap

@@ -234,6 +234,38 @@ def test_a_stop_from_a_cruise_comes_to_rest_and_ends_without_creeping():
     within_limits(records)
 
 
+@pytest.mark.parametrize("feed_mm_min", [600, 2400])
+def test_a_cut_at_a_waterjet_feed_ramps_in_the_jerk_limited_least_time_and_stops_shorter(feed_mm_min):
+    """From rest to a slow feed the least a jerk-limited ramp takes is 2 sqrt(v/J) (a triangle of
+    acceleration): the section accelerates at sqrt(v_top J), v_top = 2 v (the override's 200 %),
+    not at the machine's A, whose average of A/J = 25 ms would make each ramp of a slow cut
+    cost v/A + A/J. Every limit holds, also at 200 %, and a hold from the feed stops within
+    what braking at A would need."""
+    v = feed_mm_min / 60.0
+    a_top, j = LIMITS["acceleration"], LIMITS["jerk"]
+    text = f"G21 G90\nG0 X100 Y100\nG1 X200 F{feed_mm_min}\nM2\n"
+    _, _, records, _ = run(text)
+    within_limits(records)
+    on_cut = records[records["line"] == 3]
+    moving = np.flatnonzero(speed(on_cut) > 1e-9)
+    cut_s = (moving[-1] - moving[0] + 1) * DT
+    a = math.sqrt(2.0 * v * j)
+    extra_s = cut_s - 100.0 / v
+    assert extra_s <= v / a + a / j + 3 * DT, "each ramp as the jerk-limited least-time one at the section's acceleration"
+    assert extra_s < v / a_top + a_top / j - 3 * DT, "shorter than at the machine's acceleration"
+    _, _, fast, _ = run(text, actions={300: lambda r: r.set_override(2.0)})
+    within_limits(fast)
+    assert speed(fast)[fast["line"] == 3].max() == pytest.approx(2.0 * v, abs=1e-6)
+    hold_at = int(np.flatnonzero(records["line"] == 3)[0]) + int(50.0 / v / DT)  # half way: at the feed
+    _, _, held, _ = run(text, chunk=1, actions={hold_at: lambda r: r.hold(), 10**9: lambda r: r.resume()})
+    within_limits(held)
+    sp = speed(held)
+    assert sp[hold_at - 1] == pytest.approx(v, abs=1e-6)
+    rest = hold_at + int(np.flatnonzero(sp[hold_at:] < 1e-9)[0])
+    braked_mm = held["position"][rest][0] - held["position"][hold_at - 1][0]
+    assert braked_mm <= v * v / (2.0 * a_top) + v * a_top / (2.0 * j) + v * 3 * DT
+
+
 @pytest.mark.parametrize("chunk", [1, 2, 4, 7])
 def test_a_hold_or_a_zero_override_lifted_at_once_keeps_the_jerk_limit_whatever_the_take_size(chunk):
     """The stop's last samples settle at rest; the stream counts as at rest only after a few more

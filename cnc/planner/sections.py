@@ -223,10 +223,12 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
     length allows from a stop), with r = v_b / v:
 
         blend ~ 2 T_ext (1 - r) + v (1 - r)^2 / A        stop ~ T_settle + v / A
+
+    each with the acceleration (and so the path average's span in T_ext and T_settle) the
+    sections get at that speed (`limits.smoothing_for`).
     """
     straight = smoothing_for(config, 0.0, False, False, False)
-    settle_s = (straight.n_path + straight.n_axis + REST_SAMPLES) * straight.dt
-    accel = straight.accel_cap
+    dt, accel, jerk = straight.dt, straight.accel_cap, straight.jerk_path
     out: set[int] = set()
     for section in sections:
         lim = section.limits
@@ -237,6 +239,7 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
         programmed_arc = section.path.arc & ~np.array([e.blend for e in section.elements])
         near = np.minimum(np.where(programmed_arc, np.inf, lim.v_hard), lim.v_feed)
         span_s = 2.0 * lim.smoothing.extension_s
+        a_blend = lim.smoothing.accel_cap
         elements = section.elements
         for k in range(1, len(elements) - 1):
             if not elements[k].blend:
@@ -244,8 +247,11 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
             shortest = min(elements[k - 1].length_mm, elements[k + 1].length_mm) + elements[k].length_mm / 2.0
             v = min(near[k - 1], near[k + 1], math.sqrt(accel * shortest))
             r = min(cap[k] / v, 1.0) if v > 0.0 else 1.0
-            blend_s = span_s * (1.0 - r) + v * (1.0 - r) ** 2 / accel
-            if settle_s + v / accel < blend_s:
+            blend_s = span_s * (1.0 - r) + v * (1.0 - r) ** 2 / a_blend
+            # the two straight sections a stop makes, as `smoothing_for` would make them at that speed
+            a_stop = min(accel, math.sqrt(2.0 * v * jerk)) if v > 0.0 else accel
+            settle_s = (max(1, math.ceil(a_stop / (jerk * dt) - 1e-9)) + straight.n_axis + REST_SAMPLES) * dt
+            if settle_s + (v / a_stop if v > 0.0 else 0.0) < blend_s:
                 out.add(elements[k].segment)
     return out
 
@@ -258,7 +264,7 @@ def _fastest_limits(
     want more of it (higher speeds on arcs), speed changes want less (shorter ramps). The
     estimate ranks the candidates by the profile over the elements' own caps (unwidened).
     `known`: the limits under the default share, already made (a straight section's answer)."""
-    if known is not None and known.smoothing.jerk_path == _axis_jerk(config):
+    if known is not None and known.smoothing.geometry_share == 0.0:
         return known  # straight: no share to choose
     best, best_s = None, math.inf
     for share in GEOMETRY_JERK_SHARES if choose else (GEOMETRY_JERK_SHARE,):
@@ -266,7 +272,7 @@ def _fastest_limits(
             lim = known
         else:
             lim = section_limits(path, feed, rapid, tolerance, blended, config, share)
-        if not choose or lim.smoothing.jerk_path == _axis_jerk(config):  # straight: no share to choose
+        if not choose or lim.smoothing.geometry_share == 0.0:  # straight: no share to choose
             return lim
         sm = lim.smoothing
         zones = Zones(path.s0, lim.v_hard, lim.v_feed, lim.accel)
@@ -274,10 +280,6 @@ def _fastest_limits(
         if seconds < best_s:
             best, best_s = lim, seconds
     return best
-
-
-def _axis_jerk(config: MachineConfig) -> float:
-    return smoothing_for(config, 0.0, False, False, False).jerk_path
 
 
 def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True,
