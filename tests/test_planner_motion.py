@@ -7,6 +7,7 @@ setpoint records the servo would get, measured here.
 from __future__ import annotations
 
 import math
+import random
 from typing import Callable
 
 import numpy as np
@@ -294,3 +295,121 @@ def test_a_runner_taken_one_record_at_a_time_makes_the_same_records_as_in_chunks
     assert np.allclose(ones["position"], chunks["position"], rtol=0.0, atol=1e-9)  # windows committed at other times
     for field in ("flags", "segment", "line"):  # a segment's first record marked once, in the same place
         assert np.array_equal(ones[field], chunks[field]), field
+
+
+def _cut_held_then_resumed(config):
+    """A cut held half way and resumed: the runner as it begins the re-pierce there, and the records so far."""
+    text = "G21 G90\nG0 X100 Y100\nM3\nG1 X150 F3000\nM5\nM2\n"
+    runner = ProgramRunner(interpret(text, dialect_for(config)), config)
+    out = []
+    while sum(map(len, out)) < 1000:
+        out.append(runner.take(10)[0])
+    runner.hold()
+    while runner.state != RunState.HELD:
+        out.append(runner.take(10)[0])
+    runner.resume()
+    assert runner.repierce > 0
+    out.append(runner.take(10)[0])
+    assert runner.repierce > 0 and out[-1]["flags"][-1] & JET, "re-piercing: standing still with the jet open"
+    return runner, out
+
+
+def _finish(runner, out, limit: int = 100_000):
+    """Take records to the end, and the last one the planner takes once the run is over (at rest)."""
+    for _ in range(limit):
+        if runner.finished:
+            out.append(runner.take(0)[0])
+            return np.concatenate(out)
+        out.append(runner.take(10)[0])
+    raise AssertionError(f"the runner made no end ({runner.state.name})")
+
+
+def test_a_hold_during_the_re_pierce_holds_at_once_with_the_jet_closed_and_a_zero_override_then_waits():
+    """The re-pierce before a resumed cut moves on stands still with the jet open: a hold there is
+    held at once (the jet closed, the pierce begun again on resume), as during any pierce; it
+    used to pierce to the end first, and an override of 0 then made `take` loop for ever."""
+    config = machine_config(**{"jet.on_delay_s": 0.01, "jet.pierce_dwell_s": 0.2})
+    runner, out = _cut_held_then_resumed(config)
+    held_from = sum(map(len, out))
+    runner.hold()
+    assert runner.state == RunState.HELD and runner.repierce == 0
+    runner.set_override(0.0)
+    for _ in range(3):
+        out.append(runner.take(10)[0])  # returns: nothing more to make while held at 0 %
+    after_hold = np.concatenate(out)[held_from:]
+    assert len(after_hold) <= 1 and not (after_hold["flags"] & JET).any(), "the jet closed with the hold"
+    runner.set_override(1.0)
+    runner.resume()
+    assert runner.repierce == round((0.01 + 0.2) / DT), "a whole pierce again"
+    records = _finish(runner, out)
+    within_limits(records)
+    assert records["position"][-1] == pytest.approx([150, 100], abs=1e-9)
+
+
+def test_a_stop_during_the_re_pierce_ends_the_program_at_once_with_the_jet_closed():
+    config = machine_config(**{"jet.on_delay_s": 0.01, "jet.pierce_dwell_s": 0.2})
+    runner, out = _cut_held_then_resumed(config)
+    where = runner._position_now().copy()
+    stopped_from = sum(map(len, out))
+    runner.stop()
+    assert runner.state == RunState.ABORTED
+    records = _finish(runner, out)
+    after = records[stopped_from:]
+    assert len(after) == 1 and not (after["flags"] & JET).any(), "no more pierce: the jet closed with the stop"
+    assert records["position"][-1] == pytest.approx(where, abs=1e-12) and not records["flags"][-1] & IN_MOTION
+    within_limits(records)
+
+
+def _operator_at_random(seed: int):
+    """A random program run with the operator's controls at random moments (holds, resumes, overrides
+    from 0 to 200 %, a stop) and the FIFO asking for random numbers of records, 1 to 200."""
+    rng = random.Random(seed)
+    config = machine_config()
+    program = interpret(random_program(seed, n=20), dialect_for(config))
+    runner = ProgramRunner(program, config)
+    out, made, stopped, events = [], 0, False, []
+    next_event = rng.randint(50, 600)
+    while not runner.finished:
+        waiting = runner.idle and (runner.state in (RunState.HELD, RunState.PAUSED) or runner.override <= 0.0)
+        if made >= next_event or waiting:
+            ev = rng.random()
+            if waiting:
+                if runner.override <= 0.0:
+                    runner.set_override(rng.choice([0.5, 1.0, 2.0]))
+                runner.resume()
+                events.append((made, "resume"))
+            else:
+                if ev < 0.35:
+                    runner.hold()
+                    events.append((made, "hold"))
+                elif ev < 0.8:
+                    ratio = rng.choice([0.0, 0.1, 0.5, 1.0, 1.5, 2.0])
+                    runner.set_override(ratio)
+                    events.append((made, f"override {ratio}"))
+                elif ev < 0.85 and not stopped:
+                    runner.stop()
+                    stopped = True
+                    events.append((made, "stop"))
+            next_event = made + rng.choice([1, 2, 5, 30, 200, 700])
+        records, _ = runner.take(rng.choice([1, 2, 3, 5, 8, 13, 40, 200]))
+        out.append(records)
+        made += len(records)
+        assert made < 1_000_000, events[-10:]
+    out.append(runner.take(0)[0])
+    return program, np.concatenate(out), stopped, events
+
+
+@pytest.mark.parametrize("seed", [0, 3, 6, 17])
+def test_holds_resumes_overrides_and_stops_at_random_keep_every_limit_and_the_tolerance(seed):
+    """Seed 6 once hung the runner (a hold during the re-pierce after a resume, then a zero
+    override); seed 17 ran past a section's end (a hold lifted at once, then the override
+    lowered, near the end of a short section: the plan's plateau cruise overshot)."""
+    program, records, stopped, events = _operator_at_random(seed)
+    within_limits(records)
+    seg = records["segment"].astype(int)
+    tol = program.segments["tolerance"]
+    near = np.maximum.reduce([tol[np.clip(seg + d, 0, len(tol) - 1)] for d in (-1, 0, 1)])
+    assert (deviation(program, records) <= near + 1e-9).all(), events
+    if not stopped:
+        assert records["position"][-1] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9), events
+    assert not records["flags"][-1] & (JET | IN_MOTION)

@@ -112,10 +112,13 @@ class ProgramRunner:
     def hold(self) -> None:
         if self.state != RunState.RUNNING:
             return
-        if self.stream is not None:
+        if self.stream is not None and not self.repierce:
             self.stream.hold()
             self.state = RunState.HOLDING
         else:
+            # standing still (a pierce, a dwell, the re-pierce before the motion goes on): held at
+            # once, the jet closed; a resume pierces again
+            self.repierce = 0
             self.state = RunState.HELD
             self._close_jet()
 
@@ -136,10 +139,12 @@ class ProgramRunner:
     def stop(self) -> None:
         if self.state in (RunState.DONE, RunState.ABORTED, RunState.STOPPING):
             return  # a second stop changes nothing (ending the stream early would starve the servo)
-        if self.stream is not None and self.state in (RunState.RUNNING, RunState.HOLDING) and not self.stream.at_rest:
+        if self.stream is not None and self.state in (RunState.RUNNING, RunState.HOLDING) and not self.stream.at_rest \
+                and not self.repierce:
             self.stream.hold()
             self.state = RunState.STOPPING
-        else:
+        else:  # standing still (a re-pierce included): ended at once
+            self.repierce = 0
             self.state = RunState.ABORTED
             self._close_jet()
             if self.flags_now & ~_JET_OFF_MASK and self._pending is None:
