@@ -306,7 +306,8 @@ def section_zones(
     if holding:
         soft = np.zeros(len(hard))  # a hold stops rapids too
     else:
-        soft = np.where(lim.rapid[i0:i1], hard * rapid_override, lim.v_feed[i0:i1] * override)
+        with np.errstate(invalid="ignore"):  # a rapid's feed is inf: inf * 0 % is nan, and not taken
+            soft = np.where(lim.rapid[i0:i1], hard * rapid_override, lim.v_feed[i0:i1] * override)
     finite = np.isfinite(lim.v_kink)
     kink_at, kink_cap = path.s0[1:-1][finite], lim.v_kink[finite]
     k = (kink_at >= lo - widen_mm) & (kink_at <= hi + widen_mm)

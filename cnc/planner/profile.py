@@ -128,10 +128,17 @@ def plan(
     remaining = max(plateau_s - cruised_s, 0.0) if a_prev else 0.0
     if v_start > EPS_V and (cruise_first or _turns_against(a, dur, a_prev, remaining)):
         cruise = remaining if remaining > 0.0 else plateau_s
-        sub = _clip_zones(given, s_start + v_start * cruise)
-        rest = plan(sub, s_start + v_start * cruise, v_start, 0.0, v_end, plateau_s, t_start + cruise)
-        first = Pieces(np.array([t_start]), np.array([s_start]), np.array([v_start]), np.zeros(1), np.array([cruise]))
-        return first.append(rest)
+        s_cruise = s_start + v_start * cruise
+        a_last = float(zones.accel[-1])
+        # the cruise first, unless the end could then no longer be met: a replan at the very start of
+        # a speed change near the end of a short stretch (a hold lifted at once, then the override
+        # lowered) would run past the end, where the motion stops dead. Turning the acceleration
+        # over at once instead costs at most twice the path jerk for one average's span.
+        if s_cruise + max(v_start * v_start - v_end * v_end, 0.0) / (2.0 * a_last) <= given.edges[-1] + EPS_MM:
+            sub = _clip_zones(given, s_cruise)
+            rest = plan(sub, s_cruise, v_start, 0.0, v_end, plateau_s, t_start + cruise)
+            first = Pieces(np.array([t_start]), np.array([s_start]), np.array([v_start]), np.zeros(1), np.array([cruise]))
+            return first.append(rest)
     if not len(dur):
         return Pieces.empty()
     t0 = t_start + np.concatenate(([0.0], np.cumsum(dur)[:-1]))
