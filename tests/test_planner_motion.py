@@ -399,11 +399,19 @@ def _operator_at_random(seed: int):
     return program, np.concatenate(out), stopped, events
 
 
-@pytest.mark.parametrize("seed", [0, 3, 6, 17])
+# Seeds 124 and 170 (of 300 run) break the jerk limit by 1.1x and 1.6x, as they did before this
+# test was written: an override dropped to 0 % just after a resume and raised again while the
+# head slows, where the speed turns from falling to rising without the average's plateau. Kept
+# here, strict, until the planner is mended.
+KNOWN_JERK = pytest.mark.xfail(strict=True, reason="the speed turns without a plateau after quick override changes")
+
+
+@pytest.mark.parametrize("seed", [0, 3, 6, 17, 106, pytest.param(124, marks=KNOWN_JERK), pytest.param(170, marks=KNOWN_JERK)])
 def test_holds_resumes_overrides_and_stops_at_random_keep_every_limit_and_the_tolerance(seed):
     """Seed 6 once hung the runner (a hold during the re-pierce after a resume, then a zero
     override); seed 17 ran past a section's end (a hold lifted at once, then the override
-    lowered, near the end of a short section: the plan's plateau cruise overshot)."""
+    lowered, near the end of a short section: the plan's plateau cruise overshot); seed 106
+    could not go on after a stop at 0 % that had come to rest at the very end of a section."""
     program, records, stopped, events = _operator_at_random(seed)
     within_limits(records)
     seg = records["segment"].astype(int)

@@ -205,15 +205,24 @@ class SectionStream:
         if not reaches_end and not self.stopping:
             pieces = pieces.until(_time_at(pieces, s + self.commit_mm))
         if not len(pieces):
+            if v <= 1e-9 and s >= self.length - 1e-9 and not self.stopping:
+                self._end_here()  # come to rest at the very end (a stop at 0 % that ended there): done
+                return
             if self.stopping and v <= 1e-9:
                 return  # at rest, and to stay there
             raise RuntimeError(f"section planning made no progress at s={s:.6f} mm (v={v:.6f} mm/s)")
         self.pieces = self.pieces.append(pieces)
         s_last, v_last, _ = self.pieces.end_state()
-        self.final = reaches_end and s_last >= self.length - 1e-9 and v_last <= 1e-9
-        if self.final:
-            self.k_end = int(math.ceil(self.pieces.t_end / self.dt - 1e-9)) + self.ma_path.n + self.ma_axis.n - 2 + REST_SAMPLES
-            self.k_end = max(self.k_end, self.k)
+        if reaches_end and s_last >= self.length - 1e-9 and v_last <= 1e-9:
+            self._end_here()
+        else:
+            self.final = False
+
+    def _end_here(self) -> None:
+        """The committed pieces end at rest at the section's end: the samples after them settle there."""
+        self.final = True
+        self.k_end = int(math.ceil(self.pieces.t_end / self.dt - 1e-9)) + self.ma_path.n + self.ma_axis.n - 2 + REST_SAMPLES
+        self.k_end = max(self.k_end, self.k)
 
     def _replan(self) -> None:
         """Drop what is committed after the last sample made and plan again from there."""
