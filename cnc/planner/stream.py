@@ -96,7 +96,7 @@ class SectionStream:
         resume or a raised override right away never meets the stop in one third difference."""
         if not self.stopping or not self.pieces_end_at_rest():
             return False
-        if len(self.pieces) and self.k < math.ceil(self.pieces.t_end / self.dt - 1e-9) + self.ma_path.n + self.ma_axis.n - 2 + REST_SAMPLES:
+        if len(self.pieces) and self.k < self._settled_k():
             return False
         s_stop = self.pieces.end_state()[0] if len(self.pieces) else 0.0
         return self.ma_path.converged(s_stop) and self.ma_axis.converged(self.section.path.points(np.array([s_stop]))[0], 1e-12)
@@ -221,8 +221,12 @@ class SectionStream:
     def _end_here(self) -> None:
         """The committed pieces end at rest at the section's end: the samples after them settle there."""
         self.final = True
-        self.k_end = int(math.ceil(self.pieces.t_end / self.dt - 1e-9)) + self.ma_path.n + self.ma_axis.n - 2 + REST_SAMPLES
-        self.k_end = max(self.k_end, self.k)
+        self.k_end = max(self._settled_k(), self.k)
+
+    def _settled_k(self) -> int:
+        """The sample by which motion that ends with the committed pieces has settled: both averages
+        caught up, and `REST_SAMPLES` samples at rest made after."""
+        return int(math.ceil(self.pieces.t_end / self.dt - 1e-9)) + self.ma_path.n + self.ma_axis.n - 2 + REST_SAMPLES
 
     def _replan(self) -> None:
         """Drop what is committed after the last sample made and plan again from there."""
