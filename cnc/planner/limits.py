@@ -140,14 +140,14 @@ def section_limits(
     kinks = path.kink_angles()
     kink = (kinks > COLLINEAR_RAD) & (kinks <= KINK_MAX_RAD)
     curved = path.arc
-    v_axis, a_axis = _axis_caps(path, config, _axis_min(config, "max_accel_mm_s2"))
+    j_min, a_min = _axis_min(config, "max_jerk_mm_s3"), _axis_min(config, "max_accel_mm_s2")
+    v_axis, a_axis = _axis_caps(path, config, a_min)
     v_feed = np.where(rapid, np.inf, feed_mm_s)
     # the fastest it may run at any override (feeds up to 200 %, rapids up to 100 %)
     v_top = float(np.minimum(v_axis, np.where(rapid, np.inf, 2.0 * v_feed)).max()) if n else math.inf
     sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended, geometry_share, v_top)
     a_axis = np.minimum(a_axis, sm.accel_cap)
     v_upper = float(np.minimum(v_axis, v_feed).max()) if n else 0.0
-    j_min, a_min = _axis_min(config, "max_jerk_mm_s3"), _axis_min(config, "max_accel_mm_s2")
     j_geometry = j_min - sm.jerk_path
     share_kink = KINK_SHARE if kink.any() else 0.0
     v_hard, accel = v_axis.copy(), a_axis.copy()

@@ -112,7 +112,7 @@ class ProgramRunner:
     def hold(self) -> None:
         if self.state != RunState.RUNNING:
             return
-        if self.stream is not None and not self.repierce:
+        if self._moving:
             self.stream.hold()
             self.state = RunState.HOLDING
         else:
@@ -139,8 +139,7 @@ class ProgramRunner:
     def stop(self) -> None:
         if self.state in (RunState.DONE, RunState.ABORTED, RunState.STOPPING):
             return  # a second stop changes nothing (ending the stream early would starve the servo)
-        if self.stream is not None and self.state in (RunState.RUNNING, RunState.HOLDING) and not self.stream.at_rest \
-                and not self.repierce:
+        if self._moving and self.state in (RunState.RUNNING, RunState.HOLDING) and not self.stream.at_rest:
             self.stream.hold()
             self.state = RunState.STOPPING
         else:  # standing still (a re-pierce included): ended at once
@@ -150,6 +149,11 @@ class ProgramRunner:
             if self.flags_now & ~_JET_OFF_MASK and self._pending is None:
                 # standing with the jet open (left open on hold): one more record, at rest, to close it
                 self._pending = (self._position_now(), self.flags_now & _JET_OFF_MASK, self.segment_now, self.line_now, self.s_program)
+
+    @property
+    def _moving(self) -> bool:
+        """A section's motion is under way (not a pierce, a dwell or the re-pierce before it goes on)."""
+        return self.stream is not None and not self.repierce
 
     @property
     def finished(self) -> bool:
