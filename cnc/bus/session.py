@@ -40,6 +40,11 @@ def zenoh_config(
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
+    if mode in ("router", "peer"):
+        # Zenoh sleeps this long at open "to scout for peers first" (500 ms by default), though with
+        # multicast off there is nothing to scout: its `connect` endpoints are dialled in the
+        # background either way. Every controller start (and restart) paid the half second.
+        cfg.insert_json5("scouting/delay", "0")
     cfg.insert_json5("transport/link/tx/lease", json.dumps(round(lease_s * 1000)))
     cfg.insert_json5("transport/link/tx/keep_alive", "4")
     # Zenoh's shared-memory transport leaves a file per process in /dev/shm; ours is on its own
