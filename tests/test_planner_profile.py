@@ -94,6 +94,67 @@ def test_a_plateau_already_begun_counts():
     assert p.a[0] == 0.0 and p.duration[0] == pytest.approx(PLATEAU - 0.02)
 
 
+def test_a_plan_from_a_rest_reached_less_than_a_plateau_ago_stands_still_for_the_rest_of_it():
+    """An override of 0 raised again just after the head came to rest: the rest is the plateau
+    between slowing down and speeding up, so the plan stands still for what is left of it (it
+    used to speed up at once, and the averages met the stop's last deceleration: 1.6x the jerk)."""
+    z = zones([50.0, 300.0], [500.0])
+    p = plan(z, 50.0, 0.0, -A, 0.0, PLATEAU, t_start=1.0, cruised_s=0.008)
+    assert p.a[0] == 0.0 and p.v0[0] == 0.0 and p.duration[0] == pytest.approx(PLATEAU - 0.008)
+    assert p.t0[1] == pytest.approx(1.0 + PLATEAU - 0.008) and p.s0[1] == 50.0 and p.a[1] == A
+    assert p.end_state()[0] == pytest.approx(300.0) and plateaus_ok(p)
+    rested = plan(z, 50.0, 0.0, -A, 0.0, PLATEAU, t_start=1.0, cruised_s=PLATEAU)
+    assert rested.a[0] == A and rested.t0[0] == 1.0, "a full plateau at rest: off at once"
+
+
+def test_a_peak_too_short_to_flatten_is_a_cruise_at_the_present_speed_when_no_plateau_is_owed():
+    """Cruising long at 253 mm/s, 9 mm before the end (a raised override): a speed-up would have no
+    room for its plateau. The plan keeps the speed until it must brake; it used to cruise a whole
+    plateau first, which ran past the end, and the fallback then turned +A to -A at once (2x the jerk)."""
+    z = zones([444.8725, 453.796], [506.7])
+    p = plan(z, 444.8725, 253.3656, A, 0.0, PLATEAU, cruised_s=0.24)
+    assert (p.a <= 0.0).all() and list(np.sign(p.a)) == [0.0, -1.0]
+    assert p.end_state()[0] == pytest.approx(453.796) and abs(p.end_state()[1]) < 1e-6 and plateaus_ok(p)
+
+
+def test_a_speed_up_asked_for_while_braking_without_room_for_its_plateau_keeps_braking():
+    """Braking at 425 mm/s, 20 mm before the end, when the override is raised: a plateau, then the
+    braking the end needs, no longer fits, so the plan does not speed up at all (it used to turn
+    from -A to +A at once: 1.6x the jerk)."""
+    z = zones([979.9312, 1000.0], [625.0])
+    p = plan(z, 979.9312, 425.0, -A, 0.0, PLATEAU)
+    assert (p.a <= 0.0).all() and (p.v0 <= 425.0 + 1e-9).all()
+    assert p.end_state()[0] == pytest.approx(1000.0) and abs(p.end_state()[1]) < 1e-6
+
+
+def test_a_hold_while_speeding_up_cruises_its_plateau_first_when_the_zones_ahead_leave_room_to_brake():
+    """Held at 200 mm/s just as it sped up, 20 mm before the end, whose last zone (a curve) allows
+    only 1202 mm/s^2: braking at the next zone's 5000 mm/s^2 leaves room for the plateau first. The
+    room was judged at the last zone's acceleration, found too short, and the plan turned +A to
+    -A at once (1.33x the jerk)."""
+    z = zones([22.5, 32.73051, 42.795969], [521.051716, 136.108924], soft=[0.0, 0.0], accel=[A, 1201.773101])
+    p = plan(z, 22.5, 200.0, A, 0.0, 0.038)
+    assert p.a[0] == 0.0 and p.duration[0] == pytest.approx(0.038) and p.a[1] == -A
+    assert abs(p.end_state()[1]) < 1e-9 and p.end_state()[0] < 42.795969
+    s, v, _ = sampled(p)
+    assert (v[s > 32.73051] <= 136.108924 + 1e-6).all(), "under the curve's cap"
+
+
+def test_an_override_of_0_ends_the_plan_at_rest_before_a_rapid_it_cannot_reach():
+    """Feed moves held by an override of 0, a rapid (its own override still 100 %) after them in the
+    same section: the plan stops in the feed moves and stays there. The zone of speed 0 used to get
+    no piece at all, and the rapid's pieces after it made the head jump 9 mm in one sample."""
+    z = zones([961.8545, 965.6618, 995.0458, 1004.9488, 1034.3328, 1737.1755],
+              [591.1464, 358.3411, 358.3411, 358.3411, 591.1464], soft=[0.0, 0.0, np.inf, 0.0, 0.0],
+              accel=[A, 3163.9707, 3163.9707, 3163.9707, A])
+    p = plan(z, 961.8545, 408.0212, -A, 0.0, 0.052)
+    s, v, _ = p.end_state()
+    assert abs(v) < 1e-9 and s < 995.0458, "at rest before the rapid"
+    ends = p.s0 + p.v0 * p.duration + p.a * p.duration**2 / 2.0
+    assert np.allclose(ends[:-1], p.s0[1:], atol=1e-9), "every piece starts where the one before ended"
+    assert (p.a <= 0.0).all()
+
+
 def test_an_override_below_the_speed_brakes_as_hard_as_allowed_to_the_new_feed():
     z = zones([0.0, 300.0], [500.0], soft=[100.0])
     p = plan(z, 0.0, 400.0, 0.0, 0.0, PLATEAU)

@@ -107,9 +107,19 @@ def plan(
     `a_prev` is the last non-zero acceleration before the start and `cruised_s` how long the
     motion has cruised since; the plan does not turn against it before a full plateau.
     """
+    caps = np.minimum(zones.hard, zones.soft)
+    zero = np.flatnonzero(caps <= STILL_MM_S)
+    if len(zero) and (caps[zero[0]:] > STILL_MM_S).any():
+        # zones the motion may not move in, with zones it may after them (an override of 0 over feed
+        # moves, a rapid after them in the same section): the motion cannot pass, so the plan ends
+        # at rest before the next zone it may move in. Planned through, the still zones took no
+        # piece at all and the pieces after them jumped over them (the head 9 mm on in one sample).
+        k = int(zero[0] + np.argmax(caps[zero[0]:] > STILL_MM_S))
+        zones, v_end = Zones(zones.edges[:k + 1], zones.hard[:k], zones.soft[:k], zones.accel[:k]), 0.0
     given = zones
     zones = _soft_after_braking(zones, v_start)
     hard, soft = zones.hard.copy(), zones.soft.copy()
+    remaining = max(plateau_s - cruised_s, 0.0) if a_prev else 0.0  # cruise still owed the last acceleration
     cruise_first = False
     for _ in range(50):
         caps = np.minimum(hard, soft)
@@ -118,31 +128,63 @@ def plan(
         fixes = _short_peaks(pieces, plateau_s) or _short_valleys(pieces, plateau_s)
         if not fixes:
             break
-        if fixes[0][0] <= s_start + EPS_MM:  # the plateau would have to start in the past: cruise now
+        if fixes[0][0] <= s_start + EPS_MM and (remaining > 0.0 or v_start <= EPS_V):
+            # the plateau would have to start in the past, and the acceleration under way is owed
+            # one: cruise now. (Moving and owed none, the fix, a cap at the present speed from here,
+            # is right as it is: it cruises just as long as the end allows. A whole plateau's cruise
+            # first could run past the end of a short stretch, and the fallback below then broke the
+            # jerk limit. At rest, a peak too small to flatten is left as it is.)
             cruise_first = True
             break
         zones, hard, soft = _with_caps(zones, hard, soft, fixes)
     else:
         raise RuntimeError("speed profile: peaks kept needing a plateau after 50 passes")
     s0, v0, a, dur = pieces
-    remaining = max(plateau_s - cruised_s, 0.0) if a_prev else 0.0
+    if v_start <= EPS_V and _turns_against(a, dur, a_prev, remaining):
+        # come to rest less than a plateau ago (an override of 0 raised again at once): the rest
+        # is the plateau, so stand still for what is left of it before speeding up again
+        rest = plan(given, s_start, 0.0, 0.0, v_end, plateau_s, t_start + remaining)
+        still = Pieces(np.array([t_start]), np.array([s_start]), np.zeros(1), np.zeros(1), np.array([remaining]))
+        return still.append(rest)
     if v_start > EPS_V and (cruise_first or _turns_against(a, dur, a_prev, remaining)):
-        cruise = remaining if remaining > 0.0 else plateau_s
+        cruise = remaining
         s_cruise = s_start + v_start * cruise
-        a_last = float(zones.accel[-1])
-        # the cruise first, unless the end could then no longer be met: a replan at the very start of
-        # a speed change near the end of a short stretch (a hold lifted at once, then the override
-        # lowered) would run past the end, where the motion stops dead. Turning the acceleration
-        # over at once instead costs at most twice the path jerk for one average's span.
-        if s_cruise + max(v_start * v_start - v_end * v_end, 0.0) / (2.0 * a_last) <= given.edges[-1] + EPS_MM:
+        # the cruise first, unless the end could then no longer be met (it would run past the end,
+        # where the motion stops dead)
+        if _room_to_cruise(given, s_start, s_cruise, v_start, v_end):
             sub = _clip_zones(given, s_cruise)
             rest = plan(sub, s_cruise, v_start, 0.0, v_end, plateau_s, t_start + cruise)
             first = Pieces(np.array([t_start]), np.array([s_start]), np.array([v_start]), np.zeros(1), np.array([cruise]))
             return first.append(rest)
+        if a_prev < 0.0:
+            # a speed-up asked for while the motion brakes near the end of its stretch (the override
+            # raised there), with no room left for the plateau before braking again: keep to the
+            # speed it has. The plan then only brakes, as the one it replaces did: no turn at all.
+            capped = Zones(given.edges, np.minimum(given.hard, v_start), given.soft, given.accel)
+            return plan(capped, s_start, v_start, a_prev, v_end, plateau_s, t_start, cruised_s)
+        # (speeding up, the plan replaced had the room: cruising now at a lower speed needs less.
+        # Should it not, turning the acceleration over at once costs at most twice the path jerk
+        # for one average's span.)
     if not len(dur):
         return Pieces.empty()
     t0 = t_start + np.concatenate(([0.0], np.cumsum(dur)[:-1]))
     return Pieces(t0, s0, v0, a, dur)
+
+
+def _room_to_cruise(zones: Zones, s_from: float, s_to: float, v: float, v_end: float) -> bool:
+    """May the motion cruise at v from s_from to s_to and then still brake, as hard as each zone
+    allows, under every hard cap after it and to v_end at the last edge?"""
+    e = zones.edges
+    if s_to > e[-1] + EPS_MM:
+        return False
+    lo = int(np.clip(np.searchsorted(e, s_from, side="right") - 1, 0, len(zones.hard) - 1))
+    k = int(np.clip(np.searchsorted(e, s_to, side="right") - 1, 0, len(zones.hard) - 1))
+    if (zones.hard[lo:k + 1] < v - EPS_V).any():
+        return False
+    edges = np.concatenate(([s_to], e[k + 1:]))
+    shed = np.cumsum(2.0 * zones.accel[k:] * np.diff(edges))  # v^2 braking sheds by each edge after s_to
+    allowed = np.concatenate((zones.hard[k + 1:], [v_end])) ** 2
+    return bool((v * v - shed <= allowed * (1.0 + 1e-9) + EPS_V).all())
 
 
 def _turns_against(a: np.ndarray, dur: np.ndarray, a_prev: float, plateau_s: float) -> bool:

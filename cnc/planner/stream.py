@@ -250,7 +250,7 @@ class SectionStream:
         """Like `_history`, but the piece running at t counts as under way."""
         p = self.pieces
         k = int(np.clip(np.searchsorted(p.t0, t, side="right") - 1, 0, len(p) - 1))
-        if p.a[k] != 0.0 and p.t0[k] < t:
+        if p.a[k] != 0.0 and p.t0[k] < t < p.t0[k] + p.duration[k]:
             return float(p.a[k]), 0.0
         return self._history(t)
 
