@@ -11,12 +11,14 @@ the acceleration never flips from +A to -A (or back) without a cruise of `platea
 between (a peak without one is lowered until it has one; a valley without one holds its
 low speed longer), so the average of the raw acceleration changes by at most A per N
 samples; and a plan that starts against the acceleration it was made under begins with
-such a cruise.
+such a cruise (from rest: standing still, for what is left of the plateau since it stopped),
+or, where the end of the stretch leaves no room for one, does not turn at all.
 
 Caps come in two kinds. Hard caps are physical (axis limits, curvature, jerk) and always
 hold. Soft caps are the programmed feed times the override: when the override drops below
 the current speed, the profile decelerates as hard as it may until it is under them,
-rather than jumping (it is allowed above a soft cap while doing so).
+rather than jumping (it is allowed above a soft cap while doing so). A cap of zero (feed moves
+at an override of 0) ends the plan at rest: what lies beyond it is not reached.
 """
 
 from __future__ import annotations
