@@ -15,7 +15,7 @@ from .config import MachineConfig
 from .machine_dialect import dialect_for
 from .cutmodel import CutSetup
 from .planner.quality import CutPlan, CutPlanError, cut_plan_for
-from .planner.steps import ProgramTiming
+from .planner.steps import ProgramTiming, timing_workers
 
 
 class ProgressBar:
@@ -112,7 +112,7 @@ def check_program(
 def program_timing(program: Program, config: MachineConfig, cut: CutPlan | None = None) -> ProgramTiming:
     """The program's cycle time from the planner's profile (acceleration, jerk, corners, dwells, jet
     delays; the cutting model's speeds under `cut`), step by step as the planner streams it."""
-    timing = ProgramTiming.of(program, config, cut)
+    timing = ProgramTiming.of(program, config, cut, workers=timing_workers())
     if timing.failure is not None:
         raise timing.failure
     return timing

@@ -90,6 +90,55 @@ def test_the_eta_is_unknown_until_the_timing_is_made_then_exact(config):
     assert left == pytest.approx(made * config.timing.period_s, abs=2 * config.timing.period_s)
 
 
+def _nest_with_awkward_pierces(parts: int) -> tuple[str, int, int]:
+    """A CAM nest whose 5th pierce has an M0 before it and whose 9th a zero-length rapid: the two
+    pierces at which its timing may not be cut (the numbers of those two parts come back)."""
+    lines, pierces, out = cam_nest(parts, inch_every=7, comments=True).splitlines(), 0, []
+    for ln in lines:
+        if ln == "M3":
+            pierces += 1
+            if pierces == 5:
+                out.append("M0")
+            elif pierces == 9:
+                out.append(out[-1])  # the rapid to the part once more: a move of length 0
+        out.append(ln)
+    return "\n".join(out) + "\n", 5, 9
+
+
+def test_a_programs_timing_in_pieces_cut_at_pierces_is_the_whole_programs_to_the_tick(config, monkeypatch):
+    """A large program is timed in pieces cut at pierces, at once by forked processes on a host
+    with more than one CPU (`ProgramTiming.of(workers=...)`): the same steps, ticks and path
+    length as timed whole. Cut at a pierce with a program stop before it, the pieces would lose
+    that stop (the whole program's M0 waits there); the cuts avoid it, and a pierce after a
+    zero-length move (which makes no element)."""
+    from cnc.planner import steps as steps_module
+    from cnc.planner.sections import pierce_boundaries
+    from cnc.planner.steps import step_ticks
+
+    text, with_stop, after_nothing = _nest_with_awkward_pierces(40)
+    program = interpret(text, config)
+    dt = config.timing.period_s
+    whole = ProgramTiming.of(program, config)
+    at = pierce_boundaries(program)
+    jet_on = np.flatnonzero(program.segments["jet"][1:] & ~program.segments["jet"][:-1]) + 1
+    assert len(jet_on) == 40 and len(at) == 38, "every pierce but the two"
+    assert jet_on[with_stop - 1] not in at and jet_on[after_nothing - 1] not in at
+    cut = int(jet_on[with_stop - 1])
+    split = [*iter_steps(program, config, None, 0, cut), *iter_steps(program, config, None, cut)]
+    assert len(split) == len(whole.step_ticks) - 1, "cut at the M0's pierce, its program stop is lost"
+
+    monkeypatch.setattr(steps_module, "PIECE_SEGMENTS", 100)  # many pieces of a small program
+    spans = steps_module._pieces(program, 3)
+    assert len(spans) >= 8 and spans[0][0] == 0 and spans[-1][1] == len(program.segments)
+    assert all(a == b for (_, a), (b, _) in zip(spans[:-1], spans[1:])), "the pieces cover the program"
+    by_piece = [step_ticks(s, dt) for a, b in spans for s in iter_steps(program, config, None, a, b)]
+    assert by_piece == list(whole.step_ticks)
+    forked = ProgramTiming.of(program, config, workers=2)
+    assert forked.failure is None and forked.complete
+    assert list(forked.step_ticks) == list(whole.step_ticks) and forked.total_ticks == whole.total_ticks
+    assert forked.total_mm == pytest.approx(whole.total_mm, rel=1e-12)
+
+
 SHIFTABLE = {
     "absolute nest": cam_nest(2),
     "first move names X only": "G21 G90\nG1 X50 F3000\nG1 Y40\nM3\nG1 X80\nM5\nM2\n",
@@ -156,9 +205,26 @@ def timing_dirs() -> set[str]:
     return {p.name for p in Path(tempfile.gettempdir()).glob("wjcnc-timing-*")}
 
 
+def timing_processes(planner_pid: int) -> list[int]:
+    """The processes timing a program for this planner: its timing process and the pieces it forked
+    (they carry its command line, which names the planner's directory)."""
+    from cnc.planner.timing_process import DIR_PREFIX
+
+    found = []
+    for d in Path("/proc").iterdir():
+        try:
+            cmd = (d / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"cnc.planner.timing_process" in cmd and any(f"{DIR_PREFIX}{planner_pid}-".encode() in c for c in cmd):
+            found.append(int(d.name))
+    return found
+
+
 def test_a_large_programs_cycle_time_is_planned_in_a_process_of_its_own_exactly(homed, tmp_path):
-    """Beyond TIMED_AT_LOAD_SEGMENTS the cycle time is planned by a child process; it is the same
-    profile the run streams, a replaced program's child is stopped, and nothing is left behind."""
+    """Beyond TIMED_AT_LOAD_SEGMENTS the cycle time is planned by a child process (in pieces, by
+    processes it forks, on a host with more than one CPU); it is the same profile the run streams,
+    a replaced program's timing is stopped, its pieces too, and nothing is left behind."""
     sup = homed
     before = timing_dirs()
     big, bigger = tmp_path / "big.ngc", tmp_path / "bigger.ngc"
@@ -175,6 +241,7 @@ def test_a_large_programs_cycle_time_is_planned_in_a_process_of_its_own_exactly(
     assert m["planned_s"] == pytest.approx(timing.total_ticks * sup.config.timing.period_s, abs=1e-9)
     assert m["total_mm"] == pytest.approx(timing.total_mm, rel=1e-12)
     sup.wait_until(lambda: timing_dirs() <= before, 30.0, "the timing processes' files removed")
+    sup.wait_until(lambda: not timing_processes(sup.children["planner"].process.pid), 30.0, "the timing processes ended")
 
 
 def test_timing_files_a_killed_planner_left_are_removed_and_a_living_ones_kept(tmp_path):

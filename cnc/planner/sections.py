@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
-from gcode.canon import DWELL, LINE, RAPID
+from gcode.canon import ARC, DWELL, LINE, RAPID
 from gcode.program import Program
 
 from ..config import MachineConfig
@@ -112,7 +112,8 @@ def program_steps(program: Program, config: MachineConfig, cut: "CutPlan | None"
     return list(iter_steps(program, config, cut))
 
 
-def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = None) -> Iterator[Step]:
+def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = None,
+               first: int = 0, end: int | None = None) -> Iterator[Step]:
     """The program's sections and pauses, in order, each made when it is asked for: only the run of
     elements between two hard stops (jet or outputs switching, a dwell, a program stop) is held
     while its sections are made, so the cost and memory of the next step do not grow with the
@@ -120,7 +121,9 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
     that is a section boundary whatever the planner decides (no blend can span it, the head
     stops there: `_boundary`), so the pieces' sections are exactly the whole run's. `cut`: the
     cutting model's speed caps (`quality.py`), taken as the feed wherever they are lower, in its
-    "quality" mode."""
+    "quality" mode. `first`, `end`: only the steps of segments first..end - 1; from a pierce
+    (`pierce_boundaries`) to the next, they are exactly the whole program's steps there (the
+    program's timing is made in such pieces at once, `steps.ProgramTiming`)."""
     pierce_s = pierce_dwell_s(config, cut)
     if cut is not None and not cut.applies:
         cut = None
@@ -150,7 +153,7 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
         return p
 
     last = None
-    for e in iter_elements(program.segments):
+    for e in iter_elements(program.segments if end is None else program.segments[:end], first):
         if e.segment in stops and (run or made_any):
             yield from close_run()
             where = where_last if where_last is not None else e.start
@@ -179,6 +182,22 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
     if last is not None and last.jet:
         where = where_last if where_last is not None else last.end
         yield Pause("jet_off", jet.off_delay_s, 0, where, last.segment, last.line, "jet off at the end")
+
+
+def pierce_boundaries(program: Program) -> np.ndarray:
+    """Segments at which the program may be cut into pieces whose steps (`iter_steps` with `first`
+    and `end`) are exactly the whole program's: each opens the jet after a segment that had it
+    closed, both of them elements of the path (not zero-length moves, which make none), and no
+    program stop there. The whole program's steps change there
+    anyway: the run before ends, and the pierce's pause begins the next piece."""
+    seg = program.segments
+    if len(seg) < 2:
+        return np.zeros(0, dtype=np.int64)
+    moves = np.any(seg["start"] != seg["end"], axis=1) | (seg["kind"] == ARC) | (seg["kind"] == DWELL)
+    jet = seg["jet"]
+    at = np.flatnonzero(jet[1:] & ~jet[:-1] & moves[1:] & moves[:-1]) + 1
+    stops = np.array(sorted(m.segment for m in program.messages if m.kind in STOP_KINDS), dtype=np.int64)
+    return at[~np.isin(at, stops)] if len(stops) else at
 
 
 def _boundary(a: Element, b: Element) -> bool:

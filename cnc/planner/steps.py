@@ -16,6 +16,8 @@ interpreter lock with the refills.
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import threading
 from array import array
 from typing import Iterable, Iterator
@@ -25,7 +27,7 @@ import numpy as np
 from gcode.program import Program
 
 from ..config import MachineConfig
-from .sections import Pause, Section, Step, iter_steps
+from .sections import Pause, Section, Step, iter_steps, pierce_boundaries
 from .stream import SectionStream
 
 STEPS_AHEAD = 48  # steps the worker keeps made beyond the one under way (a nest: a dozen parts)
@@ -110,10 +112,22 @@ class ProgramTiming:
         self.failure: BaseException | None = None
 
     @classmethod
-    def of(cls, program: Program, config: MachineConfig, cut=None) -> "ProgramTiming":  # noqa: ANN001 - a CutPlan
+    def of(cls, program: Program, config: MachineConfig, cut=None, workers: int = 1) -> "ProgramTiming":  # noqa: ANN001
         """A whole program's timing, its steps made as the planner streams them (`iter_steps`), under
-        the cutting job's plan `cut` when there is one."""
-        return cls(config.timing.period_s).compute(iter_steps(program, config, cut))
+        the cutting job's plan `cut` when there is one. With `workers` > 1 a large program is cut
+        at pierces into pieces (`sections.pierce_boundaries`) timed at once by that many forked
+        processes: the same steps, the same figures, sooner on a host with the cores for it."""
+        timing = cls(config.timing.period_s)
+        pieces = _pieces(program, workers) if workers > 1 else []
+        if len(pieces) < 2:
+            return timing.compute(iter_steps(program, config, cut))
+        try:
+            timed = _time_pieces(program, config, cut, pieces, workers)
+        except BaseException as exc:  # kept for the caller to report, as `compute` keeps its own
+            timing.failure = exc
+            return timing
+        timing.adopt(np.concatenate([ticks for ticks, _ in timed]), float(sum(mm for _, mm in timed)))
+        return timing
 
     def compute(self, steps: Iterable[Step]) -> "ProgramTiming":
         """Walk the steps (each made, timed and dropped) to the end."""
@@ -143,6 +157,77 @@ class ProgramTiming:
             return None
         after = int(self.after[index + 1]) if index + 1 < len(self.after) else 0
         return left_in_step + after
+
+
+PIECES_PER_WORKER = 4  # pieces per process: a piece of slow sections does not hold the others up
+PIECE_SEGMENTS = 2000  # at least this many segments a piece: each costs a fork's worth of start-up
+
+
+def _pieces(program: Program, workers: int) -> list[tuple[int, int]]:
+    """Segment ranges [first, end) of about equal size, cut at pierces, for `workers` processes."""
+    n = len(program.segments)
+    count = min(workers * PIECES_PER_WORKER, n // PIECE_SEGMENTS)
+    if count < 2:
+        return []
+    at = pierce_boundaries(program)
+    if not len(at):
+        return []
+    # the pierce nearest to each even share of the segments, each once
+    want = np.arange(1, count) * n / count
+    cuts = np.unique(at[np.clip(np.searchsorted(at, want), 0, len(at) - 1)])
+    bounds = [0, *cuts.tolist(), n]
+    return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+_JOB: tuple | None = None  # (program, config, cut) for the forked processes (inherited, not pickled)
+
+
+def _time_piece(span: tuple[int, int]) -> tuple[np.ndarray, float]:
+    program, config, cut = _JOB
+    dt, ticks, total_mm = config.timing.period_s, array("q"), 0.0
+    for step in iter_steps(program, config, cut, *span):
+        ticks.append(step_ticks(step, dt))
+        if isinstance(step, Section):
+            total_mm += step.length_mm
+    return np.array(ticks, dtype=np.int64), total_mm
+
+
+def _time_pieces(program: Program, config: MachineConfig, cut, spans: list[tuple[int, int]],
+                 workers: int) -> list[tuple[np.ndarray, float]]:  # noqa: ANN001 - a CutPlan
+    """Each piece's step ticks and path length, in order, from `workers` forked processes. Forked
+    (they inherit the program instead of being sent it): called only from processes without
+    threads of their own (`waterjet check`, the timing process)."""
+    global _JOB
+    _JOB = (program, config, cut)
+    try:
+        with multiprocessing.get_context("fork").Pool(min(workers, len(spans)), end_with_parent, (os.getpid(),)) as pool:
+            return pool.map(_time_piece, spans, chunksize=1)
+    finally:
+        _JOB = None
+
+
+def end_with_parent(parent: int | None = None) -> None:
+    """Ask the kernel to end this process when the one that started it ends (Linux prctl
+    PR_SET_PDEATHSIG): the planner cancels a timing by killing its process, and neither that
+    nor the pieces it forked may go on using the CPU. `parent`: its pid, when this process may
+    have been started after it ended."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass
+    if parent is not None and os.getppid() != parent:  # it ended before the request took
+        os._exit(1)
+
+
+def timing_workers() -> int:
+    """How many processes a program's timing may use: the CPUs this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
 
 
 def step_ticks(step: Step, dt: float) -> int:

@@ -9,7 +9,9 @@ configuration in force (with its tuned parameters) and the cutting job's plan pi
 same steps with the same code (`sections.iter_steps`), times them (`ProgramTiming`) and writes
 the result into the same directory; the planner polls it at its ticks without waiting. The
 child runs under the normal scheduler, dies with the planner, and is stopped when the program
-is replaced. It runs under SCHED_IDLE: it takes only CPU time nothing else wants.
+is replaced. It runs under SCHED_IDLE: it takes only CPU time nothing else wants. On a host with
+more than one CPU it times the program in pieces cut at pierces, one forked process a CPU
+(`ProgramTiming.of`), each under SCHED_IDLE too and ending with it.
 """
 
 from __future__ import annotations
@@ -17,7 +19,6 @@ from __future__ import annotations
 import os
 import pickle
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -28,7 +29,7 @@ import numpy as np
 from gcode.program import Program
 
 from ..config import MachineConfig
-from .steps import ProgramTiming
+from .steps import ProgramTiming, end_with_parent, timing_workers
 
 _RESULT = "result.pickle"
 DIR_PREFIX = "wjcnc-timing-"  # then the planner's pid: `remove_stale` finds the ones a dead planner left
@@ -89,18 +90,8 @@ class TimingProcess:
         shutil.rmtree(self.dir, ignore_errors=True)
 
 
-def _die_with_parent() -> None:
-    """Ask the kernel to end this process when the planner ends (Linux prctl PR_SET_PDEATHSIG)."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGKILL)
-    except (OSError, AttributeError):
-        pass
-
-
 def main(argv: list[str]) -> int:
-    _die_with_parent()
+    end_with_parent()
     from ..runtime.rt import leave_realtime
 
     try:  # only the time no other process wants: the controller's own processes, the HMI's host tools
@@ -114,7 +105,7 @@ def main(argv: list[str]) -> int:
     segments = np.load(workdir / "segments.npy")
     program = Program(job["name"], segments, job["messages"], None)
     config: MachineConfig = job["config"]
-    timing = ProgramTiming.of(program, config, job.get("cut"))
+    timing = ProgramTiming.of(program, config, job.get("cut"), workers=timing_workers())
     result = {
         "failure": f"{type(timing.failure).__name__}: {timing.failure}" if timing.failure is not None else "",
         "step_ticks": np.array(timing.step_ticks, dtype=np.int64), "total_mm": timing.total_mm,
