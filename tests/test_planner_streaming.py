@@ -7,8 +7,11 @@ bench/gcode_speed.py and docs/benchmarks.md."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -105,7 +108,7 @@ def _nest_with_awkward_pierces(parts: int) -> tuple[str, int, int]:
     return "\n".join(out) + "\n", 5, 9
 
 
-def test_a_programs_timing_in_pieces_cut_at_pierces_is_the_whole_programs_to_the_tick(config, monkeypatch):
+def test_a_programs_timing_in_pieces_cut_at_pierces_is_the_whole_programs_to_the_tick(config, monkeypatch, tmp_path):
     """A large program is timed in pieces cut at pierces, at once by forked processes on a host
     with more than one CPU (`ProgramTiming.of(workers=...)`): the same steps, ticks and path
     length as timed whole. Cut at a pierce with a program stop before it, the pieces would lose
@@ -133,10 +136,29 @@ def test_a_programs_timing_in_pieces_cut_at_pierces_is_the_whole_programs_to_the
     assert all(a == b for (_, a), (b, _) in zip(spans[:-1], spans[1:])), "the pieces cover the program"
     by_piece = [step_ticks(s, dt) for a, b in spans for s in iter_steps(program, config, None, a, b)]
     assert by_piece == list(whole.step_ticks)
-    forked = ProgramTiming.of(program, config, workers=2)
-    assert forked.failure is None and forked.complete
-    assert list(forked.step_ticks) == list(whole.step_ticks) and forked.total_ticks == whole.total_ticks
-    assert forked.total_mm == pytest.approx(whole.total_mm, rel=1e-12)
+    # forked, as `waterjet check` and the timing process do it: in a process of its own (this one
+    # has threads, Zenoh's and Qt's, and a fork copies none of them but their locks)
+    path = tmp_path / "nest.ngc"
+    path.write_text(text)
+    code = (
+        "import dataclasses, json, sys\n"
+        "from cnc.config import load_machine\n"
+        "from cnc.machine_dialect import dialect_for\n"
+        "from cnc.planner import steps\n"
+        "from gcode.interp import Interpreter\n"
+        "steps.PIECE_SEGMENTS = 100\n"
+        "config = load_machine(sys.argv[1])\n"
+        "dialect = dataclasses.replace(dialect_for(config), start_position_mm=(0.0, 0.0, 0.0))\n"
+        "program = Interpreter(dialect, 't.ngc').run(open(sys.argv[2], 'rb').read())\n"
+        "t = steps.ProgramTiming.of(program, config, workers=2)\n"
+        "print(json.dumps({'failure': repr(t.failure), 'ticks': list(t.step_ticks), 'mm': t.total_mm}))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code, str(config.source), str(path)], capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parent.parent, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    forked = json.loads(res.stdout)
+    assert forked["failure"] == "None" and forked["ticks"] == list(whole.step_ticks)
+    assert forked["mm"] == pytest.approx(whole.total_mm, rel=1e-12)
 
 
 SHIFTABLE = {
