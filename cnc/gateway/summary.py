@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..bus.service import CommandRefused
 from ..config import MachineConfig
-from ..planner.timing_process import _die_with_parent
+from ..planner.steps import end_with_parent
 from ..programs import read_program
 from .library import Summary
 
@@ -58,7 +58,7 @@ def summarise(name: str, path: Path, max_bytes: int, config: MachineConfig) -> S
 
 
 def main(argv: list[str]) -> int:
-    _die_with_parent()
+    end_with_parent()
     from ..runtime.rt import leave_realtime
 
     leave_realtime()
