@@ -188,8 +188,8 @@ def pierce_boundaries(program: Program) -> np.ndarray:
     """Segments at which the program may be cut into pieces whose steps (`iter_steps` with `first`
     and `end`) are exactly the whole program's: each opens the jet after a segment that had it
     closed, both of them elements of the path (not zero-length moves, which make none), and no
-    program stop there. The whole program's steps change there
-    anyway: the run before ends, and the pierce's pause begins the next piece."""
+    program stop there. The whole program's steps change there anyway: the run before ends, and
+    the pierce's pause begins the next piece."""
     seg = program.segments
     if len(seg) < 2:
         return np.zeros(0, dtype=np.int64)

@@ -184,12 +184,10 @@ _JOB: tuple | None = None  # (program, config, cut) for the forked processes (in
 
 def _time_piece(span: tuple[int, int]) -> tuple[np.ndarray, float]:
     program, config, cut = _JOB
-    dt, ticks, total_mm = config.timing.period_s, array("q"), 0.0
-    for step in iter_steps(program, config, cut, *span):
-        ticks.append(step_ticks(step, dt))
-        if isinstance(step, Section):
-            total_mm += step.length_mm
-    return np.array(ticks, dtype=np.int64), total_mm
+    timing = ProgramTiming(config.timing.period_s).compute(iter_steps(program, config, cut, *span))
+    if timing.failure is not None:
+        raise timing.failure
+    return np.asarray(timing.step_ticks, dtype=np.int64), timing.total_mm
 
 
 def _time_pieces(program: Program, config: MachineConfig, cut, spans: list[tuple[int, int]],
