@@ -36,9 +36,14 @@ def test_killing_the_servo_trips_the_watchdog_within_the_configured_ticks(clock)
             time.sleep(0.002)
         hw = sup.hw()
         # the servo's last tick, read once it is surely dead (a killed process may still run a few
-        # ticks while the kernel tears it down): its heartbeat, which it sets to the tick at the end
-        # of each (its block may have been torn by the kill, and a torn block reads as defaults)
-        last_servo_tick = int(sup.area.blocks["heartbeat"].array[0]["beat"][Proc.SERVO])
+        # ticks while the kernel tears it down), as the watchdog sees it: the tick of its last whole
+        # outputs block (a torn block reads as the last whole copy), or its heartbeat, which it sets
+        # at the end of each tick; the later of the two (a kill between the block and the beat left
+        # the beat one behind, and the trip then looked a tick late)
+        reader = sup.area.reader("servo")
+        values, _ = reader.read()
+        published = int(values[reader.layout.index["tick"]])
+        last_servo_tick = max(int(sup.area.blocks["heartbeat"].array[0]["beat"][Proc.SERVO]), published)
         ticks_to_trip = hw["watchdog_trip_tick"] - last_servo_tick
         assert 1 <= ticks_to_trip <= config.timing.watchdog_missed_ticks + 1, ticks_to_trip
         assert all(not a & AxisIn.DRIVE_ENABLED for a in hw["axis_inputs"]), "drives disabled"
