@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..bus.service import CommandRefused
 from ..config import MachineConfig
-from ..planner.steps import end_with_parent
+from ..runtime.child import die_with
 from ..programs import read_program
 from .library import Summary
 
@@ -58,7 +58,7 @@ def summarise(name: str, path: Path, max_bytes: int, config: MachineConfig) -> S
 
 
 def main(argv: list[str]) -> int:
-    end_with_parent()
+    die_with(os.getppid())  # ends with the gateway that started it
     from ..runtime.rt import leave_realtime
 
     leave_realtime()

@@ -27,6 +27,7 @@ import numpy as np
 from gcode.program import Program
 
 from ..config import MachineConfig
+from ..runtime.child import die_with
 from .sections import Pause, Section, Step, iter_steps, pierce_boundaries
 from .stream import SectionStream
 
@@ -198,26 +199,10 @@ def _time_pieces(program: Program, config: MachineConfig, cut, spans: list[tuple
     global _JOB
     _JOB = (program, config, cut)
     try:
-        with multiprocessing.get_context("fork").Pool(min(workers, len(spans)), end_with_parent, (os.getpid(),)) as pool:
+        with multiprocessing.get_context("fork").Pool(min(workers, len(spans)), die_with, (os.getpid(),)) as pool:
             return pool.map(_time_piece, spans, chunksize=1)
     finally:
         _JOB = None
-
-
-def end_with_parent(parent: int | None = None) -> None:
-    """Ask the kernel to end this process when the one that started it ends (Linux prctl
-    PR_SET_PDEATHSIG): the planner cancels a timing by killing its process, and neither that
-    nor the pieces it forked may go on using the CPU. `parent`: its pid, when this process may
-    have been started after it ended."""
-    try:
-        import ctypes
-        import signal
-
-        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGKILL)
-    except (OSError, AttributeError):
-        pass
-    if parent is not None and os.getppid() != parent:  # it ended before the request took
-        os._exit(1)
 
 
 def timing_workers() -> int:

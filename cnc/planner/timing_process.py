@@ -29,7 +29,8 @@ import numpy as np
 from gcode.program import Program
 
 from ..config import MachineConfig
-from .steps import ProgramTiming, end_with_parent, timing_workers
+from ..runtime.child import die_with
+from .steps import ProgramTiming, timing_workers
 
 _RESULT = "result.pickle"
 DIR_PREFIX = "wjcnc-timing-"  # then the planner's pid: `remove_stale` finds the ones a dead planner left
@@ -91,7 +92,7 @@ class TimingProcess:
 
 
 def main(argv: list[str]) -> int:
-    end_with_parent()
+    die_with(os.getppid())  # ends with the planner that started it
     from ..runtime.rt import leave_realtime
 
     try:  # only the time no other process wants: the controller's own processes, the HMI's host tools
