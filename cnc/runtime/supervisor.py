@@ -39,7 +39,7 @@ from ..bus.access import Plan, open_machine_router, plan_access, run_dir, write_
 from ..config import MachineConfig, beside
 from ..data.dataserver import BlockWriter, SharedArea, unique_name
 from ..data.fifo import SetpointFifo
-from ..hw.timers import TimerClient
+from ..hw.timers import VIRTUAL_SPIN_NS, TimerClient
 from ..data.layout import Proc, ServoFault, ServoState, controller_layouts
 from ..bus.messages import Drives, Reset, Stamp
 from ..logic.client import LogicClient
@@ -196,14 +196,15 @@ class Supervisor:
                 self._sim_inputs_close = serve(self, self.router)
             plc_port, self._sim_pending = self._plc_port()
             clients = {}
+            spin = VIRTUAL_SPIN_NS if self.clock == "virtual" else 0
             if "servo" in self.process_names:
-                clients["servo"] = TimerClient.new(self.ctx, "servo", 1)
+                clients["servo"] = TimerClient.new(self.ctx, "servo", 1, spin)
             if "planner" in self.process_names:
-                clients["planner"] = TimerClient.new(self.ctx, "planner", cfg.planner.divisor)
+                clients["planner"] = TimerClient.new(self.ctx, "planner", cfg.planner.divisor, spin)
             if "logic" in self.process_names:
-                clients["logic"] = TimerClient.new(self.ctx, "logic", cfg.timing.logic_divisor)
+                clients["logic"] = TimerClient.new(self.ctx, "logic", cfg.timing.logic_divisor, spin)
             if "logger" in self.process_names:
-                clients["logger"] = TimerClient.new(self.ctx, "logger", cfg.logger.wake_divisor)
+                clients["logger"] = TimerClient.new(self.ctx, "logger", cfg.logger.wake_divisor, spin)
                 self.set_tracing(True)  # the logger drains the trace ring: the servo writes it every tick
             self.runtime = Runtime(
                 config=cfg,
