@@ -12,6 +12,7 @@ import math
 from .errors import GCodeError
 
 FULL_CIRCLE_EPS_MM = 1e-9
+FULL_TURN_EPS_RAD = 1e-12  # an end this close to the start, as an angle, closes a full turn
 
 
 def centre_from_radius(x0: float, y0: float, x1: float, y1: float, r: float, cw: bool) -> tuple[float, float]:
@@ -41,11 +42,11 @@ def sweep(x0: float, y0: float, x1: float, y1: float, cx: float, cy: float, cw: 
     a1 = math.atan2(y1 - cy, x1 - cx)
     if cw:
         d = a0 - a1
-        if d <= 1e-12:
+        if d <= FULL_TURN_EPS_RAD:
             d += 2.0 * math.pi
         return -(d + 2.0 * math.pi * turns)
     d = a1 - a0
-    if d <= 1e-12:
+    if d <= FULL_TURN_EPS_RAD:
         d += 2.0 * math.pi
     return d + 2.0 * math.pi * turns
 

@@ -45,6 +45,7 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
+from .arcs import FULL_CIRCLE_EPS_MM, FULL_TURN_EPS_RAD
 from .canon import ARC, DWELL, LINE, RAPID, Event, Move
 from .errors import GCodeError
 
@@ -267,7 +268,7 @@ class KerfCompensator:
         anchor = self._join(m, corner, bend, concave, meet, offset_start, check_convex=False)
         start = anchor or self._tool_xy()
         offset_end = _add(end, _scale(_unit_of(_sub(end, center)), out * self._radius_mm))
-        if corner == end and math.dist(start, offset_end) < XY_EPS_MM:
+        if _same_point(corner, end) and math.dist(start, offset_end) < XY_EPS_MM:
             offset_end = start  # a full circle stays one, exactly
         piece = _with(m, start=(*start, m.start[2]), end=(*offset_end, m.end[2]))
         sweep = _sweep_rad(corner, center, _turn(m), end)
@@ -492,7 +493,7 @@ class KerfCompensator:
 def _collapsed(h: _Held) -> Move:
     """A partial arc whose offset ends meet became a straight (Z only) move, not a full circle."""
     m = h.move
-    partial = h.programmed[0] != h.programmed[1]
+    partial = not _same_point(*h.programmed)
     if m.kind == ARC and partial and math.dist(_xy(m.start), _xy(m.end)) < COLLAPSED_MM:
         return _with(m, kind=LINE, end=(*_xy(m.start), m.end[2]), center=None, cw=False, turns=0)
     return m
@@ -541,12 +542,19 @@ def _turn(arc: Move) -> int:
     return -(arc.turns + 1) if arc.cw else arc.turns + 1
 
 
+def _same_point(a: XY, b: XY) -> bool:
+    """One point, to the rounding of the coordinate transforms: a full circle's end as computed
+    through a rotated system in G91 misses its start by 1e-14 mm, and must stay a full circle."""
+    return math.dist(a, b) < FULL_CIRCLE_EPS_MM
+
+
 def _sweep_rad(start: XY, center: XY, turn: int, end: XY) -> float:
-    """Signed angle swept from start to end about center; start == end is a full turn."""
+    """Signed angle swept from start to end about center; start == end (within the angle
+    `arcs.sweep` allows, FULL_TURN_EPS_RAD) is a full turn, as the interpreter has it."""
     delta = _angle(_sub(end, center)) - _angle(_sub(start, center))
     if turn > 0:
-        return (delta + 2 * math.pi if delta <= 0.0 else delta) + (turn - 1) * 2 * math.pi
-    return (delta - 2 * math.pi if delta >= 0.0 else delta) + (turn + 1) * 2 * math.pi
+        return (delta + 2 * math.pi if delta <= FULL_TURN_EPS_RAD else delta) + (turn - 1) * 2 * math.pi
+    return (delta - 2 * math.pi if delta >= -FULL_TURN_EPS_RAD else delta) + (turn + 1) * 2 * math.pi
 
 
 def _line_circle(point: XY, unit: XY, center: XY, radius: float) -> tuple[float, float] | None:

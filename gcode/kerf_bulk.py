@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .arcs import FULL_TURN_EPS_RAD
 from .canon import ARC, LINE
 from .kerf import SWEEP_SLACK_RAD, TANGENT_RAD, LEFT, COLLAPSED_MM
 
@@ -180,8 +181,8 @@ def _reverses(idx, point, anchor, xy0, xy1, center, d, cw, is_arc, first) -> np.
 def _sweep(p0, c, cw, p1) -> np.ndarray:
     """Signed angle from p0 to p1 about c, one turn, p0 == p1 a full turn (kerf._sweep_rad for turn = +-1)."""
     delta = np.arctan2(p1[:, 1] - c[:, 1], p1[:, 0] - c[:, 0]) - np.arctan2(p0[:, 1] - c[:, 1], p0[:, 0] - c[:, 0])
-    ccw = np.where(delta <= 0.0, delta + _TWO_PI, delta)
-    cwv = np.where(delta >= 0.0, delta - _TWO_PI, delta)
+    ccw = np.where(delta <= FULL_TURN_EPS_RAD, delta + _TWO_PI, delta)
+    cwv = np.where(delta >= -FULL_TURN_EPS_RAD, delta - _TWO_PI, delta)
     return np.where(cw, cwv, ccw)
 
 
