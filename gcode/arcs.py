@@ -14,6 +14,18 @@ from .errors import GCodeError
 FULL_CIRCLE_EPS_MM = 1e-9
 FULL_TURN_EPS_RAD = 1e-12  # an end this close to the start, as an angle, closes a full turn
 
+# LinuxCNC's arc tolerances (rs274ngc interp_internal.hh, 2.9), so that a program LinuxCNC runs
+# runs here and one it refuses is refused: CAM posts round coordinates to 3-4 decimals, and a
+# semicircle in R form or a small arc in I/J form then misses its radius by that rounding.
+INCH_MM = 25.4
+RADIUS_TOLERANCE_MM = 0.00005 * INCH_MM  # R form: how far the radius may fall short of half the chord
+# ... taken a hair wider (relative 1e-9): a G20 semicircle written to 4 decimals falls short by
+# exactly 0.00005 inch, and there rounding alone decides LinuxCNC's comparison either way
+R_FORM_SLACK_MM = RADIUS_TOLERANCE_MM * (1.0 + 1e-9)
+SPIRAL_TOLERANCE_MM = 2 * 0.01 * math.sqrt(2.0)  # I/J form: end radius - start radius, in a G21 program
+SPIRAL_TOLERANCE_INCH_MM = 2 * 0.001 * math.sqrt(2.0) * INCH_MM  # the same in a G20 program
+SPIRAL_RELATIVE_TOLERANCE = 0.001  # ... beyond the absolute one only when also this large a share
+
 
 def centre_from_radius(x0: float, y0: float, x1: float, y1: float, r: float, cw: bool) -> tuple[float, float]:
     """Centre of the arc of radius |r| from (x0, y0) to (x1, y1); r < 0 asks for the arc over 180 degrees."""
@@ -23,7 +35,7 @@ def centre_from_radius(x0: float, y0: float, x1: float, y1: float, r: float, cw:
         raise GCodeError("a full circle cannot be programmed with R: use I and J", code="arc-radius-format")
     half = chord / 2.0
     radius = abs(r)
-    if radius < half - 1e-7 * max(1.0, radius):
+    if half - radius > R_FORM_SLACK_MM:
         raise GCodeError(
             f"arc radius {radius:.4f} mm is too small to reach the end point {chord:.4f} mm away",
             code="arc-radius-too-small",
@@ -34,6 +46,15 @@ def centre_from_radius(x0: float, y0: float, x1: float, y1: float, r: float, cw:
     # CCW short arc: centre on the left of the chord; CW short arc: on the right; R < 0 swaps
     side = 1.0 if (not cw) == (r > 0) else -1.0
     return mx + side * h * ux, my + side * h * uy
+
+
+def spiral_error(r_start: float, r_end: float, inch: bool) -> bool:
+    """Do an I/J arc's radii to its start and end differ by more than LinuxCNC allows? Never beyond
+    100 times the absolute tolerance; beyond the absolute tolerance only when also over the
+    relative one. The absolute tolerance is the program's units' (G20: 0.0028 inch, G21: 0.028 mm)."""
+    tolerance = SPIRAL_TOLERANCE_INCH_MM if inch else SPIRAL_TOLERANCE_MM
+    err = abs(r_start - r_end)
+    return err > 100.0 * tolerance or (err > tolerance and err > SPIRAL_RELATIVE_TOLERANCE * max(r_start, r_end))
 
 
 def sweep(x0: float, y0: float, x1: float, y1: float, cx: float, cy: float, cw: bool, turns: int) -> float:

@@ -425,7 +425,7 @@ class FastPath:
 
     def _arcs(self, idx, arc, cw, starts, e, center, wi, wj, wr, units) -> int | None:
         """Centres and radius checks of every arc; index of the first bad one or None."""
-        from .interp import ARC_RADIUS_RELATIVE_TOLERANCE, ARC_RADIUS_TOLERANCE_MM
+        from .arcs import R_FORM_SLACK_MM, RADIUS_TOLERANCE_MM, SPIRAL_RELATIVE_TOLERANCE, SPIRAL_TOLERANCE_INCH_MM, SPIRAL_TOLERANCE_MM
 
         ip = self.ip
         a = np.flatnonzero(arc)
@@ -446,7 +446,7 @@ class FastPath:
             radius = np.abs(r)
             with np.errstate(invalid="ignore", divide="ignore"):
                 half = chord / 2.0
-                bad |= r_form & ((chord < 1e-9) | (radius < half - 1e-7 * np.maximum(1.0, radius)))
+                bad |= r_form & ((chord < 1e-9) | (half - radius > R_FORM_SLACK_MM))
                 h = np.sqrt(np.maximum(radius * radius - half * half, 0.0))
                 ux, uy = -dy / chord, dx / chord
                 side = np.where((~cw[a]) == (r > 0), 1.0, -1.0)
@@ -457,7 +457,11 @@ class FastPath:
         r0 = np.hypot(x0 - cx, y0 - cy)
         r1 = np.hypot(x1 - cx, y1 - cy)
         ij = ~r_form
-        bad |= ij & ((r0 == 0.0) | (np.abs(r1 - r0) > np.maximum(ARC_RADIUS_TOLERANCE_MM, ARC_RADIUS_RELATIVE_TOLERANCE * r0)))
+        # as arcs.spiral_error, every arc at once
+        err = np.abs(r1 - r0)
+        tolerance = np.where(units[li] != 1.0, SPIRAL_TOLERANCE_INCH_MM, SPIRAL_TOLERANCE_MM)
+        spiral = (err > 100.0 * tolerance) | ((err > tolerance) & (err > SPIRAL_RELATIVE_TOLERANCE * np.maximum(r0, r1)))
+        bad |= ij & ((r0 < RADIUS_TOLERANCE_MM) | (r1 < RADIUS_TOLERANCE_MM) | spiral)
         center[a, 0], center[a, 1] = cx, cy
         if bad.any():
             return int(a[np.flatnonzero(bad)[0]])

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from . import modal
-from .arcs import centre_from_radius
+from .arcs import RADIUS_TOLERANCE_MM, centre_from_radius, spiral_error
 from .canon import ARC, LINE, RAPID, Event, Move
 from .cutcomments import cut_comment_kind, parse_cut_comment
 from .dialect import AUX_BITS, Dialect
@@ -38,8 +38,6 @@ from .params import Parameters
 from .program import Attrs, Program, ProgramBuilder
 from .source import SourceLines, decode, split_lines
 
-ARC_RADIUS_TOLERANCE_MM = 0.002 * INCH_MM / 1.0  # LinuxCNC accepts this much spiral (end radius - start radius)
-ARC_RADIUS_RELATIVE_TOLERANCE = 0.001
 SHORT_LINE = 24  # lines up to this long are lexed once per text (`Interpreter._lex`)
 SHORT_LINES_KEPT = 4096
 _OLINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[nN][\d. \t]*)?[oO]")
@@ -948,9 +946,11 @@ class Interpreter:
                 cx, cy = x0 + di, y0 + dj
             r0 = math.hypot(x0 - cx, y0 - cy)
             r1 = math.hypot(x1 - cx, y1 - cy)
-            if r0 == 0.0:
-                raise self._err(f"{what}: the centre is on the start point (zero radius arc)", "arc-radius", "i" if "i" in w else "j")
-            if abs(r1 - r0) > max(ARC_RADIUS_TOLERANCE_MM, ARC_RADIUS_RELATIVE_TOLERANCE * r0):
+            if r0 < RADIUS_TOLERANCE_MM or r1 < RADIUS_TOLERANCE_MM:
+                where = "start" if r0 < RADIUS_TOLERANCE_MM else "end"
+                raise self._err(f"{what}: the centre is on the {where} point (zero radius arc)", "arc-radius",
+                                "i" if "i" in w else "j")
+            if spiral_error(r0, r1, self.units != 1.0):
                 u = self.units
                 raise self._err(
                     f"{what}: radius to the end point {r1 / u:.4f} differs from radius to the start {r0 / u:.4f} "
