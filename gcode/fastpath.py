@@ -259,6 +259,7 @@ class FastPath:
         ip.motion = int(round(motion[last] * 10))
         ip.feed_mm = float(feed[last])
         ip.units = float(units[last])
+        ip.kerf.inch = ip.units != 1.0
         ip.pos = [float(v) for v in ends[last]]
         return limit
 

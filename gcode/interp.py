@@ -600,6 +600,7 @@ class Interpreter:
             self._dwell(w, b.line)
         if g(6) is not None:
             self.units = INCH_MM if g(6) == 200 else 1.0
+            self.kerf.inch = self.units != 1.0
         if g(7) is not None:
             self._kerf(g(7), w, b)
         if g(12) is not None:

@@ -52,8 +52,10 @@ from .errors import GCodeError
 LEFT, RIGHT = 1, -1
 TANGENT_RAD = 0.05  # LinuxCNC's TOLERANCE_CONCAVE_CORNER: smaller bends get neither arc nor intersection
 # A cut-back arc may sweep this much more than programmed before it counts as a gouge. LinuxCNC
-# compares the angle with 0.0254 in mm programs (0.001 in inch programs); we work in mm.
+# compares the angle with 0.0254 in a G21 program and 0.001 in a G20 one (a length unit's worth,
+# compared with an angle: its rule, kept so that an inch program it refuses is refused here too).
 SWEEP_SLACK_RAD = 0.0254
+SWEEP_SLACK_INCH_RAD = 0.001
 ENTRY_ARC_COS_MIN = 1e-4  # below this the entry arc's new centre is at infinity
 XY_EPS_MM = 1e-9  # moves shorter than this in XY are pure Z moves
 COLLAPSED_MM = 1e-6  # an offset arc whose ends are closer than this has shrunk to nothing
@@ -105,6 +107,7 @@ class KerfCompensator:
         self._last: Move | None = None  # the last compensated XY move, held or not
         self._tool: tuple[float, float, float] | None = None  # where the compensated path ends
         self._position: tuple[float, float, float] | None = None  # end of the last move handed on
+        self.inch = False  # the program is in G20 (LinuxCNC's gouge check depends on it)
 
     @property
     def active(self) -> bool:
@@ -418,7 +421,7 @@ class KerfCompensator:
                 return False
             # An arc cut back to nothing sweeps a full turn here: a gouge, as in LinuxCNC.
             sweep = _sweep_rad(self._held_start, h.move.center, _turn(h.move), point)
-            return abs(sweep) > abs(h.sweep_rad) + SWEEP_SLACK_RAD
+            return abs(sweep) > abs(h.sweep_rad) + (SWEEP_SLACK_INCH_RAD if self.inch else SWEEP_SLACK_RAD)
         return h.direction is not None and _dot(h.direction, _sub(point, self._held_start)) < 0.0
 
     def _release_unchecked(self) -> None:

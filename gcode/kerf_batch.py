@@ -46,6 +46,7 @@ class _Stretch:
     side: int
     radius_mm: float
     start_at: tuple[int, int]  # line and column of the G41/G42
+    inch: bool  # the program's units then (G20), for the gouge check of a replay
     moves: list[Move] = field(default_factory=list)  # entry move first
     stop_at: tuple[int, int] | None = None  # line and column of the G40, once read
     exit: Move | None = None  # the exit move, once read: the stretch is complete
@@ -74,7 +75,7 @@ class BatchedKerfCompensator(KerfCompensator):
         idle_before = super().idle
         super().start(side, radius_mm, line, column)  # checks, and the sign of the radius
         if self._batching and idle_before and self._radius_mm > 0.0:
-            self._open = _Stretch(self._side, self._radius_mm, (line, column))
+            self._open = _Stretch(self._side, self._radius_mm, (line, column), self.inch)
             self._entry_pending = False
 
     def stop(self, line: int, column: int) -> None:
@@ -288,7 +289,7 @@ class BatchedKerfCompensator(KerfCompensator):
 
     def _replay(self, st: _Stretch) -> None:
         """Run a recorded stretch through the per-move compensator, as far as it was read."""
-        self._batching = False
+        self._batching, inch_now, self.inch = False, self.inch, st.inch
         try:
             self.start(st.side, st.radius_mm, *st.start_at)
             for m in st.moves:
@@ -298,7 +299,7 @@ class BatchedKerfCompensator(KerfCompensator):
             if st.exit is not None:
                 self.move(st.exit)
         finally:
-            self._batching = self._enabled
+            self._batching, self.inch = self._enabled, inch_now
 
     def _offset(self, stretches: list[_Stretch]) -> list["_Pieces | None"]:
         """Each stretch's offset pieces, or None where the bulk rules do not cover it."""

@@ -23,7 +23,7 @@ import numpy as np
 
 from .arcs import FULL_TURN_EPS_RAD
 from .canon import ARC, LINE
-from .kerf import SWEEP_SLACK_RAD, TANGENT_RAD, LEFT, COLLAPSED_MM
+from .kerf import SWEEP_SLACK_INCH_RAD, TANGENT_RAD, LEFT, COLLAPSED_MM
 
 _TWO_PI = 2.0 * math.pi
 
@@ -174,7 +174,9 @@ def _reverses(idx, point, anchor, xy0, xy1, center, d, cw, is_arc, first) -> np.
         c = center[idx]
         prog = _sweep(xy0[idx], c, cw[idx], xy1[idx])
         now = _sweep(start, c, cw[idx], point)
-        rev = np.where(arc, np.abs(now) > np.abs(prog) + SWEEP_SLACK_RAD, rev)
+        # the tighter (G20) slack: an arc between the two goes to the per-move compensator,
+        # which knows the program's units
+        rev = np.where(arc, np.abs(now) > np.abs(prog) + SWEEP_SLACK_INCH_RAD, rev)
     return rev & ~first[idx]
 
 
