@@ -22,7 +22,7 @@ from cnc.planner.measure import ProgrammedPath, peaks
 from cnc.planner.runner import ProgramRunner, RunState
 from cnc.planner.sections import move_steps
 
-from .conftest import machine_config
+from .conftest import REPO, machine_config
 from .planner_programs import random_program
 
 DT = 0.001
@@ -457,3 +457,68 @@ def test_the_operators_controls_at_random_keep_the_limits_of_other_machines_and_
     assert (within_tolerance(program, records) <= 1e-9).all(), events
     if not stopped:
         assert records["position"][-1] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9), events
+
+
+XYZ_MACHINE = REPO / "tests" / "gcode_conformance" / "machine_xyz.toml"  # X, Y and Z, the same limits
+
+
+def _xyz_machine():
+    from cnc.config import load_machine
+
+    return load_machine(XYZ_MACHINE)
+
+
+@pytest.mark.parametrize("moves", [
+    ["G0 Z5", "G1 Z-1 F600"],  # a lift then a plunge: Z reverses
+    ["G1 Z-2 F3000", "G1 Z3"],
+    ["G1 X10 Z-1 F6000", "G1 X20 Z0"],  # ramps: the same XY direction, dz/ds from - to +
+    ["G1 X10 Z-1 F6000", "G1 X20 Z-4"],  # ... and steeper
+    ["G2 X10 Y0 I5 J0 Z-2 F3000", "G3 X20 Y0 I5 J0 Z0"],  # helices, their Z rates opposite
+])
+def test_z_moves_that_reverse_or_change_their_rate_stop_between_and_keep_every_axis_limit(moves):
+    """On an XYZ machine two moves whose Z rate along the path differs met at speed: a Z reversal
+    stepped the Z velocity in one period (40x the acceleration, 1000x the jerk). Found by running
+    the conformance fuzz's programs through the planner (seed 147: a G0 Z5 lift, then G1 Z-1)."""
+    config = _xyz_machine()
+    text = "\n".join(["G21 G90 G64 P0.05", "G0 X0 Y0 Z0", *moves, "M2"]) + "\n"
+    program, runner, records, planned = run(text, config)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert records["position"][-1] == pytest.approx(program.segments["end"][-1], abs=1e-9)
+    assert len(records) == planned
+    # the head comes to rest where the second move begins (speed from the positions, 3D)
+    at = int(np.flatnonzero(records["segment"] == records["segment"][-1])[0])
+    step = np.linalg.norm(np.diff(records["position"], axis=0), axis=1) / DT
+    assert step[max(at - 5, 0):at + 5].min() == 0.0, "the moves met at speed"
+
+
+def test_z_moves_at_the_same_rate_run_through_without_a_stop():
+    config = _xyz_machine()
+    program, runner, records, planned = run("G21 G90 G64 P0.05\nG0 X0 Y0 Z0\nG1 Z-1 F600\nG1 Z-2\nM2\n", config)
+    within_limits(records)
+    at = int(np.flatnonzero(records["segment"] == records["segment"][-1])[0])
+    step = np.linalg.norm(np.diff(records["position"], axis=0), axis=1) / DT
+    assert step[at - 5:at + 5].min() == pytest.approx(10.0, rel=1e-6), "a plunge in two moves is one plunge"
+
+
+def _conformance_fuzz():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("gcode_conformance_fuzz", REPO / "tests" / "gcode_conformance" / "fuzz.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("seed", [19, 68, 147, 173, 430])
+def test_random_cam_programs_on_an_xyz_machine_keep_every_limit_and_the_path(seed):
+    """The conformance fuzz's programs (kerf compensation, full circles of P turns, Z lifts and
+    plunges, inch and mm) run through the planner: each of these seeds broke a limit (the Z
+    rates above) or, in 173, seemed to leave the path: the measure took the second turn of a
+    two-turn spiral arc for its first (`ProgrammedPath`)."""
+    config = _xyz_machine()
+    program, runner, records, planned = run(_conformance_fuzz().program(seed), config, chunk=97)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert records["position"][-1] == pytest.approx(program.segments["end"][-1], abs=1e-9)
+    assert len(records) == planned and runner.state == RunState.DONE

@@ -83,10 +83,17 @@ class ProgrammedPath:
         along = np.mod((ang - a0) * np.where(sw >= 0, 1.0, -1.0), 2.0 * math.pi)
         full = np.abs(sw) >= 2.0 * math.pi - 1e-9
         on = full | (along <= np.abs(sw))
-        # an arc whose end lies off its start's radius is a spiral between the two (as it is run)
-        frac = np.where(np.abs(sw) > 0, np.minimum(along / np.where(np.abs(sw) > 0, np.abs(sw), 1.0), 1.0), 0.0)
-        r = self.radius[k] + frac * (self.radius_end[k] - self.radius[k])
-        radial = np.abs(np.hypot(rel[:, 0], rel[:, 1]) - r)
+        # an arc whose end lies off its start's radius is a spiral between the two (as it is run);
+        # on an arc of more than one turn the point may be on any of them: the nearest counts
+        span = np.where(np.abs(sw) > 0, np.abs(sw), 1.0)
+        dist = np.hypot(rel[:, 0], rel[:, 1])
+        radial = np.full(len(pts), np.inf)
+        for turn in range(int(np.abs(sw).max() // (2.0 * math.pi)) + 1 if len(sw) else 1):
+            angle = along + 2.0 * math.pi * turn
+            reach = (angle <= np.abs(sw)) | (turn == 0)
+            frac = np.where(np.abs(sw) > 0, np.minimum(angle / span, 1.0), 0.0)
+            r = self.radius[k] + frac * (self.radius_end[k] - self.radius[k])
+            radial = np.where(reach, np.minimum(radial, np.abs(dist - r)), radial)
         ends = np.minimum(np.hypot(*(pts - a).T), np.hypot(*(pts - b).T))
         return np.where(arc, np.where(on, radial, ends), line)
 

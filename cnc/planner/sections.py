@@ -32,6 +32,7 @@ from .path import Element, blend_corners, blends, iter_elements
 if TYPE_CHECKING:
     from .quality import CutPlan
 
+Z_RATE_STEP = 1e-9  # two elements whose dz/ds differ by more meet at a stop (rounding alone stays under it)
 RUN_PIECE = 64  # a run of elements is made into sections in pieces of at least this many (`iter_steps`)
 REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and the next one's start
 # then never meet in one third difference (the jerk the drives see)
@@ -316,10 +317,20 @@ def _split(path: list[Element], config: MachineConfig, offset: float, notes: dic
 
 
 def _stops_between(a: Element, b: Element) -> bool:
+    """A stop between two elements: at a corner in XY sharper than a kink, where Z starts or
+    stops moving or changes its rate along the path (dz/ds: a plunge after a lift, a ramp after
+    a helix; the corner blends and kink caps work in XY, so a Z rate stepped at speed would be a
+    step of the Z velocity), or where the jet or the outputs switch."""
     u, w = a.direction_at_end(), b.direction_at_start()
     turn = math.atan2(u[0] * w[1] - u[1] * w[0], u[0] * w[0] + u[1] * w[1])
-    z_turn = (a.start[2] != a.end[2]) != (b.start[2] != b.end[2])
+    z_turn = (a.start[2] != a.end[2]) != (b.start[2] != b.end[2]) or abs(_z_rate(a) - _z_rate(b)) > Z_RATE_STEP
     return abs(turn) > KINK_MAX_RAD or z_turn or (a.jet, a.aux) != (b.jet, b.aux)
+
+
+def _z_rate(e: Element) -> float:
+    """dz/ds of an element (constant along a line or a helix), s the path length."""
+    dz = e.end[2] - e.start[2]
+    return dz / e.length_mm if dz else 0.0
 
 
 def _section(elements: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True,
