@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 from .errors import GCodeError
+from .modal import INCH_MM
 
 FULL_CIRCLE_EPS_MM = 1e-9
 FULL_TURN_EPS_RAD = 1e-12  # an end this close to the start, as an angle, closes a full turn
@@ -17,7 +18,6 @@ FULL_TURN_EPS_RAD = 1e-12  # an end this close to the start, as an angle, closes
 # LinuxCNC's arc tolerances (rs274ngc interp_internal.hh, 2.9), so that a program LinuxCNC runs
 # runs here and one it refuses is refused: CAM posts round coordinates to 3-4 decimals, and a
 # semicircle in R form or a small arc in I/J form then misses its radius by that rounding.
-INCH_MM = 25.4
 RADIUS_TOLERANCE_MM = 0.00005 * INCH_MM  # R form: how far the radius may fall short of half the chord
 # ... taken a hair wider (relative 1e-9): a G20 semicircle written to 4 decimals falls short by
 # exactly 0.00005 inch, and there rounding alone decides LinuxCNC's comparison either way
