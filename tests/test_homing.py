@@ -115,3 +115,18 @@ def test_a_safe_stop_during_homing_is_reported_with_its_cause_not_as_the_operato
     if error.startswith("homing stopped"):  # the logic's stop came first: its record names the cause
         sup.wait_until(lambda: any(error in e.detail for e in entries()), 10.0, "the homing's end in the alarm history")
     assert not [e.detail for e in entries() if "by the operator" in e.detail]
+
+
+@pytest.mark.parametrize("lead_ms", [(20.0, 40.0), (300.0, 600.0), (2000.0, 4000.0)])
+def test_homing_sees_its_switch_within_a_chunk_whatever_the_fifo_lead(lead_ms):
+    """Homing pushes its search in chunks of 20 ms and looks at the switches between them. It used
+    to push the next chunk whenever the FIFO held less than `[planner] fifo_low_ms`: with the
+    lead a busy real-time host needs (300 ms), the search ran 300 ms past the home switch, into
+    the hard limit (found where the two-hosts test deepened its FIFO)."""
+    low, high = lead_ms
+    config = machine_config(**SIM, **{"planner.fifo_low_ms": low, "planner.fifo_high_ms": high})
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
+        enable_and_hold(sup)
+        home(sup)
+        s = sup.servo()
+        assert s["homed_mask"] == 0b11 and s["fault"] == ServoFault.NONE and s["underruns"] == 0

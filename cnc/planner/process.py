@@ -59,7 +59,7 @@ from ..cutmodel import CutSetup
 from ..data.dataserver import SharedArea
 from ..data.injection import injected_bugs
 from ..data.fifo import SetpointFifo
-from ..homing import Homing, HomingError, Push, Reference, Unhome
+from ..homing import CHUNK_S as HOMING_CHUNK_S, Homing, HomingError, Push, Reference, Unhome
 from ..data.layout import PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..machine_dialect import dialect_for
 from ..params import registry, with_values
@@ -153,6 +153,7 @@ class Planner:
         self.dt = config.timing.period_s
         self.n = len(config.axis_names)
         self.low = max(1, round(config.planner.fifo_low_ms / 1000.0 / self.dt))
+        self.homing_lead = max(1, round(HOMING_CHUNK_S / self.dt))  # homing's FIFO lead: one chunk
         self.high = min(fifo.capacity, max(self.low + 1, round(config.planner.fifo_high_ms / 1000.0 / self.dt)))
         self.out = area.writer("motion")
         self.out.load_current()
@@ -880,7 +881,9 @@ class Planner:
     def _step_homing(self, servo: dict) -> None:
         if self.waiting_for is not None:
             kind = self.waiting_for[0]
-            if kind == "drain" and self.fifo.fill() > self.low:
+            # the next chunk once this one has nearly run: never more than a chunk ahead, whatever
+            # the FIFO's lead (`fifo_low_ms`), so that the switches are seen within one chunk
+            if kind == "drain" and self.fifo.fill() > min(self.low, self.homing_lead):
                 return
             if kind == "reference" and (servo["position_ref_seq"] != self.waiting_for[1] or self.fifo.fill()):
                 return
