@@ -189,8 +189,11 @@ def hosts(network, tmp_path_factory):
                           "--set", 'cycle.transport_procedure=""', "--set", "sim.axes.x.start_position_mm=30",
                           "--set", "sim.axes.y.start_position_mm=30", "--set", "plc.cycle_ms=100", "--set", "plc.timeout_ms=250",
                           # the network is under test, not the host's timer: a busy host may not trip the watchdog,
-                          # nor stop the cut for ticks it ran late (tests/test_overruns.py tests that)
-                          "--set", "timing.watchdog_missed_ticks=50", "--set", "timing.max_overruns_per_s=100000")
+                          # nor stop the cut for ticks it ran late (tests/test_overruns.py tests that), nor let
+                          # the FIFO run dry while the planner waits for a CPU (the shipped 20 ms lead did, once
+                          # in three fresh runs: a FIFO underrun fault where the test waited for the hold)
+                          "--set", "timing.watchdog_missed_ticks=50", "--set", "timing.max_overruns_per_s=100000",
+                          "--set", "planner.fifo_low_ms=300", "--set", "planner.fifo_high_ms=600")
         started.append(controller)
         machine = controller.banner["machine"]
         local = Station(CONTROLLER_NS, LOCAL, machine, "watch")
