@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import shutil
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -330,3 +331,35 @@ def test_the_screen_shows_the_program_s_cpu_time_over_the_last_second_beside_its
     finally:
         del timing, hist
         area.close()
+
+
+class _SlowOnce(PIP):
+    """The PI-P, spending two periods of CPU time in each of `slow` (a set of period numbers)."""
+
+    slow: frozenset = frozenset()
+
+    def control(self, inputs: ControlInputs) -> list[float]:
+        self.period = getattr(self, "period", -1) + 1
+        if self.period in self.slow:
+            until = time.thread_time_ns() + int(2e9 * inputs.dt_s)
+            while time.thread_time_ns() < until:
+                pass
+        return super().control(inputs)
+
+
+@pytest.mark.parametrize("slow,overruns,fails", [
+    ({5}, 3, False),  # one slow period: the servo would carry on (3 in a row stop a program)
+    ({5, 6, 7}, 3, True),
+    ({5}, 1, True),  # a machine that stops at the first
+])
+def test_the_plant_trial_stops_a_program_over_its_budget_by_the_servo_s_own_rule(slow, overruns, fails):
+    """`waterjet control check` refused a good program for one slow period (a garbage collection
+    pass, a busy host), where the servo stops one only after `[control] budget_overruns` in a row."""
+    config = machine_config(**{"control.budget_overruns": overruns})
+    program = _SlowOnce(config)
+    program.slow = frozenset(slow)
+    budget_ns = config.control.budget_share * config.timing.period_s * 1e9
+    result = run_trial(program, config, "step", 0.05, budget_ns=budget_ns)
+    assert bool(result.failure) == fails, result.failure
+    if fails:
+        assert "over its budget" in result.failure and result.failed_at == sorted(slow)[overruns - 1]
