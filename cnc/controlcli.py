@@ -23,7 +23,7 @@ from .control.loader import SHIPPED, build
 from .control.pip import PIP
 from .control.program import ControlProgram, ControlProgramError
 from .control.trial import TRAJECTORIES, TrialResult, run as run_trial
-from .params import save_literals
+from .params import check_literals, save_literals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,12 +50,19 @@ def run(args: argparse.Namespace) -> int:
     except ControlProgramError as exc:
         print(f"waterjet control: {exc}", file=sys.stderr)
         return 1
+    change = {(("control",), "program"): _toml_string(args.program)}
+    if action == "select":
+        try:  # the machine file as it would be (its parameters for this program) before the plant
+            check_literals(config.source, change)
+        except ConfigError as exc:
+            print(f"waterjet control: {exc}", file=sys.stderr)
+            return 1
     result = _check(config, program, args.program, args.trajectory)
     if result is None:
         return 1
     if action == "select":
         try:
-            save_literals(config.source, {(("control",), "program"): _toml_string(args.program)})
+            save_literals(config.source, change)
         except ConfigError as exc:
             print(f"waterjet control: {exc}", file=sys.stderr)
             return 1

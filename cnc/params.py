@@ -187,6 +187,19 @@ def save(path: str | Path, changes: dict[tuple[tuple[str, ...], str], float]) ->
 def save_literals(path: str | Path, changes: dict[tuple[tuple[str, ...], str], str]) -> list[str]:
     """`save` with the TOML literals given (`'"pip"'`, `'120.0'`): the same edit, check and backup."""
     path = Path(path)
+    text, written = check_literals(path, changes)
+    tmp = path.with_name(f".{path.name}.new")
+    tmp.write_text(text, encoding="utf-8")
+    backup = path.with_name(path.name + ".bak")
+    backup.write_bytes(path.read_bytes())
+    os.replace(tmp, path)
+    return written
+
+
+def check_literals(path: str | Path, changes: dict[tuple[tuple[str, ...], str], str]) -> tuple[str, list[str]]:
+    """The machine file's text with the literals changed, and the keys written; ConfigError, naming
+    the key, for anything the edit would break. Writes nothing."""
+    path = Path(path)
     lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
     written = []
     for (table, key), literal in changes.items():
@@ -194,12 +207,7 @@ def save_literals(path: str | Path, changes: dict[tuple[tuple[str, ...], str], s
         written.append(".".join((*table, key)))
     text = "".join(lines)
     loads_machine(text, str(path))  # refuses, naming the key, anything the edit broke
-    tmp = path.with_name(f".{path.name}.new")
-    tmp.write_text(text, encoding="utf-8")
-    backup = path.with_name(path.name + ".bak")
-    backup.write_bytes(path.read_bytes())
-    os.replace(tmp, path)
-    return written
+    return text, written
 
 
 def _set_line(lines: list[str], table: str, key: str, literal: str) -> list[str]:

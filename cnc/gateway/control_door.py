@@ -16,7 +16,7 @@ from ..config import ConfigError, MachineConfig, load_machine
 from ..control.loader import SHIPPED, build
 from ..control.program import ControlProgramError
 from ..control.trial import run as run_trial
-from ..params import save_literals
+from ..params import check_literals, save_literals
 
 
 def program_list(config: MachineConfig) -> ControlProgramList:
@@ -56,9 +56,11 @@ def select(config: MachineConfig, name: str, planner_state: PlannerState) -> Rep
     if planner_state != PlannerState.IDLE:
         return Reply(False, f"control program: not while the planner is {planner_state.name}: select one while nothing "
                             "runs")
+    change = {(("control",), "program"): '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'}
     try:
         fresh = load_machine(config.source)
         program = build(fresh, name)
+        check_literals(config.source, change)  # the file as it would be (its parameters), before the plant
     except (ConfigError, ControlProgramError) as exc:
         return Reply(False, f"control program: {exc}")
     budget_ns = fresh.control.budget_share * fresh.timing.period_s * 1e9
@@ -67,7 +69,7 @@ def select(config: MachineConfig, name: str, planner_state: PlannerState) -> Rep
         return Reply(False, f"control program: {name} ({type(program).__name__}) {result.failure} (period "
                             f"{result.failed_at} of a circle on the simulated plant)")
     try:
-        save_literals(config.source, {(("control",), "program"): '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'})
+        save_literals(config.source, change)
     except ConfigError as exc:
         return Reply(False, f"control program: {exc}")
     s = result.summary()
