@@ -23,7 +23,7 @@ from .control.loader import SHIPPED, build
 from .control.pip import PIP
 from .control.program import ControlProgram, ControlProgramError
 from .control.trial import TRAJECTORIES, TrialResult, run as run_trial
-from .params import check_literals, save_literals
+from .params import check_literals, save_literals, toml_string
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     except ControlProgramError as exc:
         print(f"waterjet control: {exc}", file=sys.stderr)
         return 1
-    change = {(("control",), "program"): _toml_string(args.program)}
+    change = {(("control",), "program"): toml_string(args.program)}
     if action == "select":
         try:  # the machine file as it would be (its parameters for this program) before the plant
             check_literals(config.source, change)
@@ -117,7 +117,3 @@ def _check(config, program: ControlProgram, name: str, kind: str) -> TrialResult
         print(f"{label:34} {mine[key]:10.1f} {theirs[key]:10.1f} {mine[key] / max(theirs[key], 1e-9):7.3f}")
     print(f"{'budget (us)':34} {budget_ns / 1000:10.1f}")
     return result
-
-
-def _toml_string(text: str) -> str:
-    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'

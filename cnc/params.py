@@ -196,6 +196,11 @@ def save_literals(path: str | Path, changes: dict[tuple[tuple[str, ...], str], s
     return written
 
 
+def toml_string(text: str) -> str:
+    """`text` as a TOML basic string literal, for `save_literals` and `check_literals`."""
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+
+
 def check_literals(path: str | Path, changes: dict[tuple[tuple[str, ...], str], str]) -> tuple[str, list[str]]:
     """The machine file's text with the literals changed, and the keys written; ConfigError, naming
     the key, for anything the edit would break. Writes nothing."""

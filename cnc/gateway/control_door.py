@@ -16,7 +16,7 @@ from ..config import ConfigError, MachineConfig, load_machine
 from ..control.loader import SHIPPED, build
 from ..control.program import ControlProgramError
 from ..control.trial import run as run_trial
-from ..params import check_literals, save_literals
+from ..params import check_literals, save_literals, toml_string
 
 
 def program_list(config: MachineConfig) -> ControlProgramList:
@@ -56,7 +56,7 @@ def select(config: MachineConfig, name: str, planner_state: PlannerState) -> Rep
     if planner_state != PlannerState.IDLE:
         return Reply(False, f"control program: not while the planner is {planner_state.name}: select one while nothing "
                             "runs")
-    change = {(("control",), "program"): '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'}
+    change = {(("control",), "program"): toml_string(name)}
     try:
         fresh = load_machine(config.source)
         program = build(fresh, name)
