@@ -181,3 +181,34 @@ def test_seeded_random_zones_keep_every_cap_and_plateau_and_end_at_rest(seed):
     assert plateaus_ok(p)
     k = np.clip(np.searchsorted(z.edges, p.s0 + 1e-9, side="right") - 1, 0, 39)
     assert (np.abs(p.a) <= z.accel[k] + 1e-9).all(), "each piece within its zone's acceleration"
+
+
+def _same(a, b) -> bool:
+    """The same numbers, bit for bit (NaN equal to NaN)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_a_few_zones_worked_in_plain_floats_give_the_array_path_s_speeds_and_pieces_bit_for_bit(seed):
+    """Sections of one element (rapids, lead-ins, lead-outs: most of a CAM nest) have a zone or
+    a few; their junction speeds and pieces are worked out number by number. The timing and
+    the run must not move by a rounding: the same doubles as the array path, in every case the
+    planner meets (caps at 0 and infinite, starts and ends at speed, zones of a hair)."""
+    from cnc.planner.profile import (
+        SMALL_ZONES, _junction_speeds, _junction_speeds_arrays, _zone_pieces, _zone_pieces_arrays,
+    )
+
+    rng = random.Random(seed)
+    for _ in range(50):
+        n = rng.randint(1, SMALL_ZONES)
+        lengths = [rng.choice([1e-10, 1e-6, rng.uniform(0.01, 3.0), rng.uniform(5.0, 900.0)]) for _ in range(n)]
+        edges = np.cumsum([rng.uniform(0.0, 1000.0)] + lengths)
+        caps = np.array([rng.choice([0.0, 1e-7, rng.uniform(1.0, 80.0), rng.uniform(100.0, 500.0), np.inf])
+                         for _ in range(n)])
+        accel = np.array([rng.choice([A, rng.uniform(5.0, 5000.0)]) for _ in range(n)])
+        v_start, v_end = rng.choice([0.0, rng.uniform(0.0, 600.0)]), rng.choice([0.0, rng.uniform(0.0, 100.0)])
+        w = _junction_speeds(edges, caps, accel, v_start, v_end)
+        assert _same(w, _junction_speeds_arrays(edges, caps, accel, v_start, v_end))
+        few = _zone_pieces(edges, caps, accel, w)
+        assert all(_same(x, y) for x, y in zip(few, _zone_pieces_arrays(edges, caps, accel, w)))

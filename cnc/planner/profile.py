@@ -23,6 +23,7 @@ at an override of 0) ends the plan at rest: what lies beyond it is not reached.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -179,8 +180,8 @@ def _room_to_cruise(zones: Zones, s_from: float, s_to: float, v: float, v_end: f
     e = zones.edges
     if s_to > e[-1] + EPS_MM:
         return False
-    lo = int(np.clip(np.searchsorted(e, s_from, side="right") - 1, 0, len(zones.hard) - 1))
-    k = int(np.clip(np.searchsorted(e, s_to, side="right") - 1, 0, len(zones.hard) - 1))
+    lo = min(max(int(np.searchsorted(e, s_from, side="right") - 1), 0), len(zones.hard) - 1)
+    k = min(max(int(np.searchsorted(e, s_to, side="right") - 1), 0), len(zones.hard) - 1)
     if (zones.hard[lo:k + 1] < v - EPS_V).any():
         return False
     edges = np.concatenate(([s_to], e[k + 1:]))
@@ -249,6 +250,16 @@ def _junction_speeds(edges: np.ndarray, caps: np.ndarray, accel: np.ndarray, v_s
     whose solution is u[n] = S[n] + min over j <= n of (C[j] - S[j]), S the running sum of
     2 A L: a cumulative minimum, so both passes are a few array operations.
     """
+    if len(caps) <= SMALL_ZONES:
+        few = _few_junction_speeds(edges.tolist(), caps.tolist(), accel.tolist(), float(v_start), float(v_end))
+        if few is not None:
+            return few
+    return _junction_speeds_arrays(edges, caps, accel, v_start, v_end)
+
+
+def _junction_speeds_arrays(edges: np.ndarray, caps: np.ndarray, accel: np.ndarray, v_start: float,
+                            v_end: float) -> np.ndarray:
+    """`_junction_speeds` on arrays, for any number of zones."""
     length = np.diff(edges)
     d = 2.0 * accel * length
     cumulative = np.concatenate(([0.0], np.cumsum(d)))
@@ -269,8 +280,53 @@ def _junction_speeds(edges: np.ndarray, caps: np.ndarray, accel: np.ndarray, v_s
     return w
 
 
+SMALL_ZONES = 12  # up to this many zones, junction speeds and pieces are worked out number by number
+
+
+def _few_junction_speeds(edges: list, caps: list, accel: list, v_start: float, v_end: float) -> np.ndarray | None:
+    """`_junction_speeds` for a few zones in plain floats: the same sums (np.cumsum adds in order) and
+    minima in the same order, so the same speeds; None where a value is not a finite number
+    (NaN and infinite sums: the array path decides those)."""
+    values = (*edges, *accel, v_start, v_end)
+    if not all(math.isfinite(x) for x in values) or any(c != c for c in caps):
+        return None
+    n = len(caps)
+    cumulative, total = [0.0], 0.0
+    for k in range(n):
+        total += 2.0 * accel[k] * (edges[k + 1] - edges[k])
+        cumulative.append(total)
+    cap_at = [caps[0]] + [min(caps[k - 1], caps[k]) for k in range(1, n)] + [caps[-1]]
+    limit = [c * c for c in cap_at]
+    limit[0] = v_start * v_start
+    forward, low = [], math.inf
+    for lim, cum in zip(limit, cumulative):
+        low = min(low, lim - cum)
+        forward.append(cum + low)
+    limit[-1] = min(limit[-1], v_end * v_end)
+    limit[0] = math.inf
+    backward, low = [0.0] * (n + 1), math.inf
+    for k in range(n, -1, -1):
+        low = min(low, limit[k] + cumulative[k])
+        backward[k] = low - cumulative[k]
+    u = [min(f, b) for f, b in zip(forward, backward)]
+    if backward[0] < v_start * v_start * (1.0 - 2e-6) - 1e-12:
+        u = [max(x, v_start * v_start - cum) for x, cum in zip(u, cumulative)]
+    w = [math.sqrt(max(x, 0.0)) for x in u]
+    w[0] = v_start
+    return np.array(w)
+
+
 def _zone_pieces(edges, caps, accel, w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Accelerate / cruise / decelerate pieces of every zone, as (s0, v0, a, duration), all zones at once."""
+    if len(caps) <= SMALL_ZONES:
+        few = _few_zone_pieces(edges.tolist(), caps.tolist(), accel.tolist(), w.tolist())
+        if few is not None:
+            return few
+    return _zone_pieces_arrays(edges, caps, accel, w)
+
+
+def _zone_pieces_arrays(edges, caps, accel, w) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_zone_pieces` on arrays, for any number of zones."""
     x0, length = edges[:-1], np.diff(edges)
     wa, wb = w[:-1], w[1:]
     peak = np.sqrt((wa * wa + wb * wb + 2.0 * accel * length) / 2.0)
@@ -289,12 +345,54 @@ def _zone_pieces(edges, caps, accel, w) -> tuple[np.ndarray, np.ndarray, np.ndar
     s_flat = x0 + np.where(up, d_up, 0.0)
     s_down = s_flat + np.where(flat, d_flat, 0.0)
     safe_top = np.where(top > 0.0, top, 1.0)
-    s0 = np.stack((x0, s_flat, s_down), axis=1)
-    v0 = np.stack((wa, top, top), axis=1)
-    a = np.stack((accel, np.zeros_like(accel), -accel), axis=1)
-    dur = np.stack(((top - wa) / accel, d_flat / safe_top, (top - wb) / accel), axis=1)
-    keep = np.stack((up, flat, down), axis=1).ravel()
+    # each zone's three pieces side by side, in time order (columns filled: `np.stack` costs more
+    # than the arithmetic on a section's few zones)
+    n = len(x0)
+    s0, v0, a, dur = np.empty((n, 3)), np.empty((n, 3)), np.zeros((n, 3)), np.empty((n, 3))
+    keep = np.empty((n, 3), dtype=bool)
+    s0[:, 0], s0[:, 1], s0[:, 2] = x0, s_flat, s_down
+    v0[:, 0], v0[:, 1], v0[:, 2] = wa, top, top
+    a[:, 0], a[:, 2] = accel, -accel
+    dur[:, 0], dur[:, 1], dur[:, 2] = (top - wa) / accel, d_flat / safe_top, (top - wb) / accel
+    keep[:, 0], keep[:, 1], keep[:, 2] = up, flat, down
+    keep = keep.ravel()
     return s0.ravel()[keep], v0.ravel()[keep], a.ravel()[keep], dur.ravel()[keep]
+
+
+def _few_zone_pieces(edges: list, caps: list, accel: list, w: list):  # noqa: ANN202 - as `_zone_pieces`
+    """`_zone_pieces` for a few zones (a section of one element has one), in plain floats: the same
+    operations in the same order on the same IEEE doubles, so the same numbers, without the cost of
+    forty array operations on arrays of one. None where a value is not a number (NaN orders
+    differently in `min` and `np.minimum`): the array path decides those."""
+    s0, v0, acc, dur = [], [], [], []
+    for k, (x0, cap, a) in enumerate(zip(edges, caps, accel)):
+        length = edges[k + 1] - x0
+        wa, wb = w[k], w[k + 1]
+        if cap != cap or a != a or length != length or wa != wa or wb != wb:
+            return None
+        square = (wa * wa + wb * wb + 2.0 * a * length) / 2.0
+        if square < 0.0:
+            return None
+        peak = math.sqrt(square)
+        top = max(min(cap, peak), max(wa, wb))
+        d_up = max((top * top - wa * wa) / (2.0 * a), 0.0)
+        d_down = max((top * top - wb * wb) / (2.0 * a), 0.0)
+        d_flat = length - d_up - d_down
+        if d_flat < 0.0:  # rounding: share the shortfall
+            d_up, d_down, d_flat = d_up + d_flat / 2.0, d_down + d_flat / 2.0, 0.0
+        real = length > EPS_MM
+        up = real and d_up > EPS_MM and top > wa + EPS_V
+        flat = real and d_flat > EPS_MM and top > STILL_MM_S
+        down = real and d_down > EPS_MM and top > wb + EPS_V
+        s_flat = x0 + (d_up if up else 0.0)
+        s_down = s_flat + (d_flat if flat else 0.0)
+        if up:
+            s0.append(x0), v0.append(wa), acc.append(a), dur.append((top - wa) / a)
+        if flat:
+            s0.append(s_flat), v0.append(top), acc.append(0.0), dur.append(d_flat / (top if top > 0.0 else 1.0))
+        if down:
+            s0.append(s_down), v0.append(top), acc.append(-a), dur.append((top - wb) / a)
+    return np.array(s0, dtype=float), np.array(v0, dtype=float), np.array(acc, dtype=float), np.array(dur, dtype=float)
 
 
 def _turns(pieces):
@@ -323,7 +421,7 @@ def _peak_cap(pieces, last_rise: int, first_fall: int, want_s: float) -> tuple[f
     rise and fall below it stay as they are and the cap is the highest speed v at which
     (where the fall reaches v - where the rise reaches v) / v >= want_s (found by bisection),
     or the bump is flattened away when no such speed is above where it rose from."""
-    s0, v0, a, dur = pieces
+    s0, v0, a, dur = (x.tolist() for x in pieces)  # plain floats: the bisection reads them number by number
     rise = range(last_rise, -1, -1)
     fall = range(first_fall, len(a))
 
@@ -393,6 +491,6 @@ def _with_caps(zones: Zones, hard: np.ndarray, soft: np.ndarray, caps: list[tupl
 def _clip_zones(zones: Zones, s_from: float) -> Zones:
     """The zones from s_from on (the one containing it cut there)."""
     edges = zones.edges
-    k = int(np.clip(np.searchsorted(edges, s_from, side="right") - 1, 0, len(zones.hard) - 1))
+    k = min(max(int(np.searchsorted(edges, s_from, side="right") - 1), 0), len(zones.hard) - 1)
     new_edges = np.concatenate(([min(s_from, edges[-1])], edges[k + 1:]))
     return Zones(new_edges, zones.hard[k:].copy(), zones.soft[k:].copy(), zones.accel[k:].copy())

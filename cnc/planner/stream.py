@@ -71,12 +71,26 @@ class SectionStream:
         self.pieces = Pieces.empty()
         self.final = False  # the committed pieces reach the end of the section
         self.k = 0  # samples made so far; sample k is at time k * dt
-        self.ma_path = MovingAverage(sm.n_path, 0.0)
-        start = path.points(np.zeros(1))[0]
-        self.ma_axis = MovingAverage(sm.n_axis, start)
+        self.n_path, self.n_axis = sm.n_path, sm.n_axis
+        self._ma_path: MovingAverage | None = None  # made at the first sample (`planned_samples` needs none)
+        self._ma_axis: MovingAverage | None = None
         self.centre_lag = (sm.n_axis - 1) // 2
         self.s_recent = np.zeros(self.centre_lag)
         self.k_end: int | None = None
+
+    @property
+    def ma_path(self) -> MovingAverage:
+        """The average over the arc length, from rest at the section's start."""
+        if self._ma_path is None:
+            self._ma_path = MovingAverage(self.n_path, 0.0)
+        return self._ma_path
+
+    @property
+    def ma_axis(self) -> MovingAverage:
+        """The average over the axis positions, from rest at the section's start."""
+        if self._ma_axis is None:
+            self._ma_axis = MovingAverage(self.n_axis, self.section.path.points(np.zeros(1))[0])
+        return self._ma_axis
 
     # -- what the outside asks --------------------------------------------------------------
     @property
@@ -226,7 +240,7 @@ class SectionStream:
     def _settled_k(self) -> int:
         """The sample by which motion that ends with the committed pieces has settled: both averages
         caught up, and `REST_SAMPLES` samples at rest made after."""
-        return int(math.ceil(self.pieces.t_end / self.dt - 1e-9)) + self.ma_path.n + self.ma_axis.n - 2 + REST_SAMPLES
+        return int(math.ceil(self.pieces.t_end / self.dt - 1e-9)) + self.n_path + self.n_axis - 2 + REST_SAMPLES
 
     def _replan(self) -> None:
         """Drop what is committed after the last sample made and plan again from there."""
@@ -249,7 +263,7 @@ class SectionStream:
     def _history_at(self, t: float) -> tuple[float, float]:
         """Like `_history`, but the piece running at t counts as under way."""
         p = self.pieces
-        k = int(np.clip(np.searchsorted(p.t0, t, side="right") - 1, 0, len(p) - 1))
+        k = min(max(int(np.searchsorted(p.t0, t, side="right") - 1), 0), len(p) - 1)
         if p.a[k] != 0.0 and p.t0[k] < t < p.t0[k] + p.duration[k]:
             return float(p.a[k]), 0.0
         return self._history(t)
@@ -272,8 +286,8 @@ class SectionStream:
 def _slice(zones: Zones, lo: float, hi: float) -> Zones:
     """The zones over [lo, hi] (the first and last cut there)."""
     e = zones.edges
-    i0 = int(np.clip(np.searchsorted(e, lo, side="right") - 1, 0, len(zones.hard) - 1))
-    i1 = int(np.clip(np.searchsorted(e, hi, side="left"), i0 + 1, len(zones.hard)))
+    i0 = min(max(int(np.searchsorted(e, lo, side="right") - 1), 0), len(zones.hard) - 1)
+    i1 = min(max(int(np.searchsorted(e, hi, side="left")), i0 + 1), len(zones.hard))
     edges = e[i0:i1 + 1].copy()
     edges[0], edges[-1] = lo, hi
     return Zones(edges, zones.hard[i0:i1], zones.soft[i0:i1], zones.accel[i0:i1])
