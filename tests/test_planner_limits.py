@@ -104,3 +104,33 @@ def test_a_slow_section_accelerates_at_what_its_top_speed_needs_and_its_arcs_kee
     lim = limits_of(arc, config=cfg)
     assert lim.v_hard[1] <= 20.0
     assert lim.accel[1] >= 0.5 * lim.smoothing.accel_cap
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_a_section_of_one_element_gets_the_zone_the_envelope_would_give_it(seed):
+    """Most sections of a CAM nest are one element (a rapid, a lead-in, a lead-out): their zone is
+    made directly, and must be the general envelope's, number for number, under every control."""
+    import random
+
+    from cnc.planner.limits import _enveloped_zones, section_zones
+
+    rng = random.Random(seed)
+    config = machine_config()
+    for _ in range(40):
+        x, y = rng.uniform(0, 1000), rng.uniform(0, 1000)
+        kind = rng.choice(["line", "rapid", "arc"])
+        if kind == "arc":
+            r = rng.uniform(0.5, 50.0)
+            e = element(ARC, (x + r, y, 0.0), (x, y + r, 0.0), (x, y), cw=False, feed=rng.uniform(1.0, 200.0))
+        else:
+            end = (x + rng.uniform(-300, 300), y + rng.uniform(-300, 300), 0.0)
+            e = element(LINE, (x, y, 0.0), end, feed=math.inf if kind == "rapid" else rng.uniform(1.0, 200.0))
+        path = PathArrays.of([e])
+        lim = section_limits(path, np.array([e.feed_mm_s]), np.array([kind == "rapid"]), 0.05, False, config)
+        total = path.total_mm
+        lo = rng.choice([0.0, rng.uniform(0.0, total / 2)])
+        hi = rng.choice([total, rng.uniform(lo + 1e-6, total)])
+        controls = (rng.random() < 0.2, rng.choice([0.0, 0.5, 1.0, 2.0]), rng.choice([0.0, 0.25, 1.0]))
+        got, want = section_zones(path, lim, lo, hi, *controls), _enveloped_zones(path, lim, lo, hi, *controls)
+        for field in ("edges", "hard", "soft", "accel"):
+            assert np.asarray(getattr(got, field)).tobytes() == np.asarray(getattr(want, field)).tobytes(), (field, kind, controls)

@@ -55,12 +55,17 @@ class PathArrays:
     @classmethod
     def of(cls, elements: list[Element]) -> "PathArrays":
         n = len(elements)
-        start = np.array([e.start for e in elements], dtype=float).reshape(n, 3)
-        end = np.array([e.end for e in elements], dtype=float).reshape(n, 3)
-        arc = np.array([e.kind == ARC for e in elements], dtype=bool)
-        center = np.array([e.center if e.kind == ARC else (0.0, 0.0) for e in elements], dtype=float).reshape(n, 2)
-        sweep = np.array([e.sweep_rad if e.kind == ARC else 0.0 for e in elements], dtype=float)
-        length = np.array([e.length_mm for e in elements], dtype=float)
+        # one row of numbers per element, converted at once (a section is made from a few elements,
+        # where each conversion of its own would cost more than the numbers)
+        rows = np.array([
+            (*e.start, *e.end, *(e.center if e.kind == ARC else (0.0, 0.0)), e.sweep_rad if e.kind == ARC else 0.0,
+             e.length_mm, *e.direction_at_start(), *e.direction_at_end(), e.kind == ARC)
+            for e in elements
+        ], dtype=float).reshape(n, 15)
+        start, end, center = rows[:, 0:3], rows[:, 3:6], rows[:, 6:8]
+        sweep, length = rows[:, 8], rows[:, 9]
+        tangent_in, tangent_out = rows[:, 10:12], rows[:, 12:14]
+        arc = rows[:, 14] != 0.0
         radius = np.where(arc, np.hypot(start[:, 0] - center[:, 0], start[:, 1] - center[:, 1]), 0.0)
         radius_end = np.where(arc, np.hypot(end[:, 0] - center[:, 0], end[:, 1] - center[:, 1]), 0.0)
         angle0 = np.where(arc, np.arctan2(start[:, 1] - center[:, 1], start[:, 0] - center[:, 0]), 0.0)
@@ -70,8 +75,6 @@ class PathArrays:
         with np.errstate(divide="ignore", invalid="ignore"):
             curvature = np.where(arc, np.sign(sweep) / np.where(radius > 0, radius, 1.0), 0.0)
         s0 = np.concatenate(([0.0], np.cumsum(length)))
-        tangent_in = np.array([e.direction_at_start() for e in elements], dtype=float).reshape(n, 2)
-        tangent_out = np.array([e.direction_at_end() for e in elements], dtype=float).reshape(n, 2)
         return cls(arc, start, end, center, radius, radius_end, angle0, sweep, length, s0, direction, curvature, tangent_in, tangent_out)
 
     def index_at(self, s: np.ndarray) -> np.ndarray:

@@ -41,7 +41,7 @@ T_ext before and after it (`envelope`), because the averages mix samples that fa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -131,17 +131,35 @@ def smoothing_for(
     return Smoothing(dt, n_path, n_axis, accel_cap, accel_cap / (n_path * dt), deviation if n_axis > 1 else 0.0, share)
 
 
+@dataclass
+class PathCaps:
+    """What a section's limits take from its path alone, whatever share of the jerk its curves get:
+    made once and shared by the shares a section tries (`sections._fastest_limits`)."""
+
+    kinks: np.ndarray  # turn at each junction, rad
+    kink: np.ndarray  # bool: a kink the motion passes at speed
+    v_axis: np.ndarray  # speed the axes allow on each element
+    a_axis: np.ndarray  # acceleration the axes allow on each element
+    curves: dict = field(default_factory=dict)  # the curvature window's sums, per reach (`_curvature_caps`)
+
+
+def path_caps(path: PathArrays, config: MachineConfig) -> PathCaps:
+    kinks = path.kink_angles()
+    v_axis, a_axis = _axis_caps(path, config, _axis_min(config, "max_accel_mm_s2"))
+    return PathCaps(kinks, (kinks > COLLINEAR_RAD) & (kinks <= KINK_MAX_RAD), v_axis, a_axis)
+
+
 def section_limits(
     path: PathArrays, feed_mm_s: np.ndarray, rapid: np.ndarray, tolerance_mm: float, blended: bool, config: MachineConfig,
-    geometry_share: float = GEOMETRY_JERK_SHARE,
+    geometry_share: float = GEOMETRY_JERK_SHARE, caps: PathCaps | None = None,
 ) -> SectionLimits:
-    """Caps for every element and junction of one section."""
+    """Caps for every element and junction of one section (`caps`: its path's, when made already)."""
     n = len(path)
-    kinks = path.kink_angles()
-    kink = (kinks > COLLINEAR_RAD) & (kinks <= KINK_MAX_RAD)
+    caps = caps or path_caps(path, config)
+    kinks, kink = caps.kinks, caps.kink
     curved = path.arc
     j_min, a_min = _axis_min(config, "max_jerk_mm_s3"), _axis_min(config, "max_accel_mm_s2")
-    v_axis, a_axis = _axis_caps(path, config, a_min)
+    v_axis, a_axis = caps.v_axis, caps.a_axis
     v_feed = np.where(rapid, np.inf, feed_mm_s)
     # the fastest it may run at any override (feeds up to 200 %, rapids up to 100 %)
     v_top = float(np.minimum(v_axis, np.where(rapid, np.inf, 2.0 * v_feed)).max()) if n else math.inf
@@ -153,7 +171,8 @@ def section_limits(
     v_hard, accel = v_axis.copy(), a_axis.copy()
     if curved.any():
         v_curve, a_curve = _curvature_caps(path, kinks * kink, sm, v_upper, j_geometry * (1.0 - share_kink),
-                                           sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min, v_top)
+                                           sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min, v_top,
+                                           caps.curves)
         v_hard = np.minimum(v_hard, v_curve)
         accel = np.where(curved, np.minimum(accel, a_curve), accel)
     v_kink = np.full(max(n - 1, 0), np.inf)
@@ -197,7 +216,7 @@ def _reach(path: PathArrays, reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
 
 def _curvature_caps(
     path: PathArrays, kink_angles: np.ndarray, sm: Smoothing, v_upper: float, j_curv: float, deviation_mm: float,
-    a_normal_max: float, v_top: float = math.inf,
+    a_normal_max: float, v_top: float = math.inf, memo: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Speed and tangential acceleration of each curved element that keep its turning within the
     jerk, acceleration and deviation budgets.
@@ -210,14 +229,19 @@ def _curvature_caps(
     """
     kappa = np.abs(path.curvature)
     reach = v_upper * (sm.n_axis + 2) * sm.dt
-    lo, hi = _reach(path, reach)
-    k_max = _range_max(kappa, lo, hi)
-    # curvature steps at the junctions (n - 1), plus the turn of the normal at a kink
-    steps = np.abs(np.diff(path.curvature)) + np.maximum(kappa[:-1], kappa[1:]) * kink_angles
-    cum = np.concatenate(([0.0], np.cumsum(steps)))
-    # junction b lies between elements b and b+1: within reach of element e when lo <= b < hi
-    step_sum = cum[hi] - cum[lo]
-    variation = np.minimum(step_sum + k_max * k_max * reach, 2.0 * k_max)
+    window = memo.get(reach) if memo is not None else None  # the same path and reach: the same sums
+    if window is None:
+        lo, hi = _reach(path, reach)
+        k_max = _range_max(kappa, lo, hi)
+        # curvature steps at the junctions (n - 1), plus the turn of the normal at a kink
+        steps = np.abs(np.diff(path.curvature)) + np.maximum(kappa[:-1], kappa[1:]) * kink_angles
+        cum = np.concatenate(([0.0], np.cumsum(steps)))
+        # junction b lies between elements b and b+1: within reach of element e when lo <= b < hi
+        step_sum = cum[hi] - cum[lo]
+        window = k_max, np.minimum(step_sum + k_max * k_max * reach, 2.0 * k_max)
+        if memo is not None:
+            memo[reach] = window
+    k_max, variation = window
     t_w = sm.n_axis * sm.dt
     budget = j_curv * t_w
     a_dev = 24.0 * deviation_mm / ((sm.n_axis**2 - 1) * sm.dt**2) if sm.n_axis > 1 else np.inf
@@ -296,6 +320,15 @@ def section_zones(
 ) -> Zones:
     """Caps and accelerations over [lo, hi] of a section under these controls, each widened to
     where the averages could mix it in (by its own speed times `Smoothing.extension_s`)."""
+    if len(path) == 1 and 0.0 <= lo < hi <= path.total_mm:
+        return _one_zone(lim, lo, hi, holding, override, rapid_override)
+    return _enveloped_zones(path, lim, lo, hi, holding, override, rapid_override)
+
+
+def _enveloped_zones(
+    path: PathArrays, lim: SectionLimits, lo: float, hi: float, holding: bool, override: float, rapid_override: float,
+) -> Zones:
+    """`section_zones` for any section: each cap the lower envelope of the elements' caps widened."""
     reach = lim.smoothing.extension_s
     widen_mm = lim.v_max_any * reach
     s0_all, s1_all = path.s0[:-1], path.s0[1:]
@@ -321,3 +354,18 @@ def section_zones(
     mid = (edges[:-1] + edges[1:]) / 2.0
     pick = lambda e, v: v[np.clip(np.searchsorted(e, mid, side="right") - 1, 0, len(v) - 1)]  # noqa: E731
     return Zones(edges, pick(e_hard, v_hard), pick(e_soft, v_soft), pick(e_acc, v_acc))
+
+
+def _one_zone(lim: SectionLimits, lo: float, hi: float, holding: bool, override: float, rapid_override: float) -> Zones:
+    """`section_zones` of a section of one element (a rapid, a lead-in, a lead-out: most sections of
+    a CAM nest) over [lo, hi] inside it: one zone of its own caps, with nothing to widen against.
+    The same values as the general path (the same operations on them), without its dozens of
+    array operations."""
+    hard = float(lim.v_hard[0])
+    if holding:
+        soft = 0.0
+    elif lim.rapid[0]:
+        soft = hard * rapid_override
+    else:
+        soft = float(lim.v_feed[0]) * override
+    return Zones(np.array([lo, hi]), np.array([hard]), np.array([soft]), np.array([float(lim.accel[0])]))

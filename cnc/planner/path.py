@@ -132,9 +132,12 @@ def iter_elements(segments: np.ndarray, first: int = 0) -> Iterator[Element]:
                 yield e
 
 
-def blend_corners(elements: list[Element], stop_before: frozenset[int] = frozenset()) -> list[Element]:
+def blend_corners(elements: list[Element], stop_before: frozenset[int] = frozenset(), memo: dict | None = None) -> list[Element]:
     """Replace each blendable corner (two straight moves, or a kink at an arc) by a tangent arc within its tolerance,
-    except the corners into the elements of the segments in `stop_before` (exact stops there)."""
+    except the corners into the elements of the segments in `stop_before` (exact stops there). `memo`: each
+    corner's blend by its index, kept between calls on the same elements (the planner blends a run
+    again with some corners stopped at; the others' blends are the same)."""
+    memo = {} if memo is None else memo
     if len(elements) < 2:
         return list(elements)
     cut_start = [0.0] * len(elements)  # how much each line loses at its start / end to blends
@@ -147,7 +150,7 @@ def blend_corners(elements: list[Element], stop_before: frozenset[int] = frozens
         if b.segment in stop_before:
             continue
         if a.kind == ARC or b.kind == ARC:  # a kink where an arc meets a line or another arc
-            fillet = _fillet(a, b)
+            fillet = memo[i] if i in memo else memo.setdefault(i, _fillet(a, b))
             if fillet is None:
                 continue
             p0, p1, center, left = fillet
@@ -162,7 +165,7 @@ def blend_corners(elements: list[Element], stop_before: frozenset[int] = frozens
                 segment=b.segment, line=b.line, blend=True,
             )
             continue
-        radius, phi = _blend_radius(a, b)
+        radius, phi = memo[i] if i in memo else memo.setdefault(i, _blend_radius(a, b))
         if radius <= 0.0:
             continue
         t = radius * math.tan(phi / 2.0)

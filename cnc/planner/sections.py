@@ -24,7 +24,8 @@ from ..config import MachineConfig
 from ..data.fifo import SetpointFlag
 from .geometry import PathArrays
 from .limits import (
-    GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, section_limits, section_zones, smoothing_for,
+    GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, path_caps, section_limits, section_zones,
+    smoothing_for,
 )
 from .profile import Zones, rough_duration_s
 from .path import Element, blend_corners, blends, iter_elements
@@ -222,10 +223,11 @@ def _flags(e: Element) -> int:
 def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes: dict, cut=None) -> list[Section]:  # noqa: ANN001
     """Sections of a run of elements between hard stops, each corner blended or stopped at,
     whichever is faster."""
-    first = _split(blend_corners(run), config, offset, notes, choose_jerk=False, cut=cut)
+    corners: dict = {}  # each corner's blend, made once for both passes
+    first = _split(blend_corners(run, memo=corners), config, offset, notes, choose_jerk=False, cut=cut)
     stops = _corners_to_stop(first, config)
     if stops:
-        return _split(blend_corners(run, frozenset(stops)), config, offset, notes, cut=cut)
+        return _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut)
     for section in first:  # the same path and sections: only the share of jerk is still to choose
         section.limits = _fastest_limits(
             section.path, section.limits.v_feed, section.limits.rapid, min(e.tolerance_mm for e in section.elements),
@@ -287,11 +289,13 @@ def _fastest_limits(
     if known is not None and known.smoothing.geometry_share == 0.0:
         return known  # straight: no share to choose
     best, best_s = None, math.inf
+    caps = None
     for share in GEOMETRY_JERK_SHARES if choose else (GEOMETRY_JERK_SHARE,):
         if known is not None and share == GEOMETRY_JERK_SHARE:
             lim = known
         else:
-            lim = section_limits(path, feed, rapid, tolerance, blended, config, share)
+            caps = caps or path_caps(path, config)
+            lim = section_limits(path, feed, rapid, tolerance, blended, config, share, caps)
         if not choose or lim.smoothing.geometry_share == 0.0:  # straight: no share to choose
             return lim
         sm = lim.smoothing
