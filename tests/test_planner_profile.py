@@ -212,3 +212,24 @@ def test_a_few_zones_worked_in_plain_floats_give_the_array_path_s_speeds_and_pie
         assert _same(w, _junction_speeds_arrays(edges, caps, accel, v_start, v_end))
         few = _zone_pieces(edges, caps, accel, w)
         assert all(_same(x, y) for x, y in zip(few, _zone_pieces_arrays(edges, caps, accel, w)))
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_short_peaks_and_valleys_of_a_few_pieces_are_the_array_path_s_caps(seed, monkeypatch):
+    """The plateau rule's caps, found number by number for a few pieces, are the array path's."""
+    import cnc.planner.profile as profile
+
+    rng = random.Random(seed)
+    cases = []
+    for _ in range(60):
+        n = rng.randint(1, profile.SMALL_ZONES)
+        edges = np.cumsum([0.0] + [rng.choice([rng.uniform(0.01, 3.0), rng.uniform(5.0, 90.0)]) for _ in range(n)])
+        caps = np.array([rng.choice([rng.uniform(1.0, 80.0), rng.uniform(100.0, 500.0)]) for _ in range(n)])
+        accel = np.array([rng.choice([A, rng.uniform(500.0, 5000.0)]) for _ in range(n)])
+        w = profile._junction_speeds(edges, caps, accel, rng.choice([0.0, 50.0]), 0.0)
+        cases.append((profile._zone_pieces(edges, caps, accel, w), rng.choice([PLATEAU, 0.002, 0.05])))
+    few = [(profile._short_peaks(p, t), profile._short_valleys(p, t)) for p, t in cases]
+    monkeypatch.setattr(profile, "SMALL_PIECES", 0)
+    arrays = [(profile._short_peaks(p, t), profile._short_valleys(p, t)) for p, t in cases]
+    assert few == arrays
+    assert any(peaks or valleys for peaks, valleys in few), "the cases include peaks and valleys to fix"

@@ -224,8 +224,10 @@ def braking_distance(v: float, accel: float, plateau_s: float) -> float:
 def _soft_after_braking(zones: Zones, v_start: float) -> Zones:
     """The zones with soft caps lifted where braking as hard as allowed from v_start has not yet
     got under them (the zone where it does is split there)."""
-    edges, hard, soft, accel = zones.edges.copy(), zones.hard.copy(), zones.soft.copy(), zones.accel.copy()
     v2 = v_start * v_start
+    if not len(zones.soft) or v2 <= zones.soft[0] * zones.soft[0] + EPS_V:
+        return zones  # under the first soft cap already (a start from rest): nothing to lift
+    edges, hard, soft, accel = zones.edges.copy(), zones.hard.copy(), zones.soft.copy(), zones.accel.copy()
     for k in range(len(soft)):
         if v2 <= soft[k] * soft[k] + EPS_V:
             break
@@ -407,9 +409,40 @@ def _turns(pieces):
     return i, j, cruise[j] - cruise[i + 1]
 
 
+SMALL_PIECES = 3 * SMALL_ZONES  # up to this many pieces, their turns are found number by number
+
+
+def _few_turns(pieces, plateau_s: float) -> tuple[list, list]:
+    """`_short_peaks` and `_short_valleys` of a few pieces in plain floats (the same sums and tests in
+    the same order: the same caps)."""
+    s0, v0, a, dur = (x.tolist() for x in pieces)
+    short = plateau_s * (1.0 - PLATEAU_SLACK)
+    peaks, valleys = [], []
+    last, flat_s = -1, 0.0  # the last piece that accelerated, and the cruise since it
+    cruise = 0.0  # cumulative cruise time, as `_turns` sums it
+    since = 0.0  # the cumulative cruise after the last accelerating piece
+    for k, acc in enumerate(a):
+        if acc == 0.0:
+            cruise += dur[k]
+            continue
+        if last >= 0:
+            flat_s = cruise - since
+            if a[last] > 0.0 and acc < 0.0 and flat_s < short:
+                peaks.append((last, k))
+            if a[last] < 0.0 and acc > 0.0 and flat_s < short and v0[k] > EPS_V:
+                valleys.append((s0[k], s0[k] + v0[k] * (plateau_s * (1.0 + PLATEAU_AIM) - flat_s), v0[k]))
+        last = k
+        cruise += 0.0
+        since = cruise
+    return peaks, valleys
+
+
 def _short_peaks(pieces, plateau_s: float) -> list[tuple[float, float, float]]:
     """Every speed-up straight into a slow-down without `plateau_s` of cruise between them,
     each as a cap (from_mm, to_mm, speed) that gives it one."""
+    if len(pieces[0]) <= SMALL_PIECES:
+        peaks, _ = _few_turns(pieces, plateau_s)
+        return [_peak_cap(pieces, p, q, plateau_s * (1.0 + PLATEAU_AIM)) for p, q in peaks]
     s0, v0, a, dur = pieces
     i, j, flat_s = _turns(pieces)
     hit = (a[i] > 0.0) & (a[j] < 0.0) & (flat_s < plateau_s * (1.0 - PLATEAU_SLACK))
@@ -464,6 +497,8 @@ def _short_valleys(pieces, plateau_s: float) -> list[tuple[float, float, float]]
     """Every slow-down straight into a speed-up without `plateau_s` of cruise between them,
     each as a cap (from_mm, to_mm, speed) that holds the low speed long enough (a stop in
     the middle is left to the averages: they handle a rest)."""
+    if len(pieces[0]) <= SMALL_PIECES:
+        return _few_turns(pieces, plateau_s)[1]
     s0, v0, a, dur = pieces
     i, j, flat_s = _turns(pieces)
     hit = (a[i] < 0.0) & (a[j] > 0.0) & (flat_s < plateau_s * (1.0 - PLATEAU_SLACK)) & (v0[j] > EPS_V)
