@@ -365,13 +365,14 @@ def _few_zone_pieces(edges: list, caps: list, accel: list, w: list):  # noqa: AN
     """`_zone_pieces` for a few zones (a section of one element has one), in plain floats: the same
     operations in the same order on the same IEEE doubles, so the same numbers, without the cost of
     forty array operations on arrays of one. None where a value is not a number (NaN orders
-    differently in `min` and `np.minimum`): the array path decides those."""
+    differently in `min` and `np.minimum`) or an acceleration is not positive: the array path
+    decides those."""
     s0, v0, acc, dur = [], [], [], []
     for k, (x0, cap, a) in enumerate(zip(edges, caps, accel)):
         length = edges[k + 1] - x0
         wa, wb = w[k], w[k + 1]
-        if cap != cap or a != a or length != length or wa != wa or wb != wb:
-            return None
+        if cap != cap or not a > 0.0 or length != length or wa != wa or wb != wb:
+            return None  # (an acceleration of 0 divides by zero: the array path's inf and NaN)
         square = (wa * wa + wb * wb + 2.0 * a * length) / 2.0
         if square < 0.0:
             return None
