@@ -144,6 +144,7 @@ class PathCaps:
 
 
 def path_caps(path: PathArrays, config: MachineConfig) -> PathCaps:
+    """The caps a section's path sets by itself (`PathCaps`), for `section_limits` under any share."""
     kinks = path.kink_angles()
     v_axis, a_axis = _axis_caps(path, config, _axis_min(config, "max_accel_mm_s2"))
     return PathCaps(kinks, (kinks > COLLINEAR_RAD) & (kinks <= KINK_MAX_RAD), v_axis, a_axis)

@@ -419,7 +419,7 @@ def _few_turns(pieces, plateau_s: float) -> tuple[list, list]:
     s0, v0, a, dur = (x.tolist() for x in pieces)
     short = plateau_s * (1.0 - PLATEAU_SLACK)
     peaks, valleys = [], []
-    last, flat_s = -1, 0.0  # the last piece that accelerated, and the cruise since it
+    last = -1  # the last piece that accelerated
     cruise = 0.0  # cumulative cruise time, as `_turns` sums it
     since = 0.0  # the cumulative cruise after the last accelerating piece
     for k, acc in enumerate(a):
@@ -433,7 +433,7 @@ def _few_turns(pieces, plateau_s: float) -> tuple[list, list]:
             if a[last] < 0.0 and acc > 0.0 and flat_s < short and v0[k] > EPS_V:
                 valleys.append((s0[k], s0[k] + v0[k] * (plateau_s * (1.0 + PLATEAU_AIM) - flat_s), v0[k]))
         last = k
-        cruise += 0.0
+        cruise += 0.0  # as np.cumsum adds the accelerating piece's 0 (a -0.0 sum becomes 0.0)
         since = cruise
     return peaks, valleys
 
