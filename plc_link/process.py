@@ -128,15 +128,6 @@ def run_plc_link(rt: Runtime, ready) -> None:
         # below the logic: the PLC's safety and plant signals must not wait behind a busy host
         # (a program being planned, fifty observers): three exchanges late is a lost link
         enter_realtime(realtime_priority(rt.config, "plc_link"), "plc link")
-    else:
-        # the virtual clock runs the controller's processes flat out while the serial line lives
-        # in wall time: a link process waiting behind them for a CPU reads the PLC's answer after
-        # its timeout, and three of those in a row are a lost link (seen once on a loaded 2-core
-        # host). Ahead of them, as the simulator it talks to is (`sim_server`), best effort.
-        try:
-            os.nice(-10)
-        except OSError:
-            pass  # not permitted: it shares the CPU like any process
     set_ready(ready)
     try:
         link.run()
