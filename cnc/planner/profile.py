@@ -128,7 +128,7 @@ def plan(
         caps = np.minimum(hard, soft)
         w = _junction_speeds(zones.edges, caps, zones.accel, v_start, v_end)
         pieces = _zone_pieces(zones.edges, caps, zones.accel, w)
-        fixes = _short_peaks(pieces, plateau_s) or _short_valleys(pieces, plateau_s)
+        fixes = _plateau_fixes(pieces, plateau_s)
         if not fixes:
             break
         if fixes[0][0] <= s_start + EPS_MM and (remaining > 0.0 or v_start <= EPS_V):
@@ -436,6 +436,15 @@ def _few_turns(pieces, plateau_s: float) -> tuple[list, list]:
         cruise += 0.0  # as np.cumsum adds the accelerating piece's 0 (a -0.0 sum becomes 0.0)
         since = cruise
     return peaks, valleys
+
+
+def _plateau_fixes(pieces, plateau_s: float) -> list[tuple[float, float, float]]:
+    """The caps that give every short peak its plateau, else those for every short valley (one
+    pass over a few pieces finds both)."""
+    if len(pieces[0]) <= SMALL_PIECES:
+        peaks, valleys = _few_turns(pieces, plateau_s)
+        return [_peak_cap(pieces, p, q, plateau_s * (1.0 + PLATEAU_AIM)) for p, q in peaks] or valleys
+    return _short_peaks(pieces, plateau_s) or _short_valleys(pieces, plateau_s)
 
 
 def _short_peaks(pieces, plateau_s: float) -> list[tuple[float, float, float]]:
