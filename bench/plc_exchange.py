@@ -1,6 +1,6 @@
 """Benchmark: PLC-link exchange time at the machine's baud rate against the simulator on a pty.
 
-Runs the real master (pymodbus over pyserial) against the simulator's server, which paces its
+Runs the real master (`plc_link.line` over pyserial) against the simulator's server, which paces its
 answers like the serial line, for N cycles at the machine's cycle period, with the control
 logic's heartbeat forwarded every 0.25 s as the link process does (one write request every
 fifth cycle). Prints p50/p99/max of the exchange time per kind of cycle beside its
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import sys
 import time
 from pathlib import Path
@@ -34,7 +33,6 @@ REPO = Path(__file__).resolve().parent.parent
 
 def measure(machine: str, cycles: int) -> dict:
     plc = load_machine(machine).plc
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     with PtyPair() as pair:
         server = PlcSimServer(plc, PlcModel(plc), pair.server_fd)
         server.start()

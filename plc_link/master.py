@@ -23,15 +23,12 @@ import time
 from dataclasses import dataclass
 from typing import Sequence
 
-from pymodbus.client import ModbusSerialClient
-from pymodbus.exceptions import ConnectionException, ModbusException
-from pymodbus.framer import FramerType
-
 from cnc.config import PlcConfig
 from cnc.data.layout import LinkState
 
 from . import rtu
 from .image import PlcImage, ReadRequest, WriteRequest
+from .line import ExceptionAnswer, NoAnswer, PortFailed, RtuLine
 from .pty_pair import is_pty
 
 log = logging.getLogger(__name__)
@@ -56,10 +53,6 @@ class PlcExceptionResponse(PlcLinkError):
         self.code = code
 
 
-class PlcBadResponse(PlcLinkError):
-    """The answer does not fit the request."""
-
-
 class PlcPortError(PlcLinkError):
     """The serial port could not be opened or failed."""
 
@@ -81,7 +74,7 @@ class LinkStatus:
 
 
 class PlcMaster:
-    """The CNC's side of the Modbus RTU link, over pymodbus' serial client (pyserial)."""
+    """The CNC's side of the Modbus RTU link, over one `RtuLine` (pyserial)."""
 
     def __init__(self, config: PlcConfig, port: str | None = None) -> None:
         self.config = config
@@ -95,29 +88,28 @@ class PlcMaster:
         self._next_group = 0
         self._budget_s = BUDGET_FRACTION * config.cycle_ms / 1000.0
         self._next_reconnect = 0.0
-        self._client: ModbusSerialClient | None = None
+        self._line: RtuLine | None = None
 
     # -- port ------------------------------------------------------------------------------
 
-    def _open(self) -> ModbusSerialClient:
-        if self._client is None:
+    def _open(self) -> RtuLine:
+        if self._line is None:
             c = self.config
             # a pty (the simulator) has no parity bit and refuses to be asked for one (pty_pair)
             parity = "N" if is_pty(self.port) else c.parity
-            # retries=0: the next cycle is the retry; a late answer is a failed exchange
-            self._client = ModbusSerialClient(
-                self.port, framer=FramerType.RTU, baudrate=c.baud, bytesize=8, parity=parity,
-                stopbits=c.stop_bits, timeout=c.timeout_ms / 1000.0, retries=0,
-            )
-        if not self._client.connect():
-            raise PlcPortError(f"cannot open serial port {self.port!r} for the PLC link")
-        return self._client
+            silence_s = rtu.SILENCE_CHARS * rtu.char_time_s(c.baud, c.parity, c.stop_bits)
+            self._line = RtuLine(self.port, c.baud, parity, c.stop_bits, c.timeout_ms / 1000.0, silence_s)
+        try:
+            self._line.open()
+        except PortFailed as exc:
+            raise PlcPortError(f"{exc} for the PLC link") from None
+        return self._line
 
     def close(self) -> None:
         """Close the serial port; the next exchange reopens it and rewrites every output."""
-        if self._client is not None:
-            self._client.close()
-            self._client = None
+        if self._line is not None:
+            self._line.close()
+            self._line = None
         self._sent = [None] * len(self.image.outputs)
 
     def retarget(self, port: str) -> None:
@@ -134,12 +126,12 @@ class PlcMaster:
         values in `PlcConfig.inputs()` order). Raises PlcLinkError naming the failed request."""
         if not self.port:
             raise PlcPortError(NO_PORT)
-        client = self._open()
+        line = self._open()
         raw_out, self.output_errors = self.image.clamp_outputs(outputs)
-        answers = [self._read(client, r) for r in self.image.read_requests]
+        answers = [self._read(line, r) for r in self.image.read_requests]
         self.image.decode_inputs(answers, self.inputs)
         for request in self._plan_writes(raw_out):
-            self._write(client, request)
+            self._write(line, request)
             group = self.image.write_groups[request.group]
             first = request.address - group.address
             for index in group.indices[first : first + len(request.values)]:
@@ -173,51 +165,32 @@ class PlcMaster:
             self._next_group = (g + 1) % n
         return planned
 
-    def _read(self, client: ModbusSerialClient, request: ReadRequest) -> list[int]:
-        kw = {"count": request.count, "device_id": self.config.unit_id}
-        if request.function == rtu.READ_DISCRETE_INPUTS:
-            response = self._call(request.describe(), client.read_discrete_inputs, request.address, **kw)
-            return self._complete(request, [1 if b else 0 for b in response.bits[: request.count]])
-        response = self._call(request.describe(), client.read_input_registers, request.address, **kw)
-        return self._complete(request, list(response.registers[: request.count]))
+    def _read(self, line: RtuLine, request: ReadRequest) -> list[int]:
+        f, n = request.function, request.count
+        answer = self._call(line, request.describe(), rtu.read_pdu(f, request.address, n), rtu.response_size(f, n))
+        if f == rtu.READ_DISCRETE_INPUTS:
+            return rtu.unpack_bits(answer[2:], n)
+        return [int.from_bytes(answer[2 + 2 * i : 4 + 2 * i], "big") for i in range(n)]
 
-    def _complete(self, request: ReadRequest, values: list[int]) -> list[int]:
-        """A response of the wrong size (a late answer to an earlier request, a confused PLC) is a failure."""
-        if len(values) < request.count:
-            self.close()  # reopen: whatever else is in flight on the line goes with the old port
-            raise PlcBadResponse(f"{request.describe()}: {len(values)} values in the answer, {request.count} asked")
-        return values
+    def _write(self, line: RtuLine, request: WriteRequest) -> None:
+        f, values = request.function, request.values
+        pdu = rtu.write_pdu(f, request.address, values)
+        self._call(line, request.describe(), pdu, rtu.response_size(f, len(values)))
 
-    def _write(self, client: ModbusSerialClient, request: WriteRequest) -> None:
-        f, a, v, unit = request.function, request.address, request.values, self.config.unit_id
-        what = request.describe()
-        if f == rtu.WRITE_SINGLE_COIL:
-            self._call(what, client.write_coil, a, bool(v[0]), device_id=unit)
-        elif f == rtu.WRITE_MULTIPLE_COILS:
-            self._call(what, client.write_coils, a, [bool(x) for x in v], device_id=unit)
-        elif f == rtu.WRITE_SINGLE_REGISTER:
-            self._call(what, client.write_register, a, v[0], device_id=unit)
-        else:
-            self._call(what, client.write_registers, a, list(v), device_id=unit)
-
-    def _call(self, what: str, method, *args, **kwargs):
-        """Run one pymodbus request; translate every failure into a PlcLinkError naming it."""
+    def _call(self, line: RtuLine, what: str, pdu: bytes, answer_size: int) -> bytes:
+        """One request and its answer; every failure becomes a PlcLinkError naming the request."""
         try:
-            response = method(*args, **kwargs)
-        except ConnectionException as exc:
-            raise PlcPortError(f"{what}: serial port {self.port!r} failed ({exc})") from None
-        except ModbusException:
-            self.close()  # a late answer must not be taken for the next request's: start the port afresh
+            return line.transact(self.config.unit_id, pdu, answer_size)
+        except NoAnswer:
             raise PlcTimeout(
                 f"{what}: no valid response within {self.config.timeout_ms:g} ms (no answer, or bad CRC)"
             ) from None
-        except OSError as exc:
-            raise PlcPortError(f"{what}: serial port {self.port!r}: {exc}") from None
-        if response.isError():
-            code = getattr(response, "exception_code", 0)
-            name = _EXCEPTION_NAMES.get(code, "exception")
-            raise PlcExceptionResponse(f"{what}: PLC answered exception {code:02d} ({name})", code)
-        return response
+        except ExceptionAnswer as exc:
+            name = _EXCEPTION_NAMES.get(exc.code, "exception")
+            raise PlcExceptionResponse(f"{what}: PLC answered exception {exc.code:02d} ({name})", exc.code) from None
+        except PortFailed as exc:
+            self.close()
+            raise PlcPortError(f"{what}: {exc}") from None
 
     # -- supervision -----------------------------------------------------------------------
 

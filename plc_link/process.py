@@ -117,7 +117,6 @@ class PlcLink:
 def run_plc_link(rt: Runtime, ready) -> None:
     """Entry point of the PLC-link process (started by the supervisor)."""
     child_setup(rt, "plc-link")
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # failures are reported by the link
     area = SharedArea.attach(rt.data_name, controller_layouts(len(rt.config.axis_names)))
     port = getattr(rt, "plc_port", "") or rt.config.plc.port
     link = PlcLink(rt.config, area, port)

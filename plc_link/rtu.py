@@ -8,6 +8,8 @@ are separated by at least 3.5 character times of silence on the line.
 
 from __future__ import annotations
 
+from typing import Sequence
+
 # Function codes this project uses (and the simulator serves).
 READ_COILS = 0x01
 READ_DISCRETE_INPUTS = 0x02
@@ -103,6 +105,64 @@ def response_size(function: int, count: int) -> int:
 
 
 EXCEPTION_RESPONSE_SIZE = FRAME_OVERHEAD + 1  # exception code
+
+
+def answer_length(frame: bytes | bytearray) -> int | None:
+    """Length of the slave's answer frame that starts `frame`: None while too few bytes
+    arrived to tell, 0 when the function is not one a slave of this link answers with
+    (garbage on the line: the reader drops a byte and hunts for the next frame)."""
+    if len(frame) < 2:
+        return None
+    function = frame[1]
+    if function & 0x80:
+        return EXCEPTION_RESPONSE_SIZE if function & 0x7F in _ALL_FUNCTIONS else 0
+    if function in (READ_COILS, READ_DISCRETE_INPUTS, READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS):
+        return FRAME_OVERHEAD + 1 + frame[2] if len(frame) >= 3 else None
+    if function in _ALL_FUNCTIONS:
+        return FRAME_OVERHEAD + 4
+    return 0
+
+
+_ALL_FUNCTIONS = (
+    READ_COILS, READ_DISCRETE_INPUTS, READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS,
+    WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER, WRITE_MULTIPLE_COILS, WRITE_MULTIPLE_REGISTERS,
+)
+
+
+def pack_bits(values: Sequence[int]) -> bytes:
+    """Modbus bit packing: first bit in the least significant bit of the first byte."""
+    out = bytearray((len(values) + 7) // 8)
+    for i, v in enumerate(values):
+        if v:
+            out[i // 8] |= 1 << (i % 8)
+    return bytes(out)
+
+
+def unpack_bits(payload: bytes, count: int) -> list[int]:
+    """The first `count` bits of a packed payload (the inverse of `pack_bits`)."""
+    return [(payload[i // 8] >> (i % 8)) & 1 for i in range(count)]
+
+
+def read_pdu(function: int, address: int, count: int) -> bytes:
+    """The PDU (function and data) of a read of `count` bits or registers from `address`."""
+    return bytes((function,)) + address.to_bytes(2, "big") + count.to_bytes(2, "big")
+
+
+def write_pdu(function: int, address: int, values: Sequence[int]) -> bytes:
+    """The PDU of a write of raw `values` from `address`: single or multiple, coils or
+    holding registers, as `function` says. The slave's answer echoes its first 5 bytes."""
+    head = bytes((function,)) + address.to_bytes(2, "big")
+    if function == WRITE_SINGLE_COIL:
+        return head + (b"\xff\x00" if values[0] else b"\x00\x00")
+    if function == WRITE_SINGLE_REGISTER:
+        return head + (values[0] & 0xFFFF).to_bytes(2, "big")
+    if function == WRITE_MULTIPLE_COILS:
+        payload = pack_bits(values)
+    elif function == WRITE_MULTIPLE_REGISTERS:
+        payload = b"".join((v & 0xFFFF).to_bytes(2, "big") for v in values)
+    else:
+        raise ValueError(f"function code {function:#04x} is not a write this link uses")
+    return head + len(values).to_bytes(2, "big") + bytes((len(payload),)) + payload
 
 
 def transaction_time_s(function: int, count: int, char_s: float) -> float:

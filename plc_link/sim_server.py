@@ -98,6 +98,7 @@ class PlcSimServer:
         self._rx_last = 0.0
         self._line_free = 0.0
         self._pending: tuple[float, bytes] | None = None
+        self._late: dict[int, float] = {}  # function -> extra delay of its next answer (one-shot)
         self.error: BaseException | None = None
 
     def start(self) -> None:
@@ -111,6 +112,15 @@ class PlcSimServer:
         if self._thread is not None:
             self._thread.join(2.0)
             self._thread = None
+
+    def answer_late(self, function: int, extra_s: float) -> None:
+        """Send the next answer to a request of `function` `extra_s` later than the line would
+        (a PLC busy with its own scan, a host that did not schedule it): past the master's
+        timeout, it arrives while the master waits for the answer to its next request. The
+        requests behind it wait, as they would for a slave that answers in order."""
+        if extra_s < 0:
+            raise ValueError(f"answer_late: extra_s must be >= 0, got {extra_s!r}")
+        self._late[function] = extra_s
 
     def __enter__(self) -> "PlcSimServer":
         self.start()
@@ -204,6 +214,7 @@ class PlcSimServer:
             return
         start = max(start, self._line_free)
         ready = start + (len(frame) + rtu.SILENCE_CHARS + len(response)) * self.char_s
+        ready += self._late.pop(frame[1], 0.0)
         self._line_free = ready + self.silence_s
         self._pending = (ready, response)
         self.stats.responses += 1
@@ -246,7 +257,7 @@ class PlcSimServer:
             else:
                 raw.append(encode_value(var, values[var.id])[0] & 0xFFFF if var.id in values else 0)
         if bits:
-            payload = _pack_bits(raw)
+            payload = rtu.pack_bits(raw)
         else:
             payload = b"".join(v.to_bytes(2, "big") for v in raw)
         return bytes((function, len(payload))) + payload
@@ -302,15 +313,6 @@ def _expected_length(buf: bytearray) -> int | None:
     return None
 
 
-def _pack_bits(values: list[int]) -> bytes:
-    """Modbus bit packing: first bit in the least significant bit of the first byte."""
-    out = bytearray((len(values) + 7) // 8)
-    for i, v in enumerate(values):
-        if v:
-            out[i // 8] |= 1 << (i % 8)
-    return bytes(out)
-
-
 # -- as a child process --------------------------------------------------------------------
 
 
@@ -339,6 +341,10 @@ class SimulatorHandle:
 
     def press_button(self) -> None:
         self._ask("press_button")
+
+    def answer_late(self, function: int, extra_s: float) -> None:
+        """The next answer to `function` comes `extra_s` late (see PlcSimServer.answer_late)."""
+        self._ask("answer_late", int(function), float(extra_s))
 
     def inputs(self) -> dict[str, float]:
         """What the simulated PLC publishes now."""
@@ -425,12 +431,12 @@ def _child_main(plc: PlcConfig, times: PlantTimes | None, conn: Connection, laun
         server.start()
         conn.send((True, pair.device))
         try:
-            _answer(model, conn)
+            _answer(model, server, conn)
         finally:
             server.stop()
 
 
-def _answer(model: PlcModel, conn: Connection) -> None:
+def _answer(model: PlcModel, server: PlcSimServer, conn: Connection) -> None:
     """Serve the parent's requests until it says stop or goes away."""
     while True:
         try:
@@ -449,6 +455,13 @@ def _answer(model: PlcModel, conn: Connection) -> None:
             conn.send((True, None))
         elif verb == "press_button":
             model.press_button()
+            conn.send((True, None))
+        elif verb == "answer_late":
+            try:
+                server.answer_late(request[1], request[2])
+            except ValueError as exc:
+                conn.send((False, str(exc)))
+                continue
             conn.send((True, None))
         elif verb == "inputs":
             conn.send((True, model.inputs()))

@@ -1,9 +1,13 @@
-"""The PLC link: RTU arithmetic, the image's requests, the pymodbus master against the simulator
-on a real pty (exchange, timing, loss and reconnection), and the process loop over shared memory."""
+"""The PLC link: RTU arithmetic, the image's requests, the master's line (answers matched to
+their requests), the master against the simulator on a real pty (exchange, timing, late
+answers, loss and reconnection), a standard Modbus client against the simulator, and the
+process loop over shared memory."""
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import select
 import threading
 import time
 
@@ -14,6 +18,7 @@ from cnc.data.dataserver import SharedArea, unique_name
 from cnc.data.layout import LinkState, Proc, controller_layouts
 from plc_link import rtu
 from plc_link.image import ImageError, PlcImage
+from plc_link.line import ExceptionAnswer, NoAnswer, RtuLine
 from plc_link.master import PlcExceptionResponse, PlcMaster, PlcTimeout
 from plc_link.process import PlcLink
 from plc_link.pty_pair import PtyPair
@@ -23,6 +28,7 @@ from tests.conftest import MACHINE_FILE
 
 MACHINE = load_machine(MACHINE_FILE)
 PLC = MACHINE.plc
+PLC_ADDRESS = {v.id: v.address for v in PLC.var}
 FAST = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.05)
 
 
@@ -229,6 +235,140 @@ def test_exception_response_names_the_request_and_code(sim):
             master.exchange([0.0] * 8)
     finally:
         master.close()
+
+
+@pytest.mark.parametrize("late", ["read discrete inputs", "read input registers", "write coil", "write register"])
+def test_an_answer_later_than_the_timeout_costs_one_exchange_not_the_link(sim, late):
+    """A PLC (or host) busy past the master's timeout answers late, while the master already waits
+    for its next request's answer. The master drops the late answer where it does not fit and
+    takes it where it cannot be told from the current one (a read of the same table): one
+    exchange fails, the next ones succeed, nothing is lost and the PLC ends up with every output."""
+    plc = dataclasses.replace(PLC, timeout_ms=500.0)  # a margin no busy host misses for the timely answers
+    master = PlcMaster(plc, sim.device)
+    image = master.image
+    outputs = [0.0] * 8
+    try:
+        assert wait_for(lambda: master.cycle(outputs) and master.writes_pending == 0)
+        failed = master.status.failed
+        function = {
+            "read discrete inputs": rtu.READ_DISCRETE_INPUTS, "read input registers": rtu.READ_INPUT_REGISTERS,
+            "write coil": rtu.WRITE_SINGLE_COIL, "write register": rtu.WRITE_SINGLE_REGISTER,
+        }[late]
+        sim.server.answer_late(function, 1.5 * plc.timeout_ms / 1000)
+        if late == "write coil":
+            outputs[image.output_index["pump_on"]] = 1.0
+        elif late == "write register":
+            outputs[image.output_index["cnc_heartbeat"]] = 7.0
+        results = [master.cycle(outputs) for _ in range(6)]
+        assert results == [False, True, True, True, True, True], master.status.error
+        assert master.status.state == LinkState.OK and master.status.losses == 0 and master.status.failed == failed + 1
+        assert master.writes_pending == 0
+        assert sim.model.outputs()["pump_on"] == outputs[image.output_index["pump_on"]]
+        assert sim.model.outputs()["cnc_heartbeat"] == outputs[image.output_index["cnc_heartbeat"]]
+        assert sim.server.stats.responses == sim.server.stats.requests  # the late answer was sent, and dropped
+    finally:
+        master.close()
+
+
+class HandSlave:
+    """The far end of a pty played by hand: reads one request, writes back the given bytes."""
+
+    def __init__(self) -> None:
+        self.pair = PtyPair()
+        self.line = RtuLine(self.pair.device, 19200, "N", 1, timeout_s=2.0, silence_s=0.002)
+        self.line.open()
+
+    def answer(self, *frames: bytes) -> threading.Thread:
+        def serve() -> None:
+            got = b""
+            while len(got) < 8:  # every request of these tests is 8 bytes
+                select.select([self.pair.server_fd], [], [], 5.0)
+                got += os.read(self.pair.server_fd, 64)
+            os.write(self.pair.server_fd, b"".join(frames))
+        thread = threading.Thread(target=serve, daemon=True)
+        thread.start()
+        return thread
+
+    def close(self) -> None:
+        self.line.close()
+        self.pair.close()
+
+
+def frame(*pdu: int) -> bytes:
+    return rtu.with_crc(bytes((PLC.unit_id, *pdu)))
+
+
+def test_the_line_drops_noise_and_misfit_answers_and_takes_the_one_that_fits_the_request():
+    slave = HandSlave()
+    try:
+        read = rtu.read_pdu(rtu.READ_DISCRETE_INPUTS, 0, 16)
+        thread = slave.answer(
+            b"\x00\xff\x13",  # noise
+            frame(rtu.WRITE_SINGLE_COIL, 0, 3, 0xFF, 0),  # a late write echo
+            frame(rtu.READ_DISCRETE_INPUTS, 1, 0x05),  # a late read of another size
+            rtu.with_crc(bytes((PLC.unit_id + 1, rtu.READ_DISCRETE_INPUTS, 2, 0, 0))),  # another unit
+            frame(rtu.READ_DISCRETE_INPUTS, 2, 0xA5, 0x01),  # the answer
+        )
+        answer = slave.line.transact(PLC.unit_id, read, rtu.response_size(rtu.READ_DISCRETE_INPUTS, 16))
+        thread.join()
+        assert rtu.unpack_bits(answer[2:], 16) == [1, 0, 1, 0, 0, 1, 0, 1, 1, 0, 0, 0, 0, 0, 0, 0]
+        assert slave.line.misfits == 3 and slave.line.noise == 3
+    finally:
+        slave.close()
+
+
+def test_a_write_echo_of_another_address_or_value_is_not_the_write_s_answer():
+    slave = HandSlave()
+    try:
+        write = rtu.write_pdu(rtu.WRITE_SINGLE_REGISTER, 4, [300])
+        size = rtu.response_size(rtu.WRITE_SINGLE_REGISTER, 1)
+        thread = slave.answer(frame(rtu.WRITE_SINGLE_REGISTER, 0, 3, 1, 44), frame(rtu.WRITE_SINGLE_REGISTER, 0, 4, 0, 7))
+        with pytest.raises(NoAnswer):
+            slave.line.timeout_s = 0.3  # neither echo is this write's: no answer came
+            slave.line.transact(PLC.unit_id, write, size)
+        thread.join()
+        assert slave.line.misfits == 2
+        thread = slave.answer(frame(rtu.WRITE_SINGLE_REGISTER, 0, 4, 1, 44))
+        assert slave.line.transact(PLC.unit_id, write, size) == bytes((rtu.WRITE_SINGLE_REGISTER, 0, 4, 1, 44))
+        thread.join()
+    finally:
+        slave.close()
+
+
+def test_an_exception_answer_to_the_request_s_function_is_raised_with_its_code():
+    slave = HandSlave()
+    try:
+        thread = slave.answer(frame(rtu.READ_INPUT_REGISTERS | 0x80, rtu.ILLEGAL_DATA_ADDRESS))
+        with pytest.raises(ExceptionAnswer) as info:
+            slave.line.transact(PLC.unit_id, rtu.read_pdu(rtu.READ_INPUT_REGISTERS, 0, 4), rtu.response_size(4, 4))
+        thread.join()
+        assert info.value.code == rtu.ILLEGAL_DATA_ADDRESS
+    finally:
+        slave.close()
+
+
+def test_the_simulator_serves_a_standard_modbus_client(sim):
+    """The master and the simulator share `rtu`; pymodbus, an independent implementation of the
+    protocol, reads and writes the simulator as well, so both speak Modbus, not only each other."""
+    from pymodbus.client import ModbusSerialClient
+    from pymodbus.framer import FramerType
+
+    client = ModbusSerialClient(sim.device, framer=FramerType.RTU, baudrate=19200, parity="N", timeout=2.0, retries=1)
+    assert client.connect()
+    try:
+        unit = PLC.unit_id
+        assert not client.write_coil(PLC_ADDRESS["pump_on"], True, device_id=unit).isError()
+        assert not client.write_register(PLC_ADDRESS["pump_pressure_set"], 2000, device_id=unit).isError()
+        assert sim.model.outputs()["pump_on"] == 1.0
+        inputs = sim.model.inputs()
+        bits = client.read_discrete_inputs(0, count=16, device_id=unit).bits[:16]
+        for v in PLC.var:
+            if v.kind == "discrete_input":
+                assert bits[v.address] == bool(inputs[v.id]), v.id
+        bad = client.read_discrete_inputs(0, count=200, device_id=unit)
+        assert bad.isError() and bad.exception_code == rtu.ILLEGAL_DATA_ADDRESS
+    finally:
+        client.close()
 
 
 def test_out_of_range_output_is_clamped_and_reported_without_failing_the_cycle(sim):

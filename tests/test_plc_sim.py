@@ -308,6 +308,15 @@ def test_simulator_process_serves_a_pty_and_takes_faults_over_its_pipe():
         assert sim.inputs()["safety_circuit_ok"] == 0.0
         with pytest.raises(ValueError, match="unknown PLC simulator fault"):
             sim.inject("flood", True)
+        master.close()
+        master = PlcMaster(dataclasses.replace(PLC, timeout_ms=500.0), sim.device)  # timely answers keep a margin
+        assert wait_for(lambda: master.cycle(outputs))
+        failed = master.status.failed
+        sim.answer_late(2, 0.75)  # the next read of the inputs answers past the timeout
+        assert [master.cycle(outputs) for _ in range(3)] == [False, True, True]
+        assert master.status.missed == 0 and master.status.failed == failed + 1
+        with pytest.raises(ValueError, match="answer_late: extra_s must be >= 0, got -1.0"):
+            sim.answer_late(2, -1)
     finally:
         master.close()
         sim.stop()

@@ -1,0 +1,156 @@
+"""The master's end of the RTU line: send one request, take back the answer that is its own.
+
+Modbus RTU has no transaction id. An answer that comes after the master gave up on it (a
+slave or a host busy for longer than the timeout) is still on its way when the next request
+goes out, and a reader that takes the first frame it sees answers the next request with it:
+a write's echo read as the input image, then that request's own answer read as the one after,
+a chain of failed exchanges that ends in a lost link. This reader takes a frame as the answer
+only when it fits the request, and drops the others:
+
+- the unit id and the function code (or the function's exception code) must be the request's;
+- a read's answer must carry the byte count the request asked for;
+- a write's answer must echo the request's address and value or quantity.
+
+A late answer to a read of the same table and size cannot be told from the current one: it is
+then taken, and the inputs are one exchange older than they could be (the next read has them
+fresh); the current answer is dropped as a misfit by the next request of another function, or
+thrown away with the receive buffer before the next request goes out.
+
+A request goes out no sooner than 3.5 characters of silence after the last answer ended, the
+gap by which an RTU slave knows a frame is over. The timeout counts from the request's send; at the deadline whatever has arrived is still
+read and parsed, so a master that was not scheduled while the answer came does not declare a
+timeout with the answer in its buffer. Bytes that make no frame (a bad CRC, an unknown
+function) are dropped one at a time until a frame starts, as a real line's noise needs.
+"""
+
+from __future__ import annotations
+
+import select
+import termios
+import time
+
+import serial
+
+from . import rtu
+
+
+class NoAnswer(Exception):
+    """No answer that fits the request came within the timeout."""
+
+
+class ExceptionAnswer(Exception):
+    """The slave answered the request with a Modbus exception response."""
+
+    def __init__(self, code: int) -> None:
+        super().__init__(code)
+        self.code = code
+
+
+class PortFailed(Exception):
+    """The serial port could not be opened, or reading or writing it failed."""
+
+
+class RtuLine:
+    """One serial port, opened on `open()`, for request/answer transactions with one slave."""
+
+    def __init__(
+        self, device: str, baud: int, parity: str, stop_bits: int, timeout_s: float, silence_s: float,
+    ) -> None:
+        """`silence_s` is the inter-frame gap of the line as configured (a pty is opened without
+        parity, but the gap is the one of the real cable's character time)."""
+        self.device, self.baud, self.parity, self.stop_bits = device, baud, parity, stop_bits
+        self.timeout_s, self.silence_s = timeout_s, silence_s
+        self.misfits = 0  # frames dropped because they were not the answer asked for
+        self.noise = 0  # bytes dropped because they made no frame
+        self._port: serial.Serial | None = None
+        self._quiet_at = 0.0  # when the line has been silent long enough for the next request
+
+    def open(self) -> None:
+        """Open the port (once; later calls keep it). Raises PortFailed."""
+        if self._port is not None:
+            return
+        try:
+            self._port = serial.Serial(
+                self.device, baudrate=self.baud, bytesize=8, parity=self.parity,
+                stopbits=self.stop_bits, timeout=0, write_timeout=self.timeout_s,
+            )
+        except (serial.SerialException, OSError, ValueError, termios.error) as exc:
+            raise PortFailed(f"cannot open serial port {self.device!r} ({exc})") from None
+
+    def close(self) -> None:
+        if self._port is not None:
+            try:
+                self._port.close()
+            finally:
+                self._port = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None
+
+    def transact(self, unit: int, pdu: bytes, answer_size: int) -> bytes:
+        """Send `pdu` (function and data) to `unit`; return the answer's PDU (function and data,
+        without unit and CRC). `answer_size` is the whole answer frame's expected length.
+        Raises NoAnswer, ExceptionAnswer or PortFailed."""
+        if self._port is None:
+            raise PortFailed(f"serial port {self.device!r} is not open")
+        port = self._port
+        wait = self._quiet_at - time.monotonic()
+        if wait > 0.0:
+            time.sleep(wait)
+        try:
+            port.reset_input_buffer()  # answers that came after their request was given up
+            port.write(rtu.with_crc(bytes((unit,)) + pdu))
+            deadline = time.monotonic() + self.timeout_s
+            buffer = bytearray()
+            while True:
+                answer = self._take_answer(buffer, unit, pdu, answer_size)
+                if answer is not None:
+                    self._quiet_at = time.monotonic() + self.silence_s
+                    return answer
+                waiting = port.in_waiting
+                if not waiting:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0.0:
+                        raise NoAnswer()
+                    select.select([port.fileno()], [], [], remaining)
+                    waiting = port.in_waiting
+                buffer += port.read(max(1, waiting))  # never blocks (timeout 0); a hung-up line raises
+        except serial.SerialException as exc:
+            self.close()
+            raise PortFailed(f"serial port {self.device!r} failed ({exc})") from None
+        except (OSError, termios.error) as exc:  # termios.error: a hung-up pty refusing a flush
+            self.close()
+            raise PortFailed(f"serial port {self.device!r}: {exc}") from None
+
+    def _take_answer(self, buffer: bytearray, unit: int, pdu: bytes, answer_size: int) -> bytes | None:
+        """Take frames off the front of `buffer` until one is the answer to `pdu`; None when the
+        buffer holds no such answer yet (what is left is the start of a frame)."""
+        function = pdu[0]
+        while True:
+            size = rtu.answer_length(buffer)
+            if size is None or len(buffer) < size:
+                return None
+            if size == 0 or not rtu.crc_ok(bytes(buffer[:size])):
+                del buffer[0]  # noise: hunt for the start of a frame
+                self.noise += 1
+                continue
+            frame = bytes(buffer[:size])
+            del buffer[:size]
+            if frame[0] != unit:
+                self.misfits += 1
+                continue
+            if frame[1] == function | 0x80:
+                raise ExceptionAnswer(frame[2])
+            if frame[1] != function or size != answer_size or not _echoes(frame, pdu):
+                self.misfits += 1
+                continue
+            return frame[1:-2]
+
+
+def _echoes(frame: bytes, pdu: bytes) -> bool:
+    """A write's answer repeats the request's address and value (single) or quantity
+    (multiple); a read's answer has nothing to compare beyond its size."""
+    if pdu[0] in (rtu.WRITE_SINGLE_COIL, rtu.WRITE_SINGLE_REGISTER, rtu.WRITE_MULTIPLE_COILS, rtu.WRITE_MULTIPLE_REGISTERS):
+        return frame[2:6] == pdu[1:5]
+    return True
