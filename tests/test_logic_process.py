@@ -206,13 +206,21 @@ def test_door_opened_during_a_cut_closes_the_jet_in_the_tick_then_the_servo_stop
     events.close()
 
 
-def test_plc_link_loss_is_an_alarm_within_three_cycles_a_safe_stop_and_the_link_comes_back(plc_controller, tmp_path):
+def test_a_late_plc_answer_costs_one_exchange_but_a_lost_link_is_an_alarm_within_three_cycles_and_a_safe_stop(plc_controller, tmp_path):
     sup = plc_controller
     events = Events(sup)
     ready_in_auto(sup, tmp_path)
     command(sup, CycleStart(cycles=1))
     press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0, "the cutting phase")
-    before = sup.area.reader("plc").read_dict()
+    link = sup.area.reader("plc")
+    # one answer later than the master's timeout (a PLC busy with its scan): one exchange, not the link
+    late_from = link.read_dict()
+    sup.plc_sim.answer_late(2, 1.5 * sup.config.plc.timeout_ms / 1000)
+    sup.wait_until(lambda: link.read_dict()["exchanges"] >= late_from["exchanges"] + 3, 10.0, "exchanges after the late answer")
+    after_late = link.read_dict()
+    assert after_late["state"] == LinkState.OK and after_late["losses"] == late_from["losses"]
+    assert 1020 not in events.codes() and logic(sup)["phase"] == CyclePhase.CUTTING
+    before = link.read_dict()
     sup.plc_sim.inject("link_dead", True)
     sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.LOST, 5.0, "the link to be lost")
     plc = sup.area.reader("plc").read_dict()
