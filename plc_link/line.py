@@ -20,7 +20,9 @@ A request goes out no sooner than 3.5 characters of silence after the last answe
 gap by which an RTU slave knows a frame is over. The timeout counts from the request's send; at the deadline whatever has arrived is still
 read and parsed, so a master that was not scheduled while the answer came does not declare a
 timeout with the answer in its buffer. Bytes that make no frame (a bad CRC, an unknown
-function) are dropped one at a time until a frame starts, as a real line's noise needs.
+function) are dropped one at a time until a frame starts, as a real line's noise needs; the
+tail of a frame cut short, whose length byte promises bytes that never come, does not hide the
+answer behind it.
 """
 
 from __future__ import annotations
@@ -125,12 +127,16 @@ class RtuLine:
 
     def _take_answer(self, buffer: bytearray, unit: int, pdu: bytes, answer_size: int) -> bytes | None:
         """Take frames off the front of `buffer` until one is the answer to `pdu`; None when the
-        buffer holds no such answer yet (what is left is the start of a frame)."""
+        buffer holds no such answer yet. When the front is the start of a frame still coming (or
+        the tail of one cut short, whose length byte promises more than will come), the answer may
+        already be further on: it is looked for there too, by its exact size and CRC."""
         function = pdu[0]
         while True:
             size = rtu.answer_length(buffer)
             if size is None or len(buffer) < size:
-                return None
+                if size == answer_size and buffer[0] == unit and buffer[1] == function:
+                    return None  # the answer itself, still coming
+                return self._find_answer(buffer, unit, pdu, answer_size)
             if size == 0 or not rtu.crc_ok(bytes(buffer[:size])):
                 del buffer[0]  # noise: hunt for the start of a frame
                 self.noise += 1
@@ -146,6 +152,24 @@ class RtuLine:
                 self.misfits += 1
                 continue
             return frame[1:-2]
+
+    def _find_answer(self, buffer: bytearray, unit: int, pdu: bytes, answer_size: int) -> bytes | None:
+        """The answer to `pdu` (or its exception answer) beyond the front of `buffer`, taken with
+        everything before it (counted as noise); None when it is not there."""
+        function = pdu[0]
+        for at in range(1, len(buffer) - rtu.EXCEPTION_RESPONSE_SIZE + 1):
+            if buffer[at] != unit or buffer[at + 1] not in (function, function | 0x80):
+                continue
+            size = rtu.EXCEPTION_RESPONSE_SIZE if buffer[at + 1] & 0x80 else answer_size
+            frame = bytes(buffer[at : at + size])
+            if len(frame) < size or not rtu.crc_ok(frame) or not (frame[1] & 0x80 or _echoes(frame, pdu)):
+                continue
+            del buffer[: at + size]
+            self.noise += at
+            if frame[1] & 0x80:
+                raise ExceptionAnswer(frame[2])
+            return frame[1:-2]
+        return None
 
 
 def _echoes(frame: bytes, pdu: bytes) -> bool:

@@ -317,6 +317,22 @@ def test_the_line_drops_noise_and_misfit_answers_and_takes_the_one_that_fits_the
         slave.close()
 
 
+def test_the_tail_of_a_frame_cut_short_does_not_hide_the_answer_behind_it():
+    """A frame's tail left on the line (its first bytes went with a flushed buffer) can read as the
+    head of a long frame: `01 03 40` promises 64 register bytes that never come. The answer after
+    it is still found, by its size and CRC, before the timeout."""
+    slave = HandSlave()
+    try:
+        read = rtu.read_pdu(rtu.READ_INPUT_REGISTERS, 0, 2)
+        thread = slave.answer(bytes((PLC.unit_id, rtu.READ_HOLDING_REGISTERS, 0x40)), frame(rtu.READ_INPUT_REGISTERS, 4, 0, 7, 1, 2))
+        # read only from the front, the line would wait for the 64 bytes until it times out (NoAnswer)
+        answer = slave.line.transact(PLC.unit_id, read, rtu.response_size(rtu.READ_INPUT_REGISTERS, 2))
+        thread.join()
+        assert answer == bytes((rtu.READ_INPUT_REGISTERS, 4, 0, 7, 1, 2)) and slave.line.noise == 3
+    finally:
+        slave.close()
+
+
 def test_a_write_echo_of_another_address_or_value_is_not_the_write_s_answer():
     slave = HandSlave()
     try:
