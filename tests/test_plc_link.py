@@ -433,6 +433,15 @@ def test_no_port_keeps_the_link_down_and_says_why():
     assert master.status.error == "no serial port: [plc] port is empty and no simulator was started"
 
 
+def test_a_port_that_cannot_be_opened_fails_the_cycle_naming_the_device():
+    master = PlcMaster(PLC, "/dev/no-such-plc-port")
+    assert not master.cycle([0.0] * 8)
+    assert master.status.state == LinkState.CONNECTING and master.status.missed == 1
+    assert master.status.error.startswith("cannot open serial port '/dev/no-such-plc-port' (")
+    assert master.status.error.endswith(") for the PLC link")
+    master.close()
+
+
 # -- the process loop over shared memory -------------------------------------------------
 
 
