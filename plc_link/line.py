@@ -174,7 +174,7 @@ class RtuLine:
 
 def _echoes(frame: bytes, pdu: bytes) -> bool:
     """A write's answer repeats the request's address and value (single) or quantity
-    (multiple); a read's answer has nothing to compare beyond its size."""
+    (multiple); a read's answer carries the byte count its size says."""
     if pdu[0] in (rtu.WRITE_SINGLE_COIL, rtu.WRITE_SINGLE_REGISTER, rtu.WRITE_MULTIPLE_COILS, rtu.WRITE_MULTIPLE_REGISTERS):
         return frame[2:6] == pdu[1:5]
-    return True
+    return frame[2] == len(frame) - rtu.FRAME_OVERHEAD - 1
