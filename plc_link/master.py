@@ -69,6 +69,8 @@ class LinkStatus:
     failed: int = 0
     missed: int = 0
     losses: int = 0
+    dropped: int = 0  # answers dropped because they were not the one asked for (late, another unit's)
+    noise: int = 0  # bytes dropped because they made no frame (bad CRC, garbage on the line)
     cycle_s: float = 0.0  # duration of the last exchange attempt
     error: str = ""
 
@@ -89,6 +91,7 @@ class PlcMaster:
         self._budget_s = BUDGET_FRACTION * config.cycle_ms / 1000.0
         self._next_reconnect = 0.0
         self._line: RtuLine | None = None
+        self._closed_counts = (0, 0)  # (dropped, noise) of the lines closed before this one
 
     # -- port ------------------------------------------------------------------------------
 
@@ -109,6 +112,7 @@ class PlcMaster:
         """Close the serial port; the next exchange reopens it and rewrites every output."""
         if self._line is not None:
             self._line.close()
+            self._closed_counts = (self._closed_counts[0] + self._line.misfits, self._closed_counts[1] + self._line.noise)
             self._line = None
         self._sent = [None] * len(self.image.outputs)
 
@@ -211,14 +215,23 @@ class PlcMaster:
             self.exchange(outputs)
         except PlcLinkError as exc:
             s.cycle_s = time.perf_counter() - t0
+            self._count_line()
             self._failed(str(exc), now_s)
             return False
         s.cycle_s = time.perf_counter() - t0
+        self._count_line()
         s.exchanges += 1
         s.missed = 0
         s.state = LinkState.OK
         s.error = self.output_errors[0] if self.output_errors else ""
         return True
+
+    def _count_line(self) -> None:
+        """The line's dropped answers and noise, since the master was made (across reconnections)."""
+        dropped, noise = self._closed_counts
+        if self._line is not None:
+            dropped, noise = dropped + self._line.misfits, noise + self._line.noise
+        self.status.dropped, self.status.noise = dropped, noise
 
     def _failed(self, error: str, now_s: float) -> None:
         s = self.status

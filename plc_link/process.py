@@ -75,6 +75,8 @@ class PlcLink:
         w.set("failed", s.failed)
         w.set("missed", s.missed)
         w.set("losses", s.losses)
+        w.set("dropped", s.dropped)
+        w.set("noise", s.noise)
         w.set("cycle_us", int(s.cycle_s * 1e6))
         w.set("error", s.error)
         if ok:

@@ -99,6 +99,7 @@ class PlcSimServer:
         self._line_free = 0.0
         self._pending: tuple[float, bytes] | None = None
         self._late: dict[int, float] = {}  # function -> extra delay of its next answer (one-shot)
+        self._noise = b""  # bytes sent just before the next answer (one-shot)
         self.error: BaseException | None = None
 
     def start(self) -> None:
@@ -121,6 +122,11 @@ class PlcSimServer:
         if extra_s < 0:
             raise ValueError(f"answer_late: extra_s must be >= 0, got {extra_s!r}")
         self._late[function] = extra_s
+
+    def noise_before_next_answer(self, data: bytes) -> None:
+        """Put `data` on the line just ahead of the next answer (a noisy cable, a reflection):
+        the master must drop it and still take the answer."""
+        self._noise = bytes(data)
 
     def __enter__(self) -> "PlcSimServer":
         self.start()
@@ -216,7 +222,8 @@ class PlcSimServer:
         ready = start + (len(frame) + rtu.SILENCE_CHARS + len(response)) * self.char_s
         ready += self._late.pop(frame[1], 0.0)
         self._line_free = ready + self.silence_s
-        self._pending = (ready, response)
+        self._pending = (ready, self._noise + response)
+        self._noise = b""
         self.stats.responses += 1
 
     # -- the functions ---------------------------------------------------------------------

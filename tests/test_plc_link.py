@@ -263,6 +263,7 @@ def test_an_answer_later_than_the_timeout_costs_one_exchange_not_the_link(sim, l
         assert results == [False, True, True, True, True, True], master.status.error
         assert master.status.state == LinkState.OK and master.status.losses == 0 and master.status.failed == failed + 1
         assert master.writes_pending == 0
+        assert master.status.dropped == 1 and master.status.noise == 0, "the late answer (or the one it displaced) dropped"
         assert sim.model.outputs()["pump_on"] == outputs[image.output_index["pump_on"]]
         assert sim.model.outputs()["cnc_heartbeat"] == outputs[image.output_index["cnc_heartbeat"]]
         assert sim.server.stats.responses == sim.server.stats.requests  # the late answer was sent, and dropped
@@ -481,6 +482,10 @@ def test_link_loop_publishes_inputs_state_and_counters_into_shared_memory(sim, a
         plc_out.publish()
         assert wait_for(lambda: sim.model.outputs()["cnc_heartbeat"] == 77.0)  # written every HEARTBEAT_PERIOD_S
         assert wait_for(lambda: reader.read_dict()["output_seq_sent"] == 6)
+        noise = reader.read_dict()["noise"]
+        sim.server.noise_before_next_answer(b"\x00\xff\x00")
+        assert wait_for(lambda: reader.read_dict()["noise"] >= noise + 3), "the line's dropped bytes are published"
+        assert reader.read_dict()["state"] == LinkState.OK
         sim.model.inject("link_dead", True)
         assert wait_for(lambda: reader.read_dict()["state"] == LinkState.LOST)
         assert reader.read_dict()["losses"] == 1 and "no valid response" in reader.read_dict()["error"]

@@ -241,6 +241,8 @@ def plc_layout() -> BlockLayout:
             F("failed", "Q"),  # failed exchanges since start
             F("missed", "I"),  # consecutive failed exchanges now
             F("losses", "Q"),  # times the link was declared lost
+            F("dropped", "Q"),  # answers dropped as not the one asked for (late, another unit's)
+            F("noise", "Q"),  # bytes dropped as no frame (bad CRC, garbage on the line)
             F("cycle_us", "q"),  # duration of the last exchange
             F("input_seq", "Q"),  # +1 at every input image read
             F("output_seq_sent", "Q"),  # plc_out.image_seq of the last output image written to the PLC

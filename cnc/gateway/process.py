@@ -140,6 +140,8 @@ class Gateway:
             cycles_target=lo["cycles_target"],
             plc_link=LinkState(plc["state"]).name,
             plc_exchanges=plc["exchanges"],
+            plc_failed=plc["failed"],
+            plc_dropped=plc["dropped"],
             pump_on=bool(lo["pump_on"]),
             pump_set_bar=lo["pump_set_bar"],
             pump_pressure_bar=plc["inputs"][self.pressure_index] if self.pressure_index >= 0 and plc["state"] == LinkState.OK else 0.0,
