@@ -413,6 +413,18 @@ class PlcState(enum.Enum):
     RUNNING = "running"
 
 
+def plc_link_text(st: Status) -> str:
+    """The PLC link lamp's text: its state, and since the link process started the exchanges
+    that got no valid answer and the answers dropped as late, when there were any (a link that
+    stays OK while it loses exchanges is a line to look at)."""
+    told = []
+    if st.plc_failed:
+        told.append(f"{st.plc_failed} of {st.plc_exchanges + st.plc_failed} exchanges failed")
+    if st.plc_dropped:
+        told.append(f"{st.plc_dropped} late answer{'s' if st.plc_dropped != 1 else ''} dropped")
+    return st.plc_link + (f" ({', '.join(told)} since start)" if told else "")
+
+
 def _status_faults(st: Status) -> list[str]:
     found = []
     if not st.estop_ok:

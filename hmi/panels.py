@@ -15,7 +15,7 @@ from cnc.bus.messages import Status
 from cnc.bus.states import CyclePhase, LinkState, MachineState, PlannerState, RunResult
 
 from .adapter import ModelAdapter
-from .model import PlcState
+from .model import PlcState, plc_link_text
 from .style import BAD, OFF, OK, WARN, Lamp, duration, value_label
 
 RUNNING_STATES = tuple(s.name for s in (MachineState.RUNNING, MachineState.HOMING, MachineState.JOGGING, MachineState.MDI))
@@ -192,7 +192,7 @@ class StatusPanels(QWidget):
 
     def _refresh_devices(self, st: Status) -> None:
         link_ok = st.plc_link == LinkState.OK.name
-        self.lamps["plc_link"].set(OK if link_ok else BAD, st.plc_link)
+        self.lamps["plc_link"].set(OK if link_ok else BAD, plc_link_text(st))
         plc = self.model.plc_state()
         self.lamps["plc_state"].set(PLC_COLOURS[plc], plc.value)
         inputs = st.plc_inputs

@@ -352,6 +352,15 @@ def test_plc_state_faults_and_reset_needed_are_derived_from_the_status_and_the_a
     assert not model.needs_reset()
 
 
+def test_the_plc_link_lamp_tells_failed_exchanges_and_dropped_answers_since_start():
+    from hmi.model import plc_link_text
+
+    assert plc_link_text(status(plc_link="OK", plc_exchanges=500)) == "OK"
+    assert plc_link_text(status(plc_link="OK", plc_exchanges=498, plc_failed=2, plc_dropped=1)) == (
+        "OK (2 of 500 exchanges failed, 1 late answer dropped since start)")
+    assert plc_link_text(status(plc_link="LOST", plc_exchanges=10, plc_failed=3)) == "LOST (3 of 13 exchanges failed since start)"
+
+
 def test_a_done_procedure_keeps_the_screen_until_ended_unless_the_automatic_cycle_started_it():
     model = MachineModel("panel")
     model.set_reachable(True)
