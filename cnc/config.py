@@ -320,6 +320,8 @@ class PlcConfig:
     timeout_ms: float = opt(100.0, "ms", "how long one request may wait for its response", 5.0, 10000.0)
     lost_after_cycles: int = opt(3, "cycles", "consecutive failed exchanges after which the link counts as lost", 1, 100)
     reconnect_s: float = opt(1.0, "s", "pause between reconnection attempts while the link is lost", 0.01, 600.0)
+    local_echo: bool = opt(False, doc="the adapter hears its own requests (half-duplex RS-485 with the receiver on "
+                           "while sending): each request's echo is dropped before its answer is read")
     var: list[PlcVarConfig] = field(default_factory=list, metadata={"array_of": PlcVarConfig})
 
     def inputs(self) -> list[PlcVarConfig]:

@@ -57,11 +57,16 @@ class RtuLine:
 
     def __init__(
         self, device: str, baud: int, parity: str, stop_bits: int, timeout_s: float, silence_s: float,
+        local_echo: bool = False,
     ) -> None:
         """`silence_s` is the inter-frame gap of the line as configured (a pty is opened without
-        parity, but the gap is the one of the real cable's character time)."""
+        parity, but the gap is the one of the real cable's character time). `local_echo`: the
+        port hears what it sends (half-duplex RS-485 with the receiver left on): each request's
+        echo is taken off the front of what comes back. Without it, a single write's echo would
+        be read as the PLC's answer (the answer repeats the request)."""
         self.device, self.baud, self.parity, self.stop_bits = device, baud, parity, stop_bits
         self.timeout_s, self.silence_s = timeout_s, silence_s
+        self.local_echo = local_echo
         self.misfits = 0  # frames dropped because they were not the answer asked for
         self.noise = 0  # bytes dropped because they made no frame
         self._port: serial.Serial | None = None
@@ -102,11 +107,15 @@ class RtuLine:
             time.sleep(wait)
         try:
             port.reset_input_buffer()  # answers that came after their request was given up
-            port.write(rtu.with_crc(bytes((unit,)) + pdu))
+            request = rtu.with_crc(bytes((unit,)) + pdu)
+            port.write(request)
             deadline = time.monotonic() + self.timeout_s
             buffer = bytearray()
+            echo = request if self.local_echo else b""
             while True:
-                answer = self._take_answer(buffer, unit, pdu, answer_size)
+                if echo:
+                    echo = self._take_echo(buffer, echo)
+                answer = None if echo else self._take_answer(buffer, unit, pdu, answer_size)
                 if answer is not None:
                     self._quiet_at = time.monotonic() + self.silence_s
                     return answer
@@ -124,6 +133,15 @@ class RtuLine:
         except (OSError, termios.error) as exc:  # termios.error: a hung-up pty refusing a flush
             self.close()
             raise PortFailed(f"serial port {self.device!r}: {exc}") from None
+
+    def _take_echo(self, buffer: bytearray, echo: bytes) -> bytes:
+        """Take the request's echo off the front of `buffer`; what of it is still to come. What
+        is not the echo ends the wait for it (the echo was lost): parsing goes on from there."""
+        n = min(len(buffer), len(echo))
+        if buffer[:n] != echo[:n]:
+            return b""
+        del buffer[:n]
+        return echo[n:]
 
     def _take_answer(self, buffer: bytearray, unit: int, pdu: bytes, answer_size: int) -> bytes | None:
         """Take frames off the front of `buffer` until one is the answer to `pdu`; None when the

@@ -101,7 +101,7 @@ class PlcMaster:
             # a pty (the simulator) has no parity bit and refuses to be asked for one (pty_pair)
             parity = "N" if is_pty(self.port) else c.parity
             silence_s = rtu.SILENCE_CHARS * rtu.char_time_s(c.baud, c.parity, c.stop_bits)
-            self._line = RtuLine(self.port, c.baud, parity, c.stop_bits, c.timeout_ms / 1000.0, silence_s)
+            self._line = RtuLine(self.port, c.baud, parity, c.stop_bits, c.timeout_ms / 1000.0, silence_s, c.local_echo)
         try:
             self._line.open()
         except PortFailed as exc:

@@ -84,8 +84,11 @@ class _Tables:
 class PlcSimServer:
     """The simulator's Modbus RTU slave on `fd`, in a thread: `start()`, `stop()`."""
 
-    def __init__(self, config: PlcConfig, model: PlcModel, fd: int, step_s: float = 0.01) -> None:
+    def __init__(self, config: PlcConfig, model: PlcModel, fd: int, step_s: float = 0.01, echo: bool = False) -> None:
+        """`echo`: hand every request back before its answer, as a half-duplex RS-485 adapter with
+        its receiver left on does (the master then needs `[plc] local_echo`)."""
         self.config, self.model, self.fd, self.step_s = config, model, fd, step_s
+        self.echo = echo
         self.unit_id = config.unit_id
         self.char_s = rtu.char_time_s(config.baud, config.parity, config.stop_bits)
         self.silence_s = rtu.SILENCE_CHARS * self.char_s
@@ -204,6 +207,8 @@ class PlcSimServer:
             self._rx.clear()
         else:
             return
+        if self.echo:
+            os.write(self.fd, frame)  # the master's own request, heard back as it went out
         if not rtu.crc_ok(frame):
             self.stats.crc_errors += 1
             self._rx.clear()  # resynchronise on the next frame

@@ -274,18 +274,19 @@ def test_an_answer_later_than_the_timeout_costs_one_exchange_not_the_link(sim, l
 class HandSlave:
     """The far end of a pty played by hand: reads one request, writes back the given bytes."""
 
-    def __init__(self) -> None:
+    def __init__(self, local_echo: bool = False) -> None:
         self.pair = PtyPair()
-        self.line = RtuLine(self.pair.device, 19200, "N", 1, timeout_s=2.0, silence_s=0.002)
+        self.line = RtuLine(self.pair.device, 19200, "N", 1, timeout_s=2.0, silence_s=0.002, local_echo=local_echo)
         self.line.open()
 
-    def answer(self, *frames: bytes) -> threading.Thread:
+    def answer(self, *frames: bytes, echo: bool = False) -> threading.Thread:
+        """Answer the next request with `frames`; `echo`: hand the request back first."""
         def serve() -> None:
             got = b""
             while len(got) < 8:  # every request of these tests is 8 bytes
                 select.select([self.pair.server_fd], [], [], 5.0)
                 got += os.read(self.pair.server_fd, 64)
-            os.write(self.pair.server_fd, b"".join(frames))
+            os.write(self.pair.server_fd, (got if echo else b"") + b"".join(frames))
         thread = threading.Thread(target=serve, daemon=True)
         thread.start()
         return thread
@@ -332,6 +333,58 @@ def test_the_tail_of_a_frame_cut_short_does_not_hide_the_answer_behind_it():
         assert answer == bytes((rtu.READ_INPUT_REGISTERS, 4, 0, 7, 1, 2)) and slave.line.noise == 3
     finally:
         slave.close()
+
+
+def test_with_local_echo_a_write_is_confirmed_by_the_plc_s_answer_not_by_its_own_echo():
+    """A half-duplex adapter hears each request; a single write's answer repeats the request, so
+    without `local_echo` the echo would confirm a write no PLC answered."""
+    write = rtu.write_pdu(rtu.WRITE_SINGLE_COIL, 3, [1])
+    size = rtu.response_size(rtu.WRITE_SINGLE_COIL, 1)
+    deaf = HandSlave()
+    try:
+        thread = deaf.answer(echo=True)  # the adapter's echo, and no PLC behind it
+        assert deaf.line.transact(PLC.unit_id, write, size) == write, "taken for the answer: the hazard"
+        thread.join()
+    finally:
+        deaf.close()
+    slave = HandSlave(local_echo=True)
+    try:
+        slave.line.timeout_s = 0.3
+        thread = slave.answer(echo=True)
+        with pytest.raises(NoAnswer):
+            slave.line.transact(PLC.unit_id, write, size)
+        thread.join()
+        slave.line.timeout_s = 2.0
+        read = rtu.read_pdu(rtu.READ_DISCRETE_INPUTS, 0, 8)
+        thread = slave.answer(frame(rtu.READ_DISCRETE_INPUTS, 1, 0x81), echo=True)
+        assert slave.line.transact(PLC.unit_id, read, rtu.response_size(rtu.READ_DISCRETE_INPUTS, 8)) == bytes((2, 1, 0x81))
+        thread.join()
+        thread = slave.answer(frame(rtu.WRITE_SINGLE_COIL, 0, 3, 0xFF, 0), echo=True)
+        assert slave.line.transact(PLC.unit_id, write, size) == write
+        thread.join()
+        assert slave.line.noise == 0 and slave.line.misfits == 0
+    finally:
+        slave.close()
+
+
+def test_the_master_with_local_echo_runs_the_link_over_an_echoing_adapter():
+    plc = dataclasses.replace(PLC, local_echo=True, timeout_ms=500.0)  # timely answers keep a margin
+    pair = PtyPair()
+    model = PlcModel(plc, FAST)
+    server = PlcSimServer(plc, model, pair.server_fd, echo=True)
+    server.start()
+    master = PlcMaster(plc, pair.device)
+    try:
+        outputs = [0.0] * 8
+        outputs[master.image.output_index["pump_on"]] = 1.0
+        assert wait_for(lambda: master.cycle(outputs) and master.writes_pending == 0)
+        assert model.outputs()["pump_on"] == 1.0 and master.status.failed == 0
+        assert master.status.dropped == 0 and master.status.noise == 0
+    finally:
+        master.close()
+        server.stop()
+        pair.close()
+    assert server.error is None
 
 
 def test_a_write_echo_of_another_address_or_value_is_not_the_write_s_answer():
