@@ -91,10 +91,6 @@ class RtuLine:
             finally:
                 self._port = None
 
-    @property
-    def is_open(self) -> bool:
-        return self._port is not None
-
     def transact(self, unit: int, pdu: bytes, answer_size: int) -> bytes:
         """Send `pdu` (function and data) to `unit`; return the answer's PDU (function and data,
         without unit and CRC). `answer_size` is the whole answer frame's expected length.
@@ -117,7 +113,6 @@ class RtuLine:
                     echo = self._take_echo(buffer, echo)
                 answer = None if echo else self._take_answer(buffer, unit, pdu, answer_size)
                 if answer is not None:
-                    self._quiet_at = time.monotonic() + self.silence_s
                     return answer
                 waiting = port.in_waiting
                 if not waiting:
@@ -133,6 +128,8 @@ class RtuLine:
         except (OSError, termios.error) as exc:  # termios.error: a hung-up pty refusing a flush
             self.close()
             raise PortFailed(f"serial port {self.device!r}: {exc}") from None
+        finally:  # an answer, an exception answer or a timeout: the next request keeps the gap
+            self._quiet_at = time.monotonic() + self.silence_s
 
     def _take_echo(self, buffer: bytearray, echo: bytes) -> bytes:
         """Take the request's echo off the front of `buffer`; what of it is still to come. What
