@@ -107,6 +107,21 @@ def response_size(function: int, count: int) -> int:
 EXCEPTION_RESPONSE_SIZE = FRAME_OVERHEAD + 1  # exception code
 
 
+def request_length(frame: bytes | bytearray) -> int | None:
+    """Length of the master's request frame that starts `frame`, when its function tells it
+    (None: too few bytes yet, or a function this link does not use: the slave then waits for
+    the line's silence to end the frame)."""
+    if len(frame) < 2:
+        return None
+    function = frame[1]
+    if function in (READ_COILS, READ_DISCRETE_INPUTS, READ_HOLDING_REGISTERS, READ_INPUT_REGISTERS,
+                    WRITE_SINGLE_COIL, WRITE_SINGLE_REGISTER):
+        return FRAME_OVERHEAD + 4
+    if function in (WRITE_MULTIPLE_COILS, WRITE_MULTIPLE_REGISTERS):
+        return FRAME_OVERHEAD + 5 + frame[6] if len(frame) >= 7 else None
+    return None
+
+
 def answer_length(frame: bytes | bytearray) -> int | None:
     """Length of the slave's answer frame that starts `frame`: None while too few bytes
     arrived to tell, 0 when the function is not one a slave of this link answers with

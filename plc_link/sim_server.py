@@ -196,7 +196,7 @@ class PlcSimServer:
     def _parse(self, now: float) -> None:
         """Take one complete frame off the receive buffer, by its function's length or, for
         an unknown function or garbage, by 3.5 characters of silence."""
-        n = _expected_length(self._rx)
+        n = rtu.request_length(self._rx)
         if n is not None and len(self._rx) >= n:
             frame = bytes(self._rx[:n])
             del self._rx[:n]
@@ -311,18 +311,6 @@ class PlcSimServer:
             self._tables.scratch[(kind, address)] = raw
         else:
             self.model.set_output(var.id, decode_value(var, raw))
-
-
-def _expected_length(buf: bytearray) -> int | None:
-    """Length of the request frame at the start of `buf`, when its function tells it."""
-    if len(buf) < 2:
-        return None
-    function = buf[1]
-    if function in (1, 2, 3, 4, 5, 6):
-        return 8
-    if function in (rtu.WRITE_MULTIPLE_COILS, rtu.WRITE_MULTIPLE_REGISTERS):
-        return 9 + buf[6] if len(buf) >= 7 else None
-    return None
 
 
 # -- as a child process --------------------------------------------------------------------
