@@ -150,7 +150,11 @@ def test_operator_runs_the_automatic_cycle_end_to_end_from_the_screen(qtbot, plc
     assert loaded.args[0].ok, loaded.args[0].reason
     qtbot.waitUntil(lambda: auto.program.text.toPlainText() == PART, timeout=WAIT_MS)  # the controller's copy
     assert model.program.segments == 6 and auto.program.error.isHidden()
-    assert w.contour.path_bounds() == pytest.approx((0.0, 140.0, 0.0, 140.0), abs=1e-6)  # from the program origin
+    # the model takes the program on the connection's thread; the screen draws it when its queued
+    # signal is handled, which may come after the text: wait for the drawing, not only the model
+    drawn = (0.0, 140.0, 0.0, 140.0)  # from the program origin
+    qtbot.waitUntil(lambda: (b := w.contour.path_bounds()) is not None and b == pytest.approx(drawn, abs=1e-6),
+                    timeout=WAIT_MS)
 
     click(qtbot, screen, auto.cycle_start)
     qtbot.waitUntil(lambda: w.current_screen is Screen.PROCEDURE, timeout=WAIT_MS)
