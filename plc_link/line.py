@@ -161,12 +161,10 @@ class RtuLine:
             if frame[0] != unit:
                 self.misfits += 1
                 continue
-            if frame[1] == function | 0x80:
-                raise ExceptionAnswer(frame[2])
-            if frame[1] != function or size != answer_size or not _echoes(frame, pdu):
+            if frame[1] != function | 0x80 and (frame[1] != function or size != answer_size or not _echoes(frame, pdu)):
                 self.misfits += 1
                 continue
-            return frame[1:-2]
+            return _answer_of(frame)
 
     def _find_answer(self, buffer: bytearray, unit: int, pdu: bytes, answer_size: int) -> bytes | None:
         """The answer to `pdu` (or its exception answer) beyond the front of `buffer`, taken with
@@ -181,10 +179,16 @@ class RtuLine:
                 continue
             del buffer[: at + size]
             self.noise += at
-            if frame[1] & 0x80:
-                raise ExceptionAnswer(frame[2])
-            return frame[1:-2]
+            return _answer_of(frame)
         return None
+
+
+def _answer_of(frame: bytes) -> bytes:
+    """The PDU of an answer frame that fits its request (without unit and CRC); an exception
+    answer raises ExceptionAnswer with its code."""
+    if frame[1] & 0x80:
+        raise ExceptionAnswer(frame[2])
+    return frame[1:-2]
 
 
 def _echoes(frame: bytes, pdu: bytes) -> bool:

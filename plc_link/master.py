@@ -174,7 +174,7 @@ class PlcMaster:
         answer = self._call(line, request.describe(), rtu.read_pdu(f, request.address, n), rtu.response_size(f, n))
         if f == rtu.READ_DISCRETE_INPUTS:
             return rtu.unpack_bits(answer[2:], n)
-        return [int.from_bytes(answer[2 + 2 * i : 4 + 2 * i], "big") for i in range(n)]
+        return rtu.unpack_registers(answer[2:], n)
 
     def _write(self, line: RtuLine, request: WriteRequest) -> None:
         f, values = request.function, request.values

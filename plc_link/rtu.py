@@ -158,6 +158,16 @@ def unpack_bits(payload: bytes, count: int) -> list[int]:
     return [(payload[i // 8] >> (i % 8)) & 1 for i in range(count)]
 
 
+def pack_registers(values: Sequence[int]) -> bytes:
+    """16-bit registers as they go on the line: each big-endian (raw values, taken modulo 2^16)."""
+    return b"".join((v & 0xFFFF).to_bytes(2, "big") for v in values)
+
+
+def unpack_registers(payload: bytes, count: int) -> list[int]:
+    """The first `count` registers of a payload (the inverse of `pack_registers`)."""
+    return [int.from_bytes(payload[2 * i : 2 * i + 2], "big") for i in range(count)]
+
+
 def read_pdu(function: int, address: int, count: int) -> bytes:
     """The PDU (function and data) of a read of `count` bits or registers from `address`."""
     return bytes((function,)) + address.to_bytes(2, "big") + count.to_bytes(2, "big")
@@ -174,7 +184,7 @@ def write_pdu(function: int, address: int, values: Sequence[int]) -> bytes:
     if function == WRITE_MULTIPLE_COILS:
         payload = pack_bits(values)
     elif function == WRITE_MULTIPLE_REGISTERS:
-        payload = b"".join((v & 0xFFFF).to_bytes(2, "big") for v in values)
+        payload = pack_registers(values)
     else:
         raise ValueError(f"function code {function:#04x} is not a write this link uses")
     return head + len(values).to_bytes(2, "big") + bytes((len(payload),)) + payload

@@ -271,7 +271,7 @@ class PlcSimServer:
         if bits:
             payload = rtu.pack_bits(raw)
         else:
-            payload = b"".join(v.to_bytes(2, "big") for v in raw)
+            payload = rtu.pack_registers(raw)
         return bytes((function, len(payload))) + payload
 
     def _write_single(self, function: int, data: bytes) -> bytes:
@@ -296,12 +296,8 @@ class PlcSimServer:
         if byte_count != expected or len(data) != 5 + byte_count:
             raise ModbusException(rtu.ILLEGAL_DATA_VALUE)
         self._check_range(kind, address, count, limit)
-        payload = data[5:]
-        for i in range(count):
-            if bits:
-                value = (payload[i // 8] >> (i % 8)) & 1
-            else:
-                value = int.from_bytes(payload[2 * i : 2 * i + 2], "big")
+        values = rtu.unpack_bits(data[5:], count) if bits else rtu.unpack_registers(data[5:], count)
+        for i, value in enumerate(values):
             self._store(kind, address + i, value)
         return bytes((function,)) + data[0:4]
 
