@@ -126,6 +126,7 @@ class Servo:
         self.last_tick = 0
         self.first = True
         self.brake: PathBrake | None = None
+        self.released: set[int] = set()  # axes that could not follow the servo's own stop (`_run_brake`)
         self.settle = 0  # ticks held at rest after the servo's own stop
         self.force_ok = False  # the commander's forced outputs (jet test) rose while the axes held still
         self.force_blocked = False  # ... or were asked for while they did not: void until the commander asks again
@@ -362,6 +363,7 @@ class Servo:
         source = _QueuedPath(self) if follow_path else _NoPath()
         self.brake = PathBrake(position, velocity, accel_along, self.stop_accel, self.stop_jerk, self.dt, source)
         self.settle = 0
+        self.released = set()  # axes that could not follow this stop: their drives off, the others brake on
         v[I["trip_speed_mm_s"]] = speed
         v[I["brake_distance_mm"]] = 0.0
         v[I["brake_tick"]] = self.last_tick
@@ -397,14 +399,22 @@ class Servo:
             if self.settle >= SETTLE_TICKS:
                 return self._finish_brake(actual)
         ain = hw[self._h_ain]
-        lagging = self._control(position, velocity, actual, steps, [bool(ain[i] & _READY) for i in range(self.n)],
-                                STOP_FE_FACTOR)
+        released = self.released
+        lagging = self._control(position, velocity, actual, steps,
+                                [bool(ain[i] & _READY) and i not in released for i in range(self.n)], STOP_FE_FACTOR, released)
         if lagging == _LAW_FAILED and self.commanded:  # the commander's stop goes on with the fallback, latched now
             self._trip(ServoFault.CONTROL_PROGRAM, -1, 0.0, tick, 0)
             self.commanded = False
-        if lagging >= 0:  # the axes cannot follow their own stop (seized, runaway): nothing left but drives off
-            log.error("servo: axis %s cannot follow the controlled stop: drives off", self.names[lagging].upper())
-            return self._finish_brake(actual)
+        if lagging >= 0:
+            # an axis cannot follow its own stop (seized, runaway): its drive goes off, from the next
+            # period on, and the others go on braking under control (all drives off would let them
+            # coast: a seized X at a corner left Y running 30 mm); all of them lagging: drives off
+            released.add(lagging)
+            if len(released) == self.n:
+                log.error("servo: no axis can follow the controlled stop: drives off")
+                return self._finish_brake(actual)
+            log.error("servo: axis %s cannot follow the controlled stop: its drive off, the others brake on",
+                      self.names[lagging].upper())
         v[I["digital_out"]] = 0
         return ServoState.STOPPING
 
@@ -501,10 +511,11 @@ class Servo:
         return None
 
     def _control(self, commanded: list[float], velocity: list[float], actual: list[float], steps: int,
-                 watched: list[bool], fe_factor: float) -> int:
+                 watched: list[bool], fe_factor: float, released: set[int] = frozenset()) -> int:
         """The control law towards `commanded` (the supervision around it is this method's): the
         axis whose error passed fe_factor x its limit, `_LAW_FAILED` when the control program
-        failed this period (the fallback law's commands are out), or -1."""
+        failed this period (the fallback law's commands are out), or -1. `released`: axes whose
+        drives are off (speed 0) while the others are controlled (the servo's own stop)."""
         v, I, n, dt = self.out.values, self._i, self.n, self.dt * steps
         inp = self.inputs
         errors = inp.error_mm
@@ -531,6 +542,8 @@ class Servo:
         u, failed = self._run_law(inp, dt)
         speed = [0.0] * n
         for i in range(n):
+            if i in released:
+                continue
             volts = u[i] * self.vpm[i]
             vmax = self.vmax[i]
             speed[i] = vmax if volts > vmax else -vmax if volts < -vmax else volts
@@ -542,7 +555,7 @@ class Servo:
         v[I["commanded_mm"]] = list(commanded)
         v[I["commanded_velocity_mm_s"]] = list(velocity)
         v[I["speed_cmd_v"]] = speed
-        v[I["drive_enable_mask"]] = (1 << n) - 1
+        v[I["drive_enable_mask"]] = ((1 << n) - 1) & ~sum(1 << i for i in released)
         return _LAW_FAILED if failed else -1
 
     def _run_law(self, inp: ControlInputs, dt: float) -> tuple[list[float], bool]:

@@ -396,3 +396,35 @@ def test_a_servo_restarted_before_the_hardware_server_saw_its_loss_still_gets_th
         path = rig.positions[start:]
         stop_mm = sum(math.dist(a, b) for a, b in zip(path, path[1:]))
         assert stop_mm <= stop_distance_bound_mm(speed, DT, A, J), f"{stop_mm:.2f} mm from {speed:.0f} mm/s"
+
+
+def test_an_axis_that_cannot_follow_the_stop_loses_its_drive_and_the_others_still_brake_under_control():
+    """A diagonal cut at 500 mm/s, X seized (friction x400): the following error trips, and X cannot
+    follow the servo's own stop either. Its drive goes off; Y goes on braking along the stop's path
+    and comes to rest within the bound of the head's speed. (All drives went off before: Y
+    coasted, 30 mm and more at a corner.)"""
+    with Rig(CONFIG) as rig:
+        rig.set_command(arm=int(StopCause.BARRIER), pressure_floor_bar=FLOOR_BAR)
+        rig.run_program("G21 G90 G64 P0.05\nM3\nG1 X900 Y900 F30000\nM5\nM2\n")
+        rig.run_until(lambda: rig.speed_mm_s() > 0.99 * 500.0 and rig.jet[-1], 5000, "cutting diagonally at 500 mm/s")
+        start, injected = len(rig.positions) - 1, rig.tick
+        speed = rig.speed_mm_s()
+        rig.board.set_friction_scale(0, 400.0)
+        masks = []
+        for _ in range(4000):
+            rig.step()
+            masks.append(rig.servo_block()["drive_enable_mask"])
+            if rig.servo_block()["state"] == ServoState.FAULT and rig.speed_mm_s() < 0.5:
+                break
+        s = rig.servo_block()
+        assert ServoFault(s["fault"]) == ServoFault.FOLLOWING_ERROR and not rig.jet[-1]
+        assert 0b10 in masks, "Y's drive on, X's off, while Y brakes"
+        detect = s["fault_tick"] - (injected + 1)
+        travel_y = abs(rig.positions[-1][1] - rig.positions[start][1])
+        # the stop brakes along the path (Y's share of it): within the path's bound from the head's speed
+        assert travel_y <= stop_distance_bound_mm(speed, detect * DT, A, J), f"Y ran {travel_y:.2f} mm from {speed:.0f} mm/s"
+        rig.board.set_friction_scale(0, 1.0)
+        rig.step(5)
+        rig.reset()
+        rig.step(5)
+        assert rig.servo_block()["state"] == ServoState.HOLDING, "a reset recovers"
