@@ -32,6 +32,7 @@ from cnc.config import load_machine
 from cnc.machine_dialect import dialect_for
 from cnc.planner.runner import ProgramRunner
 from cnc.planner.sections import Section, iter_steps
+from cnc.planner.overlap import CornerOverlap
 from cnc.planner.steps import ProgramTiming
 from gcode.interp import interpret
 
@@ -49,7 +50,7 @@ def run_once(program, config, burst: int) -> dict:
         for step in iter_steps(program, config):
             kinds.append(isinstance(step, Section))
             yield step
-    timing = ProgramTiming(dt).compute(noted())
+    timing = ProgramTiming(dt, CornerOverlap.of(config)).compute(noted())
     planned = timing.total_ticks
     t1 = time.perf_counter()
     moving = sum(t for t, is_section in zip(timing.step_ticks, kinds) if is_section)

@@ -232,6 +232,11 @@ class PlannerConfig:
     )
     fifo_low_ms: float = opt(20.0, "ms", "refill the setpoint FIFO when it holds less motion than this", 2.0, 2000.0)
     fifo_high_ms: float = opt(40.0, "ms", "fill the setpoint FIFO up to this much motion (bounds the reaction to hold and override)", 4.0, 4000.0)
+    corner_overlap_ms: float = opt(
+        40.0, "ms", "at a corner the head would stop at (G64 P > 0, nothing switching there), the next move may start "
+        "this much before the last one comes to rest, the two added within the axis limits and P; a hold or override "
+        "change in an overlap acts when it ends (0: stop at every such corner)", 0.0, 200.0,
+    )
     divisor: int = opt(5, "ticks", "the planner runs every Nth base tick", 1, 100)
     jog_velocity_mm_s: float = opt(50.0, "mm/s", "default jog speed", 0.01, 10000.0)
     jog_deadman_ms: float = opt(

@@ -84,7 +84,8 @@ def matrix_table(cells: list) -> list[str]:
     lines = text_table(rows)
     lines.append("detect: ticks (1 ms) from the cause (at the board, in the PLC's image, a process falling silent) to the "
                  "tick that acted; jet off: ticks from that tick to the board's jet valve closed ('-': it was closed); "
-                 "bound: v T_detect + v^2/2a + v a/2j + 1 mm; n/a: the reason is in the alarm column")
+                 "bound: v T_detect + v^2/2a + v a/2j + 1 mm (v by the tick that acted; speeding up at a0 then: "
+                 "v + a0^2/2j, and v a0/j more); n/a: the reason is in the alarm column")
     return lines
 
 

@@ -24,6 +24,7 @@ from cnc.data.layout import PlannerState, RunResult
 from cnc.machine_dialect import dialect_for
 from cnc.planner.process import TIMED_AT_LOAD_SEGMENTS
 from cnc.planner.rebase import PROBE_MM, start_shift
+from cnc.planner.overlap import CornerOverlap
 from cnc.planner.runner import ProgramRunner
 from cnc.planner.sections import Section, iter_steps, program_steps
 from cnc.planner.steps import STEPS_AHEAD, ProgramTiming, StepSource
@@ -46,7 +47,7 @@ def run_streamed(program, config, burst: int = 200, first: int | None = None):
     """A runner on a step source (as the planner runs a loaded program), taken to its end (or to
     its first `first` records); the source, the records made and how far ahead the steps were."""
     source = StepSource(iter_steps(program, config))
-    runner = ProgramRunner(None, config, steps=source, timing=ProgramTiming(config.timing.period_s))
+    runner = ProgramRunner(None, config, steps=source, timing=ProgramTiming(config.timing.period_s, CornerOverlap.of(config)))
     made, ahead = 0, 0
     while not runner.finished and (first is None or made < first):
         records, _ = runner.take(burst if first is None else min(burst, first - made))
@@ -64,7 +65,7 @@ def test_a_long_nest_streams_its_steps_in_a_bounded_window_and_runs_its_planned_
     assert source.made == len(steps) and len(steps) > 4 * STEPS_AHEAD, "every step made, many more than the window"
     assert source.largest_window <= STEPS_AHEAD + 2, "the window holds the step under way and what is made ahead"
     assert ahead <= STEPS_AHEAD + 1
-    timing = ProgramTiming(config.timing.period_s).compute(iter_steps(program, config))
+    timing = ProgramTiming(config.timing.period_s, CornerOverlap.of(config)).compute(iter_steps(program, config))
     assert timing.complete and timing.total_ticks == made, "the timing is exactly what the run streams"
     assert timing.total_mm == pytest.approx(sum(s.length_mm for s in steps if isinstance(s, Section)), rel=1e-12)
 
@@ -81,7 +82,7 @@ def test_the_first_setpoints_need_the_same_few_steps_whatever_the_programs_size(
 
 def test_the_eta_is_unknown_until_the_timing_is_made_then_exact(config):
     program = interpret(cam_nest(3), config)
-    timing = ProgramTiming(config.timing.period_s)
+    timing = ProgramTiming(config.timing.period_s, CornerOverlap.of(config))
     runner = ProgramRunner(None, config, steps=StepSource(iter_steps(program, config)), timing=timing)
     runner.take(100)
     assert np.isnan(runner.remaining_s()), "no ETA from a timing still being made"
@@ -116,7 +117,6 @@ def test_a_programs_timing_in_pieces_cut_at_pierces_is_the_whole_programs_to_the
     zero-length move (which makes no element)."""
     from cnc.planner import steps as steps_module
     from cnc.planner.sections import pierce_boundaries
-    from cnc.planner.steps import step_ticks
 
     text, with_stop, after_nothing = _nest_with_awkward_pierces(40)
     program = interpret(text, config)
@@ -134,7 +134,8 @@ def test_a_programs_timing_in_pieces_cut_at_pierces_is_the_whole_programs_to_the
     spans = steps_module._pieces(program, 3)
     assert len(spans) >= 8 and spans[0][0] == 0 and spans[-1][1] == len(program.segments)
     assert all(a == b for (_, a), (b, _) in zip(spans[:-1], spans[1:])), "the pieces cover the program"
-    by_piece = [step_ticks(s, dt) for a, b in spans for s in iter_steps(program, config, None, a, b)]
+    by_piece = [t for a, b in spans
+                for t in ProgramTiming(dt, CornerOverlap.of(config)).compute(iter_steps(program, config, None, a, b)).step_ticks]
     assert by_piece == list(whole.step_ticks)
     # forked, as `waterjet check` and the timing process do it: in a process of its own (this one
     # has threads, Zenoh's and Qt's, and a fork copies none of them but their locks)
@@ -258,7 +259,7 @@ def test_a_large_programs_cycle_time_is_planned_in_a_process_of_its_own_exactly(
     start = sup.servo()["commanded_mm"]
     program = interpret(big.read_text(), sup.config, (start[0], start[1], 0.0))
     assert len(program.segments) > TIMED_AT_LOAD_SEGMENTS
-    timing = ProgramTiming(sup.config.timing.period_s).compute(iter_steps(program, sup.config))
+    timing = ProgramTiming(sup.config.timing.period_s, CornerOverlap.of(sup.config)).compute(iter_steps(program, sup.config))
     m = sup.motion()
     assert m["planned_s"] == pytest.approx(timing.total_ticks * sup.config.timing.period_s, abs=1e-9)
     assert m["total_mm"] == pytest.approx(timing.total_mm, rel=1e-12)

@@ -6,6 +6,9 @@ PLC block, that first shows it), the axes must come to rest within the stop boun
 
     v T_detect + v^2 / (2 a) + v a / (2 j) + 1 mm       (a, j: the machine's deceleration and jerk)
 
+(v: the head's speed by the tick that acted; where it was speeding up then, at a0, the speed it
+still gains while the stop takes that acceleration out, v + a0^2 / (2 j), and v a0 / j more:
+out of a corner, a fault finds the head accelerating)
 (category 0 stops, e-stop and mains loss, coast: their distance is reported), the servo must
 hold the trip that names the fault (and so its alarm), a reset while the axes still run out the
 stop must change nothing, and once the fault is gone a reset must bring the machine back, and it
@@ -65,6 +68,21 @@ def _cut(feed_mm_s: float) -> Callable[[Rig], None]:
     return enter
 
 
+CORNER = "G21 G90 G64 P0.05\nM3\nG1 X400 F30000\nG1 X100 Y400\nM5\nM2\n"  # a 135 degree turn: X moves on
+
+
+def _corner_overlap(rig: Rig) -> None:
+    """Cutting through a corner the planner overlaps (`cnc/planner/overlap.py`): the second move has
+    begun while the first still arrives, the head off both within P; the fault comes in the middle
+    of it (no step after: the overlap lasts tens of ticks)."""
+    rig.set_command(arm=int(StopCause.BARRIER), pressure_floor_bar=FLOOR_BAR)
+    rig.run_program(CORNER)
+    def in_overlap() -> bool:  # still arriving in X (the first move) while the second has left in Y
+        (x0, _), (x1, y1) = rig.positions[-2][:2], rig.positions[-1][:2]
+        return x1 > 399.0 and x1 > x0 + 1e-6 and y1 > 100.0 + 1e-3 and rig.jet[-1]
+    rig.run_until(in_overlap, 5000, "the head cutting the corner's overlap")
+
+
 def _mdi_cut(rig: Rig) -> None:
     """Cutting by hand (MDI in MANUAL): the pressure floor holds, the barriers are not armed."""
     rig.set_command(pressure_floor_bar=FLOOR_BAR)
@@ -109,6 +127,7 @@ STATES = [
     State("cutting 50 mm/s", CONFIG, _cut(50.0), True, cutting=True),
     State("cutting 500 mm/s", CONFIG, _cut(500.0), True, cutting=True),
     State("MDI cutting 500 mm/s", CONFIG, _mdi_cut, True, cutting=True, in_cycle=False),
+    State("in a corner's overlap at F30000", CONFIG, _corner_overlap, True, cutting=True),
     State("held", CONFIG, _held, False),
     State("jet test", CONFIG, _jet_test, False),
     State("jogging", CONFIG, _jogging, True),
@@ -294,7 +313,16 @@ def _run_cell(state: State, fault: Fault) -> Cell:
         detect = acted - cause
         path = rig.positions[start:]
         stop_mm = sum(math.dist(a, b) for a, b in zip(path, path[1:]))
-        bound = None if fault.category0 else stop_distance_bound_mm(speed, max(detect, 0) * DT, A, J)
+        # a head speeding up (out of a corner) runs faster by the reaction than at the cause, and a
+        # jerk-limited stop must first take its acceleration out: the bound is taken from the
+        # speed it then reaches (the same as at the cause where it cruises)
+        speeds = [math.dist(a, b) / DT for a, b in zip(path, path[1:])]
+        k = min(max(acted - injected, 0), len(speeds) - 1)
+        speeding_up = max(speeds[k] - speeds[k - 1], 0.0) / DT if k >= 1 else 0.0
+        reached = max([speed] + speeds[:k + 1]) + speeding_up**2 / (2.0 * J)
+        speed = reached
+        bound = None if fault.category0 else (
+            stop_distance_bound_mm(reached, max(detect, 0) * DT, A, J) + reached * speeding_up / J)
         jet_ticks = "-"
         if jet_was:
             jet_ticks = str(hw["jet_off_tick"] - acted) if not rig.jet[-1] else "OPEN"

@@ -385,7 +385,11 @@ def sample(elements: list[Element], step_mm: float = 0.01) -> np.ndarray:
 
 def deviation(path: list[Element], programmed: list[Element], step_mm: float = 0.01) -> np.ndarray:
     """Distance of each sample of `path` to the nearest point of the `programmed` geometry (mm)."""
-    pts = sample(path, step_mm)
+    return distance_to(sample(path, step_mm), programmed)
+
+
+def distance_to(pts: np.ndarray, programmed: list[Element]) -> np.ndarray:
+    """Distance of each XY point (m, 2) to the nearest point of the elements (mm)."""
     best = np.full(len(pts), np.inf)
     for e in programmed:
         if e.kind == DWELL:

@@ -65,6 +65,7 @@ from ..machine_dialect import dialect_for
 from ..params import registry, with_values
 from ..programs import read_program
 from ..runtime.rt import collector_paused, give_back_memory, leave_realtime
+from .overlap import CornerOverlap
 from .preflight import PreflightError, preflight
 from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
@@ -106,7 +107,7 @@ class LoadedProgram:
         self.hash = hashlib.sha256(text).hexdigest()
         st = program.stats
         self.programmed_mm = st.feed_length_mm + st.rapid_length_mm  # the path length until the timing has it
-        self.timing = ProgramTiming(config.timing.period_s)
+        self.timing = ProgramTiming(config.timing.period_s, CornerOverlap.of(config))
         self._first: StepSource | None = self.new_source()  # the first stretch, made now: the start finds it made
         self.timing_job: TimingProcess | None = None
         if len(program.segments) <= TIMED_AT_LOAD_SEGMENTS:  # a short program is timed now, at no cost worth more
@@ -562,7 +563,7 @@ class Planner:
         if self.loaded.cut is not None:  # the same job: each segment keeps its quality (the rapid has none)
             original = restart.original_segment(np.arange(len(restart.program.segments)))
             cut = CutPlan(self.loaded.cut.model, self.loaded.cut.quality[np.clip(original, 0, len(self.loaded.cut.quality) - 1)])
-        timing = ProgramTiming(self.dt)
+        timing = ProgramTiming(self.dt, CornerOverlap.of(self.config))
         if len(restart.program.segments) <= TIMED_AT_LOAD_SEGMENTS:
             timing.compute(iter_steps(restart.program, self.config, cut))
         log.info("planner: %s: %s", self.loaded.name, restart.description)

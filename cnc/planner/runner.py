@@ -28,6 +28,7 @@ from gcode.program import Program
 
 from ..config import MachineConfig
 from ..data.fifo import SetpointFlag, setpoint_dtype
+from .overlap import CornerOverlap
 from .sections import Section, Step, iter_steps
 from .steps import STEPS_AHEAD, ProgramTiming, StepSource
 from .stream import SectionStream, WindowJob
@@ -78,6 +79,10 @@ class ProgramRunner:
         self.axes = [_AXES.index(a) for a in config.axis_names]
         self.dtype = setpoint_dtype(len(self.axes))
         self.close_on_hold = config.jet.close_on_hold
+        self.corners = CornerOverlap.of(config)
+        self._overlap: tuple | None = None  # ((step, its plan's generation), next section's stream, samples) decided
+        self._queued: tuple | None = None  # an overlap's summed samples still to give (`_start_overlap`)
+        self._summed_head = 0  # how many of the current section's first samples an overlap added to the last one's
         self.state = RunState.RUNNING
         self.override = 1.0
         self.events: list[Event] = []
@@ -156,6 +161,12 @@ class ProgramRunner:
         return self.stream is not None and not self.repierce
 
     @property
+    def overlap_left(self) -> int:
+        """Samples of a corner's overlap still to give (`overlap.py`; 0: none under way): the
+        operator's controls act after them."""
+        return len(self._queued[0]) if self._queued is not None else 0
+
+    @property
     def finished(self) -> bool:
         return self.state in (RunState.DONE, RunState.ABORTED)
 
@@ -190,6 +201,8 @@ class ProgramRunner:
         if self.override <= 0.0 and self._opens_jet_now():
             self.hold()  # at 0 % nothing may open the jet: it would stand still open
             return self._nothing()
+        if self._queued is not None:
+            return self._from_queue(n)
         if self.repierce:
             k = min(n, self.repierce)
             self.repierce -= k
@@ -208,6 +221,16 @@ class ProgramRunner:
     def _from_stream(self, n: int):
         stream = self.stream
         section = stream.section
+        stream.plan_until(stream.k + n)  # (what the take commits anyway) so its end is known in time
+        overlap = self._corner_overlap(stream)
+        if overlap:
+            left = stream.k_end - stream.k
+            if left == overlap:
+                self._start_overlap(overlap)
+                return self._nothing()
+            if left > overlap:
+                n = min(n, left - overlap)  # up to where the next section's samples are added
+            # (fewer left: the samples to add to were made before the overlap was known: a stop there)
         y, s = stream.take(n)
         if len(y):
             k = section.path.index_at(s)
@@ -229,6 +252,49 @@ class ProgramRunner:
             self._close_jet()
         return self._nothing()
 
+    def _corner_overlap(self, stream: SectionStream) -> int:
+        """How many of the section's last samples the next section's first ones are added to
+        (`overlap.py`; 0: it stops at the corner), decided once the section is planned to its end
+        and again after every replan of it."""
+        if self.state != RunState.RUNNING or stream.stopping or not stream.final or self.corners.max_samples < 1:
+            return 0
+        key = (self.index, stream.generation)
+        if self._overlap is not None and self._overlap[0] == key:
+            return self._overlap[2]
+        following = self.steps.get(self.index + 1)
+        nxt, samples = None, 0
+        if isinstance(following, Section) and self.corners.applies(stream.section, following):
+            nxt = self._ready.setdefault(self.index + 1, SectionStream(following, self.override, min(self.override, 1.0)))
+            samples = self.corners.samples(stream, nxt, self._summed_head)
+        self._overlap = (key, nxt, samples)
+        return samples
+
+    def _start_overlap(self, samples: int) -> None:
+        """Take the section's last samples and the next one's first, added, and go on with the next
+        section: its stream takes the operator's controls from now on, acting after these samples."""
+        last, (_, nxt, _) = self.stream, self._overlap
+        y_last, s_last = last.take(samples)
+        y_next, s_next = nxt.take(samples)
+        self._messages(last.section, s_last)
+        summed = y_last + y_next - np.asarray(last.section.end, dtype=float)
+        self._ready.pop(self.index + 1, None)
+        self._overlap = None
+        self.index += 1
+        self.steps.forget_before(self.index)
+        self.stream, self._message_index, self._summed_head = nxt, 0, samples
+        section = nxt.section
+        k = section.path.index_at(s_next)
+        self._messages(section, s_next)
+        self.s_program = section.offset_mm + float(s_next[-1])
+        self._queued = (summed[:, self.axes], section.flags[k], section.segment[k], section.line[k], section.offset_mm + s_next)
+
+    def _from_queue(self, n: int):
+        """The next of an overlap's summed samples."""
+        m = min(n, len(self._queued[0]))
+        out = tuple(x[:m] for x in self._queued)
+        self._queued = tuple(x[m:] for x in self._queued) if m < len(self._queued[0]) else None
+        return out
+
     def _next_step(self) -> None:
         """Start the step after the current one."""
         self.index += 1
@@ -239,7 +305,7 @@ class ProgramRunner:
             return
         if isinstance(step, Section):
             self.stream = self._ready.pop(self.index, None) or SectionStream(step, self.override, min(self.override, 1.0))
-            self._message_index = 0
+            self._message_index = self._summed_head = 0
         elif step.kind == "program_stop":
             self.events.append(Event("program_stop", step.text, step.line))
             self.state = RunState.PAUSED
@@ -393,7 +459,7 @@ class ProgramRunner:
         if self.timing is None:
             if self._again is None:
                 raise RuntimeError("a runner of a step source is given its timing (ProgramTiming) with it")
-            self.timing = ProgramTiming(self.dt).compute(self._again())
+            self.timing = ProgramTiming(self.dt, self.corners).compute(self._again())
         if self.timing.failure is not None:
             raise self.timing.failure
         return self.timing
@@ -412,6 +478,7 @@ class ProgramRunner:
         if not timing.complete or i >= len(timing.step_ticks):
             return float("nan")
         now = timing.step_ticks[i] - (self.stream.k if self.stream is not None else timing.step_ticks[i] - self.pause_left)
+        now += self.overlap_left
         ticks = timing.remaining_ticks(i, max(now, 0)) + self.repierce
         seconds = ticks * self.dt
         return seconds / self.override if self.override < 1.0 else seconds

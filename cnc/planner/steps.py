@@ -28,6 +28,7 @@ from gcode.program import Program
 
 from ..config import MachineConfig
 from ..runtime.child import die_with
+from .overlap import CornerOverlap
 from .sections import Pause, Section, Step, iter_steps, pierce_boundaries
 from .stream import SectionStream
 
@@ -101,10 +102,14 @@ class ProgramTiming:
 
     `step_ticks[i]` is step i's servo periods (a section: its samples, what the runner will make
     of it; a pause: its seconds; a program stop: 0). Filled by `compute` (or `adopt`, from the
-    timing process): `complete` says when every step is in, `total_mm` is then the path length."""
+    timing process): `complete` says when every step is in, `total_mm` is then the path length.
+    `overlap`: the machine's corner overlaps (`overlap.py`, `CornerOverlap.of(config)`), as the
+    runner makes them; a section whose last samples the next one's first are added to counts only
+    the samples before them."""
 
-    def __init__(self, dt: float) -> None:
+    def __init__(self, dt: float, overlap: CornerOverlap) -> None:
         self.dt = dt
+        self.overlap = overlap
         self.step_ticks = array("q")
         self.total_ticks = 0
         self.total_mm = 0.0
@@ -118,7 +123,7 @@ class ProgramTiming:
         the cutting job's plan `cut` when there is one. With `workers` > 1 a large program is cut
         at pierces into pieces (`sections.pierce_boundaries`) timed at once by that many forked
         processes: the same steps, the same figures, sooner on a host with the cores for it."""
-        timing = cls(config.timing.period_s)
+        timing = cls(config.timing.period_s, CornerOverlap.of(config))
         pieces = _pieces(program, workers) if workers > 1 else []
         if len(pieces) < 2:
             return timing.compute(iter_steps(program, config, cut))
@@ -134,10 +139,21 @@ class ProgramTiming:
         """Walk the steps (each made, timed and dropped) to the end."""
         try:
             ticks, total_mm = array("q"), 0.0
+            last, summed = None, 0  # the stream of the section just timed (when a section), and how
+            # many of its first samples are added to the one before it
             for step in steps:
-                ticks.append(step_ticks(step, self.dt))
-                if isinstance(step, Section):
-                    total_mm += step.length_mm
+                if not isinstance(step, Section):
+                    ticks.append(step_ticks(step, self.dt))
+                    last = None
+                    continue
+                stream = SectionStream(step)
+                ticks.append(stream.planned_samples())
+                overlap = 0
+                if last is not None:
+                    overlap = self.overlap.samples(last, stream, summed)
+                    ticks[-2] -= overlap
+                last, summed = stream, overlap
+                total_mm += step.length_mm
             self.adopt(np.array(ticks, dtype=np.int64), total_mm)
         except BaseException as exc:  # kept for the planner to report; the run itself makes the same steps
             self.failure = exc
@@ -185,7 +201,7 @@ _JOB: tuple | None = None  # (program, config, cut) for the forked processes (in
 
 def _time_piece(span: tuple[int, int]) -> tuple[np.ndarray, float]:
     program, config, cut = _JOB
-    timing = ProgramTiming(config.timing.period_s).compute(iter_steps(program, config, cut, *span))
+    timing = ProgramTiming(config.timing.period_s, CornerOverlap.of(config)).compute(iter_steps(program, config, cut, *span))
     if timing.failure is not None:
         raise timing.failure
     return np.asarray(timing.step_ticks, dtype=np.int64), timing.total_mm

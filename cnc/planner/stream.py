@@ -170,6 +170,27 @@ class SectionStream:
         self._take_window(job)
         return True
 
+    def plan_until(self, k: int) -> None:
+        """Commit the pieces sample k needs (`take` does so for its samples), so that whether they
+        reach the section's end (`final`) is known before they are taken."""
+        self._cover(k * self.dt)
+
+    def positions(self, first: int, last: int) -> tuple[np.ndarray, float, float]:
+        """Samples first..last (1 is the first `take` gives) computed from the pieces, not streamed:
+        the same averages over the raw arc length and the axis positions (to rounding), without
+        their memories, so any stretch can be had at any time (`overlap.py` checks a corner's
+        samples so). Plans ahead as far as they need. Also the lowest and highest raw arc length
+        they come from."""
+        self._cover(last * self.dt)
+        first_raw = first - self.n_path - self.n_axis + 2  # the earliest raw sample the averages reach
+        t = np.maximum(np.arange(first_raw, last + 1), 0) * self.dt
+        s_raw = self._raw(t)
+        s_path = np.convolve(s_raw, np.full(self.n_path, 1.0 / self.n_path), mode="valid")
+        q = self.section.path.points(s_path)
+        kernel = np.full(self.n_axis, 1.0 / self.n_axis)
+        y = np.stack([np.convolve(q[:, c], kernel, mode="valid") for c in range(q.shape[1])], axis=1)
+        return y, float(s_raw.min()), float(s_raw.max())
+
     def planned_samples(self) -> int:
         """Plan the whole section without sampling it; how many samples it takes (what `take` will give)."""
         self._cover(math.inf)

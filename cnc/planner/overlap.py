@@ -1,0 +1,143 @@
+"""Corners the head need not stop at: the next section starts while the last one still slows down.
+
+A section ends at rest wherever the path turns sharper than a kink and no blend is worth it
+(`sections.py`: a jerk-limited blend within P / 2 of a sharp corner crawls), and wherever a rapid
+meets a feed move. The head brakes to the corner, the averages settle, and the next section starts
+from rest. Where nothing has to happen at the corner (two sections one after the other: no jet or
+output switching, no dwell, no program stop between them) and the corner has a tolerance
+(G64 P > 0), the next section may start k servo periods before the last one has come to rest,
+the two motions added, as a motion planner superposes two moves: the head leaves the corner while
+it still arrives there.
+
+The sum is checked, not assumed. k is the largest overlap, up to `[planner] corner_overlap_ms`,
+for which
+
+- every axis keeps its velocity, acceleration and jerk limits (backward differences of the summed
+  positions and of the samples either side of them, as the drives see them), and
+- every summed sample lies within P of the elements of the two sections near the corner (the
+  programmed ones: a section ends and starts there without a blend).
+
+The check is made on positions computed from the profile's pieces (`SectionStream.positions`), not
+on streamed samples, so the runner and the program's timing (`steps.ProgramTiming`) make the same
+choice from the same pieces; the streamed samples differ from them only by rounding (1e-12 mm),
+far inside the margin the check keeps. Overlaps save the comparison nest of `bench/
+linuxcnc_compare.py` 7.7 s of its 205 s (`bench/overlap_estimate.py`, docs/benchmarks.md).
+
+Under way, an overlap's samples are committed: a hold, a stop or an override change made during
+one acts from the next section's first sample after it, at most `corner_overlap_ms` of that
+section's motion from rest, a lead like the setpoint FIFO's own. (The last section is then
+braking to rest at the corner anyway, as hard as a hold would brake it.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import MachineConfig
+from .path import Element, distance_to
+from .sections import Section
+from .stream import SectionStream
+
+CONTEXT = 4  # samples either side of an overlap whose differences are checked too (a third difference spans 4)
+LIMIT_MARGIN = 1e-7  # the summed samples keep each limit to within this share (the streamed ones differ by rounding)
+
+
+@dataclass(frozen=True)
+class CornerOverlap:
+    """How far the next section may start before the last one comes to rest, and the limits the sum keeps."""
+
+    dt: float
+    max_samples: int  # the longest overlap, in servo periods (0: every corner is a stop)
+    velocity: np.ndarray  # per axis X, Y, Z (inf for an axis the machine lacks), mm/s
+    accel: np.ndarray  # mm/s^2
+    jerk: np.ndarray  # mm/s^3
+
+    @classmethod
+    def of(cls, config: MachineConfig) -> "CornerOverlap":
+        """The machine file's overlap (`[planner] corner_overlap_ms`) and axis limits."""
+        def limit(key: str) -> np.ndarray:
+            return np.array([getattr(config.axis[a], key) if a in config.axis else np.inf for a in "xyz"])
+
+        dt = config.timing.period_s
+        return cls(dt, int(round(config.planner.corner_overlap_ms / 1000.0 / dt)),
+                   limit("max_velocity_mm_s"), limit("max_accel_mm_s2"), limit("max_jerk_mm_s3"))
+
+    def applies(self, a: Section, b: Section) -> bool:
+        """Whether the corner from section a into section b, next to each other, may be overlapped:
+        a tolerance there, the same outputs on both sides, and a flat corner (the check measures
+        the deviation in XY)."""
+        if self.max_samples < 1:
+            return False
+        last, first = a.elements[-1], b.elements[0]
+        if min(last.tolerance_mm, first.tolerance_mm) <= 0.0 or int(a.flags[-1]) != int(b.flags[0]):
+            return False
+        return _flat(last) and _flat(first) and np.allclose(last.end, first.start, rtol=0.0, atol=1e-9)
+
+    def samples(self, a: SectionStream, b: SectionStream, a_summed: int = 0) -> int:
+        """How many samples of b may be added to a's last ones (0: a stop at the corner). `a` must be
+        planned to its end (`final`); b's first window is planned here if it is not yet.
+        `a_summed`: how many of a's first samples were added to the section before it's (an overlap
+        at its start): the checked samples keep clear of them, so that no sample is the sum of
+        three motions and every one checked here is a's own."""
+        if not a.final or a.k_end is None or not self.applies(a.section, b.section):
+            return 0
+        n_a = a.k_end
+        most = min(self.max_samples, n_a - a_summed - CONTEXT - 1)
+        if most < 1:
+            return 0
+        corner = np.asarray(a.section.end, dtype=float)
+        tail, a_from, _ = a.positions(n_a - most - CONTEXT, n_a)
+        head, _, b_to = b.positions(1, most + CONTEXT)
+        summed = _candidates(tail - corner, head - corner, most)  # (most, width, 3), row k - 1: overlap k
+        kept = self._within_limits(summed)
+        if not kept.any():
+            return 0
+        near = _near_corner(a.section, a_from, b.section, b_to)
+        tolerance = min(e.tolerance_mm for e in near)
+        flat = all(_flat(e) for e in near)
+        for k in np.flatnonzero(kept)[::-1] + 1:  # the longest overlap first
+            # the summed samples of overlap k: A's last k (i = -k + 1 .. 0), columns most + CONTEXT - k + 1 ..
+            lo = most + CONTEXT - k + 1
+            points = summed[k - 1, lo:most + CONTEXT + 1] + corner
+            if flat and float(distance_to(points[:, :2], near).max()) <= tolerance:
+                return int(k)
+        return 0
+
+    def _within_limits(self, summed: np.ndarray) -> np.ndarray:
+        """Per candidate: every axis within its velocity, acceleration and jerk limit."""
+        v = np.diff(summed, axis=1) / self.dt
+        acc = np.diff(v, axis=1) / self.dt
+        jerk = np.diff(acc, axis=1) / self.dt
+        margin = 1.0 + LIMIT_MARGIN
+        return ((np.abs(v) <= self.velocity * margin).all(axis=(1, 2))
+                & (np.abs(acc) <= self.accel * margin).all(axis=(1, 2))
+                & (np.abs(jerk) <= self.jerk * margin).all(axis=(1, 2)))
+
+
+def _candidates(tail: np.ndarray, head: np.ndarray, most: int) -> np.ndarray:
+    """Positions (relative to the corner) of every overlap k = 1..most, side by side.
+
+    `tail`: the last section's samples i = -(most + CONTEXT) .. 0 (0: its last, at rest at the
+    corner); `head`: the next one's samples j = 1 .. most + CONTEXT (j = 0 is its start, at rest
+    at the corner). Overlap k puts sample j of the next section at i = j - k, added to the last
+    one's there: row k - 1 holds i = -(most + CONTEXT) .. CONTEXT."""
+    width = most + 2 * CONTEXT + 1
+    a = np.concatenate((tail, np.zeros((CONTEXT, 3))))
+    b = np.concatenate((np.zeros((most + CONTEXT + 1, 3)), head))  # b[j + most + CONTEXT], j >= -(most + CONTEXT)
+    index = np.arange(width)[None, :] + np.arange(1, most + 1)[:, None]
+    return a[None, :, :] + b[index]
+
+
+def _near_corner(a: Section, a_from_mm: float, b: Section, b_to_mm: float) -> list[Element]:
+    """The elements of a from arc length a_from_mm on and of b up to b_to_mm: where the samples
+    checked can be."""
+    ends = a.path.s0[1:]
+    tail = [e for e, s1 in zip(a.elements, ends) if s1 >= a_from_mm - 1e-9]
+    head = [e for e, s0 in zip(b.elements, b.path.s0[:-1]) if s0 <= b_to_mm + 1e-9]
+    return tail + head
+
+
+def _flat(e: Element) -> bool:
+    return e.start[2] == e.end[2]

@@ -1,0 +1,155 @@
+"""Corner overlaps: the next section starts while the last one still slows down (`cnc/planner/overlap.py`).
+
+Each test runs a program through the real interpreter and the planner's runner and measures the
+setpoint records the servo would get: every axis within its limits, every record within G64 P of
+the program, the planned cycle time the one run, and the operator's controls in an overlap acting
+when it ends.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gcode.interp import interpret
+
+from cnc.config import ConfigError
+from cnc.machine_dialect import dialect_for
+from cnc.planner.runner import ProgramRunner, RunState
+
+from .conftest import machine_config
+from .test_planner_motion import DT, JET, LIMITS, run, speed, within_limits, within_tolerance
+
+SQUARE = "G21 G90 G64 P{p}\nG1 X{x0} Y{y0} F{f}\nG1 X{x1}\nG1 Y{y1}\nG1 X{x0}\nG1 Y{y0}\nM2\n"
+
+
+def square(p: float = 0.05, feed: float = 12000.0, size: float = 100.0) -> str:
+    return SQUARE.format(p=p, f=feed, x0=0.0, y0=0.0, x1=size, y1=size)
+
+
+def corner_speeds(records, corners) -> list[float]:
+    """The head's lowest speed within 1 mm of each corner."""
+    xy, v = records["position"][:, :2], speed(records)
+    return [float(v[np.hypot(*(xy - np.asarray(c)).T) < 1.0].min()) for c in corners]
+
+
+NO_OVERLAP = {"planner.corner_overlap_ms": 0.0}
+SQUARE_CORNERS = [(100.0, 0.0), (100.0, 100.0), (0.0, 100.0)]
+
+
+@pytest.mark.parametrize("feed,p", [(12000.0, 0.05), (30000.0, 0.05), (30000.0, 0.005), (2400.0, 0.05)])
+def test_a_corner_with_nothing_switching_is_overlapped_within_every_limit_and_p(feed, p):
+    """A square's sharp corners: the head no longer stops at them, yet every axis keeps its limits,
+    every record stays within P of the program, and the planned time is the one run."""
+    program, runner, records, planned = run(square(p, feed), chunk=37)
+    _, _, stopping, _ = run(square(p, feed), machine_config(**NO_OVERLAP), chunk=37)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned, "the planned cycle time counts the overlaps"
+    assert records["position"][-1] == pytest.approx([0.0, 0.0], abs=1e-9)
+    assert min(corner_speeds(records, SQUARE_CORNERS)) > 0.0, "never at rest at a corner"
+    assert max(corner_speeds(stopping, SQUARE_CORNERS)) == 0.0, "with no overlap, at rest at each"
+    saved = len(stopping) - len(records)
+    assert 3 <= saved <= 3 * machine_config().planner.corner_overlap_ms / 1000.0 / DT, "at most the overlap at each"
+
+
+def test_the_overlap_at_200_percent_override_keeps_every_limit():
+    """Checked on the samples as they are: at 200 % the motions into and out of the corner are
+    faster, and the overlap the check allows is what keeps the sum within the limits."""
+    program, runner, records, _ = run(square(0.05, 6000.0), actions={0: lambda r: r.set_override(2.0)}, chunk=11)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert min(corner_speeds(records, SQUARE_CORNERS)) > 0.0
+    assert speed(records).max() == pytest.approx(200.0, rel=1e-6), "200 % of F6000"
+
+
+@pytest.mark.parametrize("text,why", [
+    ("G21 G90 G61\nG1 X100 F12000\nG1 Y100\nM2\n", "G61: an exact stop"),
+    ("G21 G90 G64 P0.05\nG1 X100 F12000\nM3\nG1 Y100\nM5\nM2\n", "the jet opens at the corner"),
+    ("G21 G90 G64 P0.05\nG1 X100 F12000\nG4 P0.01\nG1 Y100\nM2\n", "a dwell at the corner"),
+    ("G21 G90 G64 P0.05\nG1 X100 F12000\nM62 P0\nG1 Y100\nM2\n", "an output switches at the corner"),
+])
+def test_a_corner_where_something_happens_is_still_a_stop(text, why):
+    program, runner, records, planned = run(text, chunk=23)
+    assert len(records) == planned
+    assert corner_speeds(records, [(100.0, 0.0)]) == [0.0], why
+    within_limits(records)
+
+
+def test_chained_overlaps_of_short_sections_never_add_three_motions_and_time_exactly():
+    """A zigzag of 1.5 mm strokes at sharp turns: every section is short, so an overlap at its
+    start and one at its end would meet; the second keeps clear of the first (no sample is the sum
+    of three motions) and the timing makes the same choice, tick for tick, whatever the take size."""
+    lines = ["G21 G90 G64 P0.05", "G1 X0 Y0 F6000"]
+    for k in range(1, 30):
+        lines.append(f"G1 X{1.5 * k:.3f} Y{0.0 if k % 2 == 0 else 1.0:.3f}")
+    text = "\n".join(lines + ["M2"]) + "\n"
+    for chunk in (1, 7, 997):
+        program, runner, records, planned = run(text, chunk=chunk)
+        within_limits(records)
+        assert (within_tolerance(program, records) <= 1e-9).all()
+        assert len(records) == planned, f"take({chunk})"
+    _, _, stopping, _ = run(text, machine_config(**NO_OVERLAP))
+    assert len(records) < len(stopping)
+
+
+CONTROLS = {"hold": lambda r: r.hold(), "stop": lambda r: r.stop(), "override 0": lambda r: r.set_override(0.0),
+            "override 200": lambda r: r.set_override(2.0), "override 10": lambda r: r.set_override(0.1)}
+
+
+@pytest.mark.parametrize("control", list(CONTROLS))
+@pytest.mark.parametrize("feed", [2400.0, 30000.0])
+def test_a_control_in_an_overlap_acts_when_it_ends_and_every_limit_holds(control, feed):
+    """The overlap's samples are committed: they come out as in a run without the control, then
+    the next section's motion obeys it: a hold, a stop or 0 % bring the head to rest on the path
+    within the braking distance of its speed from the overlap's end on; 10 % and 200 % go on."""
+    text = square(0.05, feed)
+    program, _, undisturbed, _ = run(text, chunk=1)
+    config = machine_config()
+    runner = ProgramRunner(interpret(text, dialect_for(config)), config)
+    made = []
+    while not runner.overlap_left:
+        made.append(runner.take(1)[0])
+    made.append(runner.take(3)[0])  # three samples into the overlap
+    given, left = sum(len(m) for m in made), runner.overlap_left
+    assert left > 0
+    CONTROLS[control](runner)
+    while not runner.finished:
+        recs, _ = runner.take(50)
+        made.append(recs)
+        if not len(recs) and runner.idle:
+            break
+    records = np.concatenate(made)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    shared = _shared(undisturbed, records)
+    assert shared >= given + left - 1, "the overlap's samples are the undisturbed run's (records leave one late)"
+    v = speed(records)
+    if control in ("hold", "stop", "override 0"):
+        assert v[-1] == 0.0 and not records["flags"][-1] & JET
+        assert runner.state in {"hold": (RunState.HELD,), "stop": (RunState.ABORTED,), "override 0": (RunState.RUNNING,)}[control]
+        end = records["position"][-1]
+        assert abs(end[1]) < 1e-9 or abs(end[0] - 100.0) < 1e-9, "at rest on the square's side"
+        travelled = float(np.hypot(*np.diff(records["position"][shared:], axis=0).T).sum())
+        peak, a, j = float(v[shared:].max()), LIMITS["acceleration"], LIMITS["jerk"]
+        # the head is speeding up out of the corner: a hold lets the acceleration run out first
+        # (a / J, the plateau the path average needs), then brakes, as a hold anywhere in a speed-up
+        assert travelled <= peak * (a / j + 5 * DT) + peak * peak / (2.0 * a) + peak * a / (2.0 * j)
+    else:
+        assert runner.state == RunState.DONE and records["position"][-1] == pytest.approx([0.0, 0.0], abs=1e-9)
+
+
+def _shared(undisturbed, records) -> int:
+    """How many records, from the first, two runs have alike."""
+    n = min(len(undisturbed), len(records))
+    same = np.all(np.abs(undisturbed["position"][:n] - records["position"][:n]) <= 1e-12, axis=1)
+    differs = np.flatnonzero(~same)
+    return int(differs[0]) if len(differs) else n
+
+
+def test_the_overlap_is_a_machine_file_key_validated_by_name():
+    with pytest.raises(ConfigError, match=r"corner_overlap_ms"):
+        machine_config(**{"planner.corner_overlap_ms": -5.0})
+    with pytest.raises(ConfigError, match=r"corner_overlap_ms"):
+        machine_config(**{"planner.corner_overlap_ms": "soon"})
+    assert machine_config().planner.corner_overlap_ms == 40.0
