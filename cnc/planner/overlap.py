@@ -73,7 +73,7 @@ class CornerOverlap:
         last, first = a.elements[-1], b.elements[0]
         if min(last.tolerance_mm, first.tolerance_mm) <= 0.0 or int(a.flags[-1]) != int(b.flags[0]):
             return False
-        return _flat(last) and _flat(first) and np.allclose(last.end, first.start, rtol=0.0, atol=1e-9)
+        return _flat(last) and _flat(first) and max(abs(p - q) for p, q in zip(last.end, first.start)) <= 1e-9
 
     def samples(self, a: SectionStream, b: SectionStream, a_summed: int = 0) -> int:
         """How many samples of b may be added to a's last ones (0: a stop at the corner). `a` must be
@@ -90,19 +90,19 @@ class CornerOverlap:
         corner = np.asarray(a.section.end, dtype=float)
         tail, a_from, _ = a.positions(n_a - most - CONTEXT, n_a)
         head, _, b_to = b.positions(1, most + CONTEXT)
-        summed = _candidates(tail - corner, head - corner, most)  # (most, width, 3), row k - 1: overlap k
-        kept = self._within_limits(summed)
-        if not kept.any():
-            return 0
         near = _near_corner(a.section, a_from, b.section, b_to)
+        if not all(_flat(e) for e in near):
+            return 0
         tolerance = min(e.tolerance_mm for e in near)
-        flat = all(_flat(e) for e in near)
-        for k in np.flatnonzero(kept)[::-1] + 1:  # the longest overlap first
-            # the summed samples of overlap k: A's last k (i = -k + 1 .. 0), columns most + CONTEXT - k + 1 ..
-            lo = most + CONTEXT - k + 1
-            points = summed[k - 1, lo:most + CONTEXT + 1] + corner
-            if flat and float(distance_to(points[:, :2], near).max()) <= tolerance:
-                return int(k)
+        summed = _candidates(tail - corner, head - corner, most)  # (most, width, 3), row k - 1: overlap k
+        kept = np.flatnonzero(self._within_limits(summed)) + 1
+        if not len(kept):
+            return 0
+        # within P: the longest overlap the limits allow first (the common answer), then the others at once
+        for ks in (kept[-1:], kept[:-1]):
+            ok = _within_p(summed[ks - 1], ks, corner, near, tolerance) if len(ks) else ks
+            if ok.any():
+                return int(ks[np.flatnonzero(ok)[-1]])
         return 0
 
     def _within_limits(self, summed: np.ndarray) -> np.ndarray:
@@ -114,6 +114,17 @@ class CornerOverlap:
         return ((np.abs(v) <= self.velocity * margin).all(axis=(1, 2))
                 & (np.abs(acc) <= self.accel * margin).all(axis=(1, 2))
                 & (np.abs(jerk) <= self.jerk * margin).all(axis=(1, 2)))
+
+
+def _within_p(summed: np.ndarray, ks: np.ndarray, corner: np.ndarray, near: list[Element], tolerance: float) -> np.ndarray:
+    """Per candidate (rows of `_candidates` for the overlaps `ks`): every summed sample within P
+    of the corner's elements. Overlap k sums A's last k samples, i = -k + 1 .. 0: columns
+    most + CONTEXT - k + 1 .. most + CONTEXT."""
+    most = summed.shape[1] - 2 * CONTEXT - 1
+    block = summed[:, CONTEXT + 1:most + CONTEXT + 1, :2] + corner[:2]  # the columns any overlap sums
+    distance = distance_to(block.reshape(-1, 2), near).reshape(len(ks), most)
+    summed_here = np.arange(most)[None, :] >= (most - ks)[:, None]
+    return (np.where(summed_here, distance, 0.0) <= tolerance).all(axis=1)
 
 
 def _candidates(tail: np.ndarray, head: np.ndarray, most: int) -> np.ndarray:

@@ -185,11 +185,9 @@ class SectionStream:
         first_raw = first - self.n_path - self.n_axis + 2  # the earliest raw sample the averages reach
         t = np.maximum(np.arange(first_raw, last + 1), 0) * self.dt
         s_raw = self._raw(t)
-        s_path = np.convolve(s_raw, np.full(self.n_path, 1.0 / self.n_path), mode="valid")
+        s_path = _window_means(s_raw, self.n_path)
         q = self.section.path.points(s_path)
-        kernel = np.full(self.n_axis, 1.0 / self.n_axis)
-        y = np.stack([np.convolve(q[:, c], kernel, mode="valid") for c in range(q.shape[1])], axis=1)
-        return y, float(s_raw.min()), float(s_raw.max())
+        return _window_means(q - q[0], self.n_axis) + q[0], float(s_raw[0]), float(s_raw[-1])
 
     def planned_samples(self) -> int:
         """Plan the whole section without sampling it; how many samples it takes (what `take` will give)."""
@@ -302,6 +300,14 @@ class SectionStream:
         if self.final:
             s = np.where(t >= self.pieces.t_end, self.length, s)
         return np.minimum(s, self.length)
+
+
+def _window_means(x: np.ndarray, n: int) -> np.ndarray:
+    """Means of every n consecutive rows of x (len(x) - n + 1 of them)."""
+    c = np.cumsum(x, axis=0)
+    out = c[n - 1:].copy()
+    out[1:] -= c[:len(x) - n]
+    return out / n
 
 
 def _slice(zones: Zones, lo: float, hi: float) -> Zones:
