@@ -61,7 +61,7 @@ _READY = int(AxisIn.DRIVE_READY)
 _CATEGORY_0 = int(CATEGORY_0)
 _LAW_FAILED = -2  # `_control`: the control program failed this period (the fallback law computed it)
 SETTLE_TICKS = 20  # after its stop the servo holds this long, closed loop, before the drives go off
-STOP_FE_FACTOR = 4.0  # during its own stop an axis may lag this many following-error limits before the drives go off
+STOP_FE_FACTOR = 4.0  # during its own stop an axis may lag this many following-error limits before its drive goes off
 _EPOCH_MASK = 0xFFFF_FFFF  # a record's epoch field is 32 bits
 
 
