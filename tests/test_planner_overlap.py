@@ -8,6 +8,9 @@ when it ends.
 
 from __future__ import annotations
 
+import math
+import random
+
 import numpy as np
 import pytest
 
@@ -153,3 +156,29 @@ def test_the_overlap_is_a_machine_file_key_validated_by_name():
     with pytest.raises(ConfigError, match=r"corner_overlap_ms"):
         machine_config(**{"planner.corner_overlap_ms": "soon"})
     assert machine_config().planner.corner_overlap_ms == 40.0
+
+
+def _random_polyline(seed: int) -> tuple[str, int]:
+    """Lines and rapids of random lengths (5 um to 60 mm) and directions at a random feed and P,
+    and the take size to run it with."""
+    rng = random.Random(seed)
+    x = y = 0.0
+    feed = rng.choice([300, 2400, 6000, 12000, 30000])
+    lines = [f"G21 G90 G64 P{rng.choice([0.005, 0.05, 0.2]):g}", f"G1 X0 Y0 F{feed}"]
+    for _ in range(rng.randint(3, 12)):
+        angle = rng.uniform(0.0, 2.0 * math.pi)
+        length = rng.choice([rng.uniform(0.005, 0.2), rng.uniform(0.2, 3.0), rng.uniform(3.0, 60.0)])
+        x, y = x + length * math.cos(angle), y + length * math.sin(angle)
+        lines.append(f"{'G0' if rng.random() < 0.2 else 'G1'} X{x:.4f} Y{y:.4f}")
+    return "\n".join(lines + ["M2"]) + "\n", rng.choice([1, 7, 50, 997])
+
+
+@pytest.mark.parametrize("seed", [66, 89, 104, 113, *range(12)])
+def test_random_polylines_overlap_within_every_limit_and_time_exactly(seed):
+    """Seeds 66, 89, 104 and 113 once overlapped a section shorter than the overlap (its samples
+    ran out before the last section's: the runner failed); 150 seeds run clean now."""
+    text, chunk = _random_polyline(seed)
+    program, runner, records, planned = run(text, chunk=chunk)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned

@@ -85,6 +85,9 @@ class CornerOverlap:
             return 0
         n_a = a.k_end
         most = min(self.max_samples, n_a - a_summed - CONTEXT - 1)
+        b.plan_until(most + CONTEXT)  # planned this far, a section that ends sooner is planned to its end
+        if b.final and b.k_end is not None:  # a short one: its samples, all of them, and its rest after
+            most = min(most, b.k_end - CONTEXT - 1)
         if most < 1:
             return 0
         corner = np.asarray(a.section.end, dtype=float)
