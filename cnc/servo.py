@@ -555,7 +555,10 @@ class Servo:
         v[I["commanded_mm"]] = list(commanded)
         v[I["commanded_velocity_mm_s"]] = list(velocity)
         v[I["speed_cmd_v"]] = speed
-        v[I["drive_enable_mask"]] = ((1 << n) - 1) & ~sum(1 << i for i in released)
+        mask = (1 << n) - 1
+        for i in released:  # (only in the servo's own stop: an axis that could not follow it)
+            mask &= ~(1 << i)
+        v[I["drive_enable_mask"]] = mask
         return _LAW_FAILED if failed else -1
 
     def _run_law(self, inp: ControlInputs, dt: float) -> tuple[list[float], bool]:
