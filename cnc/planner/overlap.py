@@ -78,9 +78,9 @@ class CornerOverlap:
     def samples(self, a: SectionStream, b: SectionStream, a_summed: int = 0) -> int:
         """How many samples of b may be added to a's last ones (0: a stop at the corner). `a` must be
         planned to its end (`final`); b's first window is planned here if it is not yet.
-        `a_summed`: how many of a's first samples were added to the section before it's (an overlap
-        at its start): the checked samples keep clear of them, so that no sample is the sum of
-        three motions and every one checked here is a's own."""
+        `a_summed`: how many of a's first samples were added to the last ones of the section before
+        it (an overlap at its start): the samples checked here keep clear of them, so that no sample
+        is the sum of three motions and every one of a's checked is a's own."""
         if not a.final or a.k_end is None or not self.applies(a.section, b.section):
             return 0
         n_a = a.k_end
