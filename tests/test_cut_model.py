@@ -25,6 +25,8 @@ from cnc.config import load_machine
 from cnc.cutmodel import CutModel, CutSetup, model_for
 from cnc.machine_dialect import dialect_for
 from cnc.materials import MaterialError, parse_material, record_calibration, render_material
+from cnc.planner.geometry import PathArrays
+from cnc.planner.path import Element
 from cnc.planner.quality import CutPlan, CutPlanError, cut_plan_for
 from cnc.planner.sections import Section, iter_steps
 from cnc.planner.steps import ProgramTiming
@@ -248,6 +250,24 @@ def test_a_cutting_job_pierces_for_its_chart_s_pierce_time_in_the_run_the_timing
         assert runner.repierce == round((config.jet.on_delay_s + want) / config.timing.period_s), "a re-pierce: the same dwell"
 
 
+def _whole_elements(elements: list[Element]) -> tuple[list[Element], np.ndarray]:
+    """A section's elements with the pieces the planner cuts a long arc into (side by side, the
+    same segment) joined into the arc again, and the whole element of each one."""
+    out, origin = [], []
+    for e in elements:
+        prev = out[-1] if out else None
+        if (prev is not None and e.kind == ARC and prev.kind == ARC and not e.blend and not prev.blend
+                and e.segment == prev.segment):
+            joined = Element(ARC, prev.start, e.end, prev.center, prev.cw, 0, prev.feed_mm_s, prev.tolerance_mm, prev.jet,
+                             prev.aux, prev.outputs, prev.segment, prev.line, prev.dwell_s, prev.blend)
+            joined._sweep = prev.sweep_rad + e.sweep_rad  # a full circle's ends are one point: keep its sweep
+            out[-1] = joined
+        else:
+            out.append(e)
+        origin.append(len(out) - 1)
+    return out, np.array(origin, dtype=np.int64)
+
+
 def _stream_speeds_against_caps(program, config, plan) -> float:
     """The highest ratio of the head's speed to the model's cap under it, over every sample the
     planner streams (positions after both averages; the cap of the element at the sample's centre)."""
@@ -256,7 +276,8 @@ def _stream_speeds_against_caps(program, config, plan) -> float:
     for step in iter_steps(program, config, plan):
         if not isinstance(step, Section):
             continue
-        caps = plan.caps(step.elements, step.path)
+        whole, origin = _whole_elements(step.elements)  # the model's caps are the programmed arcs', not their pieces'
+        caps = plan.caps(whole, PathArrays.of(whole))[origin]
         if not np.isfinite(caps).any():
             continue
         stream = SectionStream(step)

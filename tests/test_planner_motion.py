@@ -411,7 +411,7 @@ def _operator_at_random(seed: int, config=None, feed_scale: float = 1.0, text: s
     return program, np.concatenate(out), stopped, events
 
 
-@pytest.mark.parametrize("seed", [0, 3, 6, 17, 106, 124, 170, 202, 265, 372, 441, 1100, 1908, 1927])
+@pytest.mark.parametrize("seed", [0, 3, 6, 17, 106, 124, 170, 202, 265, 372, 441, 1100, 1908, 1927, 2087, 2276])
 def test_holds_resumes_overrides_and_stops_at_random_keep_every_limit_and_the_tolerance(seed):
     """Seed 6 once hung the runner (a hold during the re-pierce after a resume, then a zero
     override); seed 17 ran past a section's end (a hold lifted at once, then the override
@@ -422,7 +422,9 @@ def test_holds_resumes_overrides_and_stops_at_random_keep_every_limit_and_the_to
     372, 441 and 1100 by up to 2x (a speed-up near a section's end with no room for its plateau),
     seed 1927 by 1.33x (a hold whose room to brake was judged at the wrong zone's acceleration);
     in seed 1908 the head jumped 9 mm in one sample (an override of 0 with a rapid after the feed
-    moves in the same section: 25x the jerk). Run over 4000 seeds, none breaks a limit now."""
+    moves in the same section: 25x the jerk). Run over 4000 seeds, none breaks a limit now.
+    Seeds 2087 and 2276 strayed 38 nm beyond P on a long arc cut into pieces for its caps (its
+    programmed end a hair off its circle: the pieces kept the start's radius all the way)."""
     program, records, stopped, events = _operator_at_random(seed)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all(), events
@@ -486,10 +488,11 @@ def test_z_moves_that_reverse_or_change_their_rate_stop_between_and_keep_every_a
     assert (within_tolerance(program, records) <= 1e-9).all()
     assert records["position"][-1] == pytest.approx(program.segments["end"][-1], abs=1e-9)
     assert len(records) == planned
-    # the head comes to rest where the second move begins (speed from the positions, 3D)
+    # the head comes to rest where the second move begins (speed from the positions, 3D; an arc's
+    # point worked from its angle may be 1e-17 mm off its end, so at rest is under 1 nm/s)
     at = int(np.flatnonzero(records["segment"] == records["segment"][-1])[0])
     step = np.linalg.norm(np.diff(records["position"], axis=0), axis=1) / DT
-    assert step[max(at - 5, 0):at + 5].min() == 0.0, "the moves met at speed"
+    assert step[max(at - 5, 0):at + 5].min() < 1e-6, "the moves met at speed"
 
 
 def test_z_moves_at_the_same_rate_run_through_without_a_stop():

@@ -41,14 +41,16 @@ T_ext before and after it (`envelope`), because the averages mix samples that fa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+
+from gcode.canon import ARC
 
 from ..config import MachineConfig
 from .geometry import PathArrays
 from .profile import Zones
-from .path import BLEND_SHARE, COLLINEAR_RAD
+from .path import BLEND_SHARE, COLLINEAR_RAD, Element, arc_pieces
 
 KINK_MAX_RAD = 0.01  # a larger turn between unblended elements is an exact stop
 GEOMETRY_JERK_SHARE = 0.5  # share of the jerk kept for curvature and kinks when a section has them
@@ -116,11 +118,7 @@ def smoothing_for(
     dt = config.timing.period_s
     a_min, j_min = _axis_min(config, "max_accel_mm_s2"), _axis_min(config, "max_jerk_mm_s3")
     geometry = has_curves or has_kinks
-    if tolerance_mm > 0.0 and geometry:  # a straight path has nothing to smooth
-        t_f = (24.0 * tolerance_mm / j_min) ** (1.0 / 3.0)
-        n_axis = int(min(max(round(t_f / dt), 1), MAX_SMOOTHING_SAMPLES))
-    else:
-        n_axis = 1
+    n_axis = axis_average_samples(config, tolerance_mm) if geometry else 1  # a straight path has nothing to smooth
     share = geometry_share if geometry else 0.0
     jerk_path = j_min * (1.0 - share)
     accel_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if has_kinks else a_min
@@ -129,6 +127,48 @@ def smoothing_for(
     n_path = max(1, math.ceil(accel_cap / (jerk_path * dt) - 1e-9))
     deviation = tolerance_mm * (1.0 - BLEND_SHARE) if blended else tolerance_mm
     return Smoothing(dt, n_path, n_axis, accel_cap, accel_cap / (n_path * dt), deviation if n_axis > 1 else 0.0, share)
+
+
+def axis_average_samples(config: MachineConfig, tolerance_mm: float) -> int:
+    """N_f, the samples of the axis average of a section with curves or kinks under G64 P
+    `tolerance_mm` (1, no average, under G61)."""
+    if tolerance_mm <= 0.0:
+        return 1
+    t_f = (24.0 * tolerance_mm / _axis_min(config, "max_jerk_mm_s3")) ** (1.0 / 3.0)
+    return int(min(max(round(t_f / config.timing.period_s), 1), MAX_SMOOTHING_SAMPLES))
+
+
+def arc_pieces_for_caps(elements: list[Element], config: MachineConfig) -> tuple[list[Element], np.ndarray]:
+    """The section's elements with each long arc cut into pieces, and the element each piece is
+    cut from: a head and a tail as long as the stretch a window of the axis average spans at
+    the fastest the arc could run (its feed at 200 %, the axes, its normal acceleration), and
+    the middle. Caps are counted per element (`_curvature_caps`): whole, an arc between two
+    lines takes the curvature steps at both its ends over all its length; in pieces only its
+    head and tail do, and its middle runs at what its curvature alone allows. Arcs shorter
+    than two such stretches, blends, arcs of several turns and sections under G61 stay whole."""
+    if not any(e.kind == ARC and not e.blend and not e.turns for e in elements):
+        return elements, np.arange(len(elements))
+    tolerance = min(e.tolerance_mm for e in elements)
+    if tolerance <= 0.0:
+        return elements, np.arange(len(elements))
+    span_s = (axis_average_samples(config, tolerance) + 2) * config.timing.period_s
+    planar = [config.axis[a] for a in ("x", "y") if a in config.axis] or list(config.axes)
+    v_axes = min(a.max_velocity_mm_s for a in planar)
+    a_normal = config.planner.arc_normal_share * _axis_min(config, "max_accel_mm_s2")
+    out, origin = [], []
+    for k, e in enumerate(elements):
+        pieces = [e]
+        if e.kind == ARC and not e.blend and not e.turns:
+            radius = math.hypot(e.start[0] - e.center[0], e.start[1] - e.center[1])
+            head = min(v_axes, 2.0 * e.feed_mm_s, math.sqrt(a_normal * radius)) * span_s
+            length = e.length_mm
+            if length >= 3.0 * head:
+                pieces = arc_pieces(e, [head / length, 1.0 - head / length])
+            elif length >= 2.0 * head:
+                pieces = arc_pieces(e, [0.5])
+        out += pieces
+        origin += [k] * len(pieces)
+    return out, np.array(origin, dtype=np.int64)
 
 
 @dataclass
@@ -140,7 +180,7 @@ class PathCaps:
     kink: np.ndarray  # bool: a kink the motion passes at speed
     v_axis: np.ndarray  # speed the axes allow on each element
     a_axis: np.ndarray  # acceleration the axes allow on each element
-    curves: dict = field(default_factory=dict)  # the curvature window's sums, per reach (`_curvature_caps`)
+    windows: "CurveWindows | None" = None  # the curvature windows' sums (`_curvature_caps`), made when first asked
 
 
 def path_caps(path: PathArrays, config: MachineConfig) -> PathCaps:
@@ -171,9 +211,10 @@ def section_limits(
     share_kink = KINK_SHARE if kink.any() else 0.0
     v_hard, accel = v_axis.copy(), a_axis.copy()
     if curved.any():
-        v_curve, a_curve = _curvature_caps(path, kinks * kink, sm, v_upper, j_geometry * (1.0 - share_kink),
-                                           sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min, v_top,
-                                           caps.curves)
+        if caps.windows is None:
+            caps.windows = CurveWindows(path, kinks * kink)
+        v_curve, a_curve = _curvature_caps(path, caps.windows, sm, v_feed, j_geometry * (1.0 - share_kink),
+                                           sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min, v_top)
         v_hard = np.minimum(v_hard, v_curve)
         accel = np.where(curved, np.minimum(accel, a_curve), accel)
     v_kink = np.full(max(n - 1, 0), np.inf)
@@ -216,8 +257,8 @@ def _reach(path: PathArrays, reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _curvature_caps(
-    path: PathArrays, kink_angles: np.ndarray, sm: Smoothing, v_upper: float, j_curv: float, deviation_mm: float,
-    a_normal_max: float, v_top: float = math.inf, memo: dict | None = None,
+    path: PathArrays, windows: "CurveWindows", sm: Smoothing, v_feed: np.ndarray, j_curv: float, deviation_mm: float,
+    a_normal_max: float, v_top: float = math.inf,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Speed and tangential acceleration of each curved element that keep its turning within the
     jerk, acceleration and deviation budgets.
@@ -227,34 +268,94 @@ def _curvature_caps(
     element runs at CURVE_SPEED_SHARE of that (or less, for deviation and normal acceleration,
     or the section's top speed `v_top`, which it never exceeds at any override) and the rest of
     the budget is its tangential acceleration.
+
+    V and kappa_max are taken over the stretch of path a window of the axis average spans
+    while it mixes the element in: the window's time times the fastest the element runs, its
+    cap or its feed at 200 %, whichever is lower (the envelope holds the cap wherever the
+    averages mix the element in, at any override; the straight elements around it may run
+    faster, but not while a window reaches into it). So the cap f(v) found over the stretch
+    that a speed v spans falls as v rises, and a speed v holds where v <= f(v). Found per
+    element: v1 = f over the element and its two junctions alone, above
+    every speed that holds; then v2 = f(v1) <= v1, which holds; and the feed and twice the
+    feed, each taken where it holds and is faster than v2 (capped at its feed, an arc that a
+    longer stretch would slow below it runs at it, with the tangential acceleration of that
+    speed). A long arc is capped in pieces (`arc_pieces_for_caps`): only its head and tail
+    take the curvature steps at its ends.
     """
-    kappa = np.abs(path.curvature)
-    reach = v_upper * (sm.n_axis + 2) * sm.dt
-    window = memo.get(reach) if memo is not None else None  # the same path and reach: the same sums
-    if window is None:
-        lo, hi = _reach(path, reach)
-        k_max = _range_max(kappa, lo, hi)
-        # curvature steps at the junctions (n - 1), plus the turn of the normal at a kink
-        steps = np.abs(np.diff(path.curvature)) + np.maximum(kappa[:-1], kappa[1:]) * kink_angles
-        cum = np.concatenate(([0.0], np.cumsum(steps)))
-        # junction b lies between elements b and b+1: within reach of element e when lo <= b < hi
-        step_sum = cum[hi] - cum[lo]
-        window = k_max, np.minimum(step_sum + k_max * k_max * reach, 2.0 * k_max)
-        if memo is not None:
-            memo[reach] = window
-    k_max, variation = window
+    kappa, arc = windows.kappa, path.arc
+    span = (sm.n_axis + 2) * sm.dt  # a window's time, and a sample either side
     t_w = sm.n_axis * sm.dt
     budget = j_curv * t_w
     a_dev = 24.0 * deviation_mm / ((sm.n_axis**2 - 1) * sm.dt**2) if sm.n_axis > 1 else np.inf
+    v = np.full(len(path), np.inf)
+    a_t = np.full(len(path), sm.accel_cap)
     with np.errstate(divide="ignore", invalid="ignore"):
-        v0 = np.sqrt(budget / variation)
-        v_normal = np.sqrt(min(a_normal_max, a_dev) / kappa)
-        v = np.minimum(np.minimum(CURVE_SPEED_SHARE * v0, v_normal), v_top)
-        a_t = (budget - v * v * variation) / (3.0 * k_max * v * t_w)
-        a_t = np.minimum(a_t, sm.accel_cap - kappa * v * v)
-    v = np.where(path.arc, v, np.inf)
-    a_t = np.where(path.arc, np.maximum(a_t, 0.001 * sm.accel_cap), sm.accel_cap)
+        v_cap = np.minimum(np.sqrt(min(a_normal_max, a_dev) / kappa), v_top)  # normal acceleration, deviation, top
+
+        def speed(window: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+            """f: the speed the jerk budget over `window` leaves (and the other caps)."""
+            return np.minimum(CURVE_SPEED_SHARE * np.sqrt(budget / window[1]), v_cap)
+
+        def accel(window: tuple[np.ndarray, np.ndarray], u: np.ndarray) -> np.ndarray:
+            """The tangential acceleration the budget over `window` leaves at speed u."""
+            a = np.minimum((budget - u * u * window[1]) / (3.0 * window[0] * u * t_w), sm.accel_cap - kappa * u * u)
+            return np.maximum(a, 0.001 * sm.accel_cap)
+
+        v_max = speed(windows.own)
+
+        def take(candidate: np.ndarray, ask: np.ndarray) -> np.ndarray:
+            """Where `candidate` holds among the elements `ask`ed (taken, with its acceleration)."""
+            ask = ask & (candidate <= v_max)
+            if not ask.any():
+                return ask
+            window = windows.over(np.where(arc, candidate, 0.0) * span, remember=True)  # the same for every share
+            holds = ask & (candidate <= speed(window))
+            v[holds], a_t[holds] = candidate[holds], accel(window, candidate)[holds]
+            return holds
+
+        rest = arc & ~take(2.0 * v_feed, arc)  # twice the feed holds: no override runs the element faster
+        if rest.any():
+            window = windows.over(np.where(rest, np.minimum(v_max, 2.0 * v_feed), 0.0) * span)
+            v_2 = speed(window)
+            v[rest], a_t[rest] = v_2[rest], accel(window, v_2)[rest]
+            take(v_feed, rest & (v_feed > v_2))
     return v, a_t
+
+
+class CurveWindows:
+    """What the curvature windows of one section's path sum, whatever share of the jerk its
+    curves get (made once, kept in its `PathCaps`): per element, over the path within a reach
+    of it, the largest curvature and V, how far the vector kappa n can move there (by the
+    curvature steps at the junctions and the normal's turn at a kink, or at most from one side
+    to the other)."""
+
+    def __init__(self, path: PathArrays, kink_angles: np.ndarray) -> None:
+        self.path = path
+        kappa = self.kappa = np.abs(path.curvature)
+        steps = np.abs(np.diff(path.curvature)) + np.maximum(kappa[:-1], kappa[1:]) * kink_angles
+        self.cum = np.concatenate(([0.0], np.cumsum(steps)))
+        self.table = _max_table(kappa)
+        # the element and its two junctions alone: the shortest stretch any window spans
+        k_near = np.maximum(kappa, np.maximum(np.concatenate((kappa[:1], kappa[:-1])), np.concatenate((kappa[1:], kappa[-1:]))))
+        step_in, step_out = np.concatenate(([0.0], steps)), np.concatenate((steps, [0.0]))
+        self.own = k_near, np.minimum(step_in + step_out, 2.0 * k_near)
+        self._memo: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+    def over(self, reach: np.ndarray, remember: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(largest curvature, V) per element over the path within `reach` (mm, per element) of
+        it, at least its two junctions; `remember`: kept for the next share to ask the same."""
+        key = reach.tobytes() if remember else None
+        if key is not None and key in self._memo:
+            return self._memo[key]
+        reach = reach + 1e-6
+        lo, hi = _reach(self.path, reach)
+        k_max = _range_max(self.table, lo, hi)
+        # junction b lies between elements b and b+1: within reach of element e when lo <= b < hi
+        step_sum = self.cum[hi] - self.cum[lo]
+        window = k_max, np.minimum(step_sum + k_max * k_max * reach, 2.0 * k_max)
+        if key is not None:
+            self._memo[key] = window
+        return window
 
 
 def _kink_caps(
@@ -277,14 +378,19 @@ def _kink_caps(
     return np.where(kink_angles > 0, v, np.inf)
 
 
-def _range_max(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """max(values[lo[i] : hi[i] + 1]) for every i, with a sparse table (O(n log n))."""
+def _max_table(values: np.ndarray) -> list[np.ndarray]:
+    """The sparse table of `values` for `_range_max`: maxima over runs of 1, 2, 4, ... values."""
     table = [values]
     width = 1
     while 2 * width <= len(values):
         prev = table[-1]
         table.append(np.maximum(prev[:-width], prev[width:]))
         width *= 2
+    return table
+
+
+def _range_max(table: list[np.ndarray], lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """max(values[lo[i] : hi[i] + 1]) for every i, from their `_max_table` (O(1) each)."""
     span = hi - lo + 1
     level = np.floor(np.log2(np.maximum(span, 1))).astype(int)
     out = np.empty(len(lo))

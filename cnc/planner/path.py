@@ -346,6 +346,30 @@ def _trim_fits(e: Element, point: tuple[float, float], at_end: bool) -> bool:
     return 0.0 < t <= 0.5 * e.length_mm
 
 
+def arc_pieces(e: Element, fractions: list[float]) -> list[Element]:
+    """An arc cut at these fractions of its sweep (rising, each strictly between 0 and 1): the
+    same circle, line, segment and controls in each piece. A piece's sweep is set, not worked
+    back from its ends, so the pieces add up to the arc whatever its size (a piece's ends could
+    read as the other way round a nearly full circle)."""
+    cx, cy = e.center
+    r0 = math.hypot(e.start[0] - cx, e.start[1] - cy)
+    dr = math.hypot(e.end[0] - cx, e.end[1] - cy) - r0  # a programmed end a hair off the circle: the radius
+    # changes along the arc (`PathArrays.points`), and along its pieces alike
+    a0, whole = math.atan2(e.start[1] - cy, e.start[0] - cx), e.sweep_rad
+    z0, dz = e.start[2], e.end[2] - e.start[2]
+    cuts = [((r0 + dr * f) * math.cos(a0 + whole * f) + cx, (r0 + dr * f) * math.sin(a0 + whole * f) + cy, z0 + dz * f)
+            for f in fractions]
+    ends = [e.start, *cuts, e.end]
+    bounds = [0.0, *fractions, 1.0]
+    pieces = []
+    for k in range(len(ends) - 1):
+        piece = Element(e.kind, ends[k], ends[k + 1], e.center, e.cw, 0, e.feed_mm_s, e.tolerance_mm, e.jet, e.aux,
+                        e.outputs, e.segment, e.line, e.dwell_s, e.blend)
+        piece._sweep = whole * (bounds[k + 1] - bounds[k])
+        pieces.append(piece)
+    return pieces
+
+
 def _trimmed_arc(e: Element, start: tuple, end: tuple) -> Element:
     return Element(
         e.kind, tuple(start), tuple(end), e.center, e.cw, 0, e.feed_mm_s, e.tolerance_mm, e.jet, e.aux, e.outputs,

@@ -24,8 +24,8 @@ from ..config import MachineConfig
 from ..data.fifo import SetpointFlag
 from .geometry import PathArrays
 from .limits import (
-    GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, path_caps, section_limits, section_zones,
-    smoothing_for,
+    GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, arc_pieces_for_caps, path_caps, section_limits,
+    section_zones, smoothing_for,
 )
 from .profile import Zones, rough_duration_s
 from .path import Element, blend_corners, blends, iter_elements
@@ -266,7 +266,7 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
         for k in range(1, len(elements) - 1):
             if not elements[k].blend:
                 continue
-            shortest = min(elements[k - 1].length_mm, elements[k + 1].length_mm) + elements[k].length_mm / 2.0
+            shortest = min(_whole_length(elements, k, -1), _whole_length(elements, k, 1)) + elements[k].length_mm / 2.0
             v = min(near[k - 1], near[k + 1], math.sqrt(accel * shortest))
             r = min(cap[k] / v, 1.0) if v > 0.0 else 1.0
             blend_s = span_s * (1.0 - r) + v * (1.0 - r) ** 2 / a_blend
@@ -276,6 +276,17 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
             if settle_s + (v / a_stop if v > 0.0 else 0.0) < blend_s:
                 out.add(elements[k].segment)
     return out
+
+
+def _whole_length(elements: list[Element], k: int, step: int) -> float:
+    """Length of the element beside a blend at k (step -1: before it, +1: after it), all of it
+    where it is an arc cut into pieces (`arc_pieces_for_caps`: the same segment, side by side)."""
+    i = k + step
+    segment, total = elements[i].segment, 0.0
+    while 0 <= i < len(elements) and not elements[i].blend and elements[i].segment == segment:
+        total += elements[i].length_mm
+        i += step
+    return total
 
 
 def _fastest_limits(
@@ -339,10 +350,12 @@ def _z_rate(e: Element) -> float:
 
 def _section(elements: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True,
              cut=None) -> Section:  # noqa: ANN001 - a CutPlan
+    whole = elements
+    elements, origin = arc_pieces_for_caps(whole, config)
     path = PathArrays.of(elements)
     feed = np.array([e.feed_mm_s for e in elements])
-    if cut is not None:  # the cutting model: F is only an upper bound
-        feed = np.minimum(feed, cut.caps(elements, path))
+    if cut is not None:  # the cutting model: F is only an upper bound, set by the whole elements
+        feed = np.minimum(feed, cut.caps(whole, path if elements is whole else PathArrays.of(whole))[origin])
     rapid = np.array([e.kind == RAPID for e in elements])
     tolerance = min(e.tolerance_mm for e in elements)
     blended = any(e.blend for e in elements)
