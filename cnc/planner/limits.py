@@ -89,6 +89,7 @@ class SectionLimits:
     accel: np.ndarray  # mm/s^2: tangential acceleration
     v_kink: np.ndarray  # mm/s at each junction (inf where smooth)
     smoothing: Smoothing
+    caps: "PathCaps | None" = None  # what they were made from: the path's own caps, for the other shares
 
     @property
     def v_max(self) -> float:
@@ -220,7 +221,7 @@ def section_limits(
     v_kink = np.full(max(n - 1, 0), np.inf)
     if kink.any():
         v_kink[kink] = _kink_caps(path, kinks * kink, sm, v_upper, j_geometry * share_kink, sm.deviation_mm * share_kink, a_min)[kink]
-    return SectionLimits(v_hard, v_feed, rapid, accel, v_kink, sm)
+    return SectionLimits(v_hard, v_feed, rapid, accel, v_kink, sm, caps)
 
 
 def _axis_min(config: MachineConfig, key: str) -> float:

@@ -11,6 +11,7 @@ switch at their segment boundary without a stop where the path is tangent there.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Iterator
@@ -227,13 +228,18 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
     first = _split(blend_corners(run, memo=corners), config, offset, notes, choose_jerk=False, cut=cut)
     stops = _corners_to_stop(first, config)
     if stops:
-        return _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut)
-    for section in first:  # the same path and sections: only the share of jerk is still to choose
-        section.limits = _fastest_limits(
-            section.path, section.limits.v_feed, section.limits.rapid, min(e.tolerance_mm for e in section.elements),
-            any(e.blend for e in section.elements), config, known=section.limits,
-        )
-    return first
+        out = _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut)
+    else:
+        out = first
+        for section in first:  # the same path and sections: only the share of jerk is still to choose
+            section.limits = _fastest_limits(
+                section.path, section.limits.v_feed, section.limits.rapid, min(e.tolerance_mm for e in section.elements),
+                any(e.blend for e in section.elements), config, known=section.limits,
+            )
+    for section in out:  # chosen: what the limits were made from is not kept in the window ahead
+        if section.limits.caps is not None:
+            section.limits = dataclasses.replace(section.limits, caps=None)
+    return out
 
 
 def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]:
@@ -300,7 +306,7 @@ def _fastest_limits(
     if known is not None and known.smoothing.geometry_share == 0.0:
         return known  # straight: no share to choose
     best, best_s = None, math.inf
-    caps = None
+    caps = known.caps if known is not None else None
     for share in GEOMETRY_JERK_SHARES if choose else (GEOMETRY_JERK_SHARE,):
         if known is not None and share == GEOMETRY_JERK_SHARE:
             lim = known
