@@ -153,8 +153,7 @@ def arc_pieces_for_caps(elements: list[Element], config: MachineConfig) -> tuple
     if tolerance <= 0.0:
         return elements, np.arange(len(elements))
     span_s = (axis_average_samples(config, tolerance) + 2) * config.timing.period_s
-    planar = [config.axis[a] for a in ("x", "y") if a in config.axis] or list(config.axes)
-    v_axes = min(a.max_velocity_mm_s for a in planar)
+    v_axes = _axis_min(config, "max_velocity_mm_s")
     a_normal = config.planner.arc_normal_share * _axis_min(config, "max_accel_mm_s2")
     out, origin = [], []
     for k, e in enumerate(elements):

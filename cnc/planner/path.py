@@ -363,8 +363,7 @@ def arc_pieces(e: Element, fractions: list[float]) -> list[Element]:
     bounds = [0.0, *fractions, 1.0]
     pieces = []
     for k in range(len(ends) - 1):
-        piece = Element(e.kind, ends[k], ends[k + 1], e.center, e.cw, 0, e.feed_mm_s, e.tolerance_mm, e.jet, e.aux,
-                        e.outputs, e.segment, e.line, e.dwell_s, e.blend)
+        piece = _trimmed_arc(e, ends[k], ends[k + 1])
         piece._sweep = whole * (bounds[k + 1] - bounds[k])
         pieces.append(piece)
     return pieces
