@@ -48,7 +48,8 @@ def test_following_error_beyond_limit_trips_servo_drives_off_and_jet_closed(dire
     assert abs(s["fault_value"]) > sup.config.axis["x"].following_error_limit_mm
     assert s["speed_cmd_v"] == [0.0, 0.0] and s["drive_enable_mask"] == 0
     sup.wait_until(lambda: not sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 2.0, "the jet to close")
-    assert all(not a & AxisIn.DRIVE_ENABLED for a in sup.hw()["axis_inputs"])
+    # the board reads its drives back on its next tick after the servo's output: wait for it, not a race
+    sup.wait_until(lambda: all(not a & AxisIn.DRIVE_ENABLED for a in sup.hw()["axis_inputs"]), 2.0, "the drives to read back off")
     assert sup.fifo.fill() == 0, "a trip flushes the setpoints"
     assert hw["tick"] > 0
 
