@@ -134,3 +134,39 @@ def test_a_section_of_one_element_gets_the_zone_the_envelope_would_give_it(seed)
         got, want = section_zones(path, lim, lo, hi, *controls), _enveloped_zones(path, lim, lo, hi, *controls)
         for field in ("edges", "hard", "soft", "accel"):
             assert np.asarray(getattr(got, field)).tobytes() == np.asarray(getattr(want, field)).tobytes(), (field, kind, controls)
+
+
+def polyline(angles, spacing, feed):
+    """Lines of `spacing` mm turning by each of `angles` (rad) in turn, at `feed`."""
+    heading, at, lines = 0.0, np.zeros(2), []
+    for turn in (0.0, *angles):
+        heading += turn
+        end = at + spacing * np.array([math.cos(heading), math.sin(heading)])
+        lines.append(element(LINE, (*at, 0.0), (*end, 0.0), feed=feed))
+        at = end
+    return lines
+
+
+@pytest.mark.parametrize("spacing_spans", [0.6, 1.5, 3.0])
+def test_kinks_a_window_spans_together_keep_their_share_at_any_override(spacing_spans):
+    """Kinks closer than a window spans at twice the feed (what the 200 % override runs) add their
+    jumps in it: each kink's cap holds with every kink the window spans at the fastest speed the
+    kink runs at any override, and a kink a window at the feed spans alone still runs at the feed."""
+    feed = 60.0
+    lone = limits_of(polyline([0.002], 20.0, feed))
+    sm = lone.smoothing
+    budget = lone.v_kink[0] * 0.002  # the cap is budget / phi, phi the turns a window spans
+    span = (sm.n_axis + 2) * sm.dt
+    phi0 = budget / (3.0 * feed)  # alone: three times the feed; with its two neighbours: the feed
+    angles = [phi0] * 20
+    lim = limits_of(polyline(angles, spacing_spans * feed * span, feed))
+    assert lim.smoothing.n_axis == sm.n_axis
+    path_at = np.cumsum([spacing_spans * feed * span] * 21)[:-1]
+    kinks = lim.v_kink[np.isfinite(lim.v_kink)]
+    assert len(kinks) == 20
+    for cap, at in zip(kinks, path_at):
+        fastest = min(cap, 2.0 * feed)
+        phi = sum(phi0 for other in path_at if abs(other - at) <= fastest * span)
+        assert fastest * phi <= budget * (1 + 1e-9), "the kinks a window spans at the fastest this one runs"
+    if spacing_spans > 1.0:
+        assert kinks.min() >= feed * (1 - 1e-9), "a window at the feed spans one kink: the feed holds"

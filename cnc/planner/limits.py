@@ -57,6 +57,7 @@ GEOMETRY_JERK_SHARE = 0.5  # share of the jerk kept for curvature and kinks when
 GEOMETRY_JERK_SHARES = (0.3, 0.5, 0.7)  # the shares `sections.py` tries, keeping the fastest
 KINK_SHARE = 0.25  # of the geometry budgets (jerk, deviation), when a section has kinks
 KINK_ACCEL_SHARE = 0.02  # of the acceleration, when a section has kinks
+KINK_BISECTIONS = 8  # steps finding the fastest speed a kink's cap holds at
 MAX_SMOOTHING_SAMPLES = 64
 CURVE_SPEED_SHARE = 0.85  # a curve runs at this share of the speed its jerk budget allows when not speeding up
 
@@ -202,11 +203,11 @@ def section_limits(
     j_min, a_min = _axis_min(config, "max_jerk_mm_s3"), _axis_min(config, "max_accel_mm_s2")
     v_axis, a_axis = caps.v_axis, caps.a_axis
     v_feed = np.where(rapid, np.inf, feed_mm_s)
-    # the fastest it may run at any override (feeds up to 200 %, rapids up to 100 %)
-    v_top = float(np.minimum(v_axis, np.where(rapid, np.inf, 2.0 * v_feed)).max()) if n else math.inf
+    # the fastest each element may run at any override (feeds up to 200 %, rapids up to 100 %)
+    v_fast = np.minimum(v_axis, np.where(rapid, np.inf, 2.0 * v_feed))
+    v_top = float(v_fast.max()) if n else math.inf
     sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended, geometry_share, v_top)
     a_axis = np.minimum(a_axis, sm.accel_cap)
-    v_upper = float(np.minimum(v_axis, v_feed).max()) if n else 0.0
     j_geometry = j_min - sm.jerk_path
     share_kink = KINK_SHARE if kink.any() else 0.0
     v_hard, accel = v_axis.copy(), a_axis.copy()
@@ -219,7 +220,9 @@ def section_limits(
         accel = np.where(curved, np.minimum(accel, a_curve), accel)
     v_kink = np.full(max(n - 1, 0), np.inf)
     if kink.any():
-        v_kink[kink] = _kink_caps(path, kinks * kink, sm, v_upper, j_geometry * share_kink, sm.deviation_mm * share_kink, a_min)[kink]
+        v_run = np.minimum(v_axis, v_feed)
+        v_kink[kink] = _kink_caps(path, kinks * kink, sm, np.minimum(v_run[:-1], v_run[1:]), np.minimum(v_fast[:-1], v_fast[1:]),
+                                  j_geometry * share_kink, sm.deviation_mm * share_kink, a_min)[kink]
     return SectionLimits(v_hard, v_feed, rapid, accel, v_kink, sm, caps)
 
 
@@ -359,22 +362,49 @@ class CurveWindows:
 
 
 def _kink_caps(
-    path: PathArrays, kink_angles: np.ndarray, sm: Smoothing, v_upper: float, j_kink: float, deviation_mm: float, a_min: float
+    path: PathArrays, kink_angles: np.ndarray, sm: Smoothing, v_run: np.ndarray, v_top: np.ndarray, j_kink: float,
+    deviation_mm: float, a_min: float,
 ) -> np.ndarray:
     """Speed at each kink: the jump v phi of the velocity direction, spread over the axis average,
-    stays within the kinks' share of jerk, acceleration and deviation (two kinks may meet in a window)."""
+    stays within the kinks' share of jerk, acceleration and deviation.
+
+    Kinks a window spans together add their jumps: phi sums the kinks within the stretch a window
+    spans at the kink's own speed (the envelope holds its cap wherever the averages mix it in, so
+    no window with the kink in it runs faster). The cap f(v) = K / phi(v) falls as v rises and a
+    speed v holds where v <= f(v). Found per kink by bisection between f over the kink alone (above
+    every speed that holds) and f over the stretch the fastest it runs at any override (`v_top`)
+    spans (which holds); then f of the lowest speed found to fail (which holds), and the feed at
+    100 % (`v_run`) where it holds.
+    """
     n_axis, dt = sm.n_axis, sm.dt
-    reach = v_upper * (n_axis + 2) * dt
+    span = (n_axis + 2) * dt
     at = path.s0[1:-1]
     cum = np.concatenate(([0.0], np.cumsum(kink_angles)))
-    lo = np.searchsorted(at, at - reach, side="left")
-    hi = np.searchsorted(at, at + reach, side="right")
-    phi = np.maximum(cum[hi] - cum[lo], kink_angles)
-    with np.errstate(divide="ignore"):
-        v = j_kink * n_axis * dt * dt / (2.0 * phi)
-        v = np.minimum(v, KINK_ACCEL_SHARE * a_min * n_axis * dt / (2.0 * phi))
-        if n_axis > 1:
-            v = np.minimum(v, 4.0 * deviation_mm / (phi * n_axis * dt))
+    k = min(j_kink * n_axis * dt * dt / 2.0, KINK_ACCEL_SHARE * a_min * n_axis * dt / 2.0)
+    if n_axis > 1:
+        k = min(k, 4.0 * deviation_mm / (n_axis * dt))
+
+    def f(v: np.ndarray) -> np.ndarray:
+        """The cap the kinks within the stretch a window spans at speed v leave."""
+        reach = v * span + 1e-6
+        phi = np.maximum(cum[np.searchsorted(at, at + reach, side="right")] - cum[np.searchsorted(at, at - reach, side="left")],
+                         kink_angles)
+        return k / phi
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v_own = k / kink_angles
+        hi = np.minimum(v_own, v_top)
+        lo = f(hi)
+        done = lo >= hi  # the fastest it runs holds, or the kink alone caps it
+        v = np.where(done, np.minimum(lo, v_own), lo)
+        hi = np.where(done, v, hi)
+        for _ in range(KINK_BISECTIONS):
+            mid = 0.5 * (v + hi)
+            holds = mid <= f(mid)
+            v, hi = np.where(holds, mid, v), np.where(holds, hi, mid)
+        v = np.maximum(v, np.minimum(f(hi), hi))  # below a speed that fails, its cap holds
+        feed_holds = (v_run > v) & (v_run <= hi) & (v_run <= f(v_run))
+        v = np.where(feed_holds, v_run, v)
     return np.where(kink_angles > 0, v, np.inf)
 
 
