@@ -5,7 +5,8 @@
 
 `--machine` is the machine's id (its key space `<prefix>/<id>`): the screen's host needs no
 machine file, everything it shows comes from the controller. `--screenshot` renders the screen
-after `--after` seconds to a PNG and exits (offscreen when there is no display): for
+to a PNG once it has caught up with the controller (status, position, history, program), or after
+`--after` seconds at the latest, and exits (offscreen when there is no display): for
 documentation and for checking a remote screen.
 """
 
@@ -44,9 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--credentials", metavar="FILE", help="a user:password line, when the controller has accounts")
     parser.add_argument("--tls", metavar="DIR", help="for tls/ endpoints: a directory with ca.pem and this station's "
                         "<station>.pem and <station>.key (`waterjet certs station NAME`)")
-    parser.add_argument("--screenshot", metavar="OUT.png", help="render the screen to a PNG after --after seconds and exit")
-    parser.add_argument("--after", type=float, default=3.0, metavar="SECONDS",
-                        help="when --screenshot renders (default 3 s)")
+    parser.add_argument("--screenshot", metavar="OUT.png",
+                        help="render the screen to a PNG once it has caught up with the controller, and exit")
+    parser.add_argument("--after", type=float, default=10.0, metavar="SECONDS",
+                        help="--screenshot renders after this long at the latest, caught up or not (default 10 s)")
     parser.add_argument("--take-lock", action="store_true", help="take the command lock once connected")
 
 

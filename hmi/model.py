@@ -302,6 +302,19 @@ class MachineModel(Observable):
             return self._reachable
 
     @property
+    def caught_up(self) -> bool:
+        """The screen shows what the controller says: reachable, its status and position in, the
+        history up to the status's newest entry, and the program the status names."""
+        with self._lock:
+            st = self._status
+            if not self._reachable or st is None or self._position is None:
+                return False
+            if max(self._history, default=0) < st.alarm_seq:
+                return False
+            running = st.program
+            return running is None or not running.hash or (self._program is not None and self._program.hash == running.hash)
+
+    @property
     def error(self) -> str:
         """The last problem that is not an alarm ("" none), e.g. a schema version mismatch."""
         with self._lock:

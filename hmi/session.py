@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import sys
+import time
 from pathlib import Path
 
 from PySide6.QtCore import QCoreApplication, QEvent, QTimer
@@ -19,6 +20,10 @@ from .model import MachineModel
 from .tuning import EngineeringWindow
 from .tuning_model import TuningModel
 from .window import MainWindow
+
+
+SCREENSHOT_LOOK_MS = 50  # how often a screenshot waiting for the screen to catch up looks again
+SCREENSHOT_SETTLE_MS = 300  # from caught up to the grab: the queued updates drawn, the plots' next refresh
 
 
 class OperatorScreen:
@@ -73,8 +78,12 @@ class OperatorScreen:
         attempt()
 
     def screenshot_after(self, seconds: float, out: Path) -> int:
-        """Show the window, render it to `out` after `seconds`, and return 0 (1 when it cannot be written)."""
+        """Show the window and render it to `out` once it has caught up with the controller (its
+        status, position, history and program in, and the window drawn from them), or after
+        `seconds` at the latest (an unreachable controller: the screen says so); return 0 (1 when
+        it cannot be written)."""
         result = {"code": 1}
+        latest = time.monotonic() + seconds
 
         def grab() -> None:
             out.parent.mkdir(parents=True, exist_ok=True)
@@ -86,7 +95,14 @@ class OperatorScreen:
                 print(f"waterjet hmi: cannot write {out}", file=sys.stderr)
             self.app.quit()
 
+        def look() -> None:
+            if self.model.caught_up or time.monotonic() >= latest:
+                # the model's changes reach the widgets through queued signals: let them land first
+                QTimer.singleShot(SCREENSHOT_SETTLE_MS, grab)
+            else:
+                QTimer.singleShot(SCREENSHOT_LOOK_MS, look)
+
         self.window.show()
-        QTimer.singleShot(int(seconds * 1000), grab)
+        look()
         self.app.exec()
         return result["code"]

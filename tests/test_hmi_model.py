@@ -139,6 +139,27 @@ def test_segment_states_follow_the_position_and_the_status_program():
     assert model.program_outdated, "the controller loaded another program"
 
 
+def test_the_screen_has_caught_up_once_status_position_history_and_program_are_in():
+    """What `waterjet hmi --screenshot` waits for before it renders (not a fixed delay)."""
+    model = MachineModel("panel")
+    assert not model.caught_up
+    model.set_reachable(True)
+    model.apply_status(status(1, alarm_seq=2, program=progress(0)))
+    assert not model.caught_up, "no position yet"
+    model.apply_position(position(1, 0))
+    assert not model.caught_up, "the history is behind the status's newest entry"
+    model.apply_history(HistoryPage([event(1, "raised"), event(2, "cleared")], 2, False))
+    assert not model.caught_up, "the program the status names is not in"
+    model.apply_program(program(4))
+    assert model.caught_up
+    model.apply_status(status(2, alarm_seq=3, program=progress(1)))
+    assert not model.caught_up, "a newer entry the history does not hold"
+    model.apply_alarm(event(3, "raised"))
+    assert model.caught_up
+    model.set_reachable(False)
+    assert not model.caught_up, "an unreachable controller is never caught up with"
+
+
 def test_read_only_unless_this_station_holds_the_lock():
     model = MachineModel("panel")
     rec = Recorder(model, "lock")

@@ -341,7 +341,7 @@ def test_losing_the_controller_shows_the_banner_disables_commands_and_reconnecti
         out = tmp_path / "cli.png"
         cli = subprocess.run(
             [sys.executable, "-m", "cnc.cli", "hmi", "--connect", config.zenoh.listen[0], "--machine",
-             config.machine.name, "--station", "doc", "--screenshot", str(out), "--after", "3"],
+             config.machine.name, "--station", "doc", "--screenshot", str(out)],
             capture_output=True, text=True, timeout=60, env={**os.environ, "QT_QPA_PLATFORM": "offscreen"},
         )
         assert cli.returncode == 0, cli.stderr

@@ -320,7 +320,7 @@ def _screen_headless(endpoint: str, config) -> list[str]:  # noqa: ANN001 - a Ma
     """Render the operator screen once without a display, as `waterjet hmi --screenshot` does."""
     out = Path(tempfile.gettempdir()) / "waterjet-demo-hmi.png"
     try:
-        res = subprocess.run(_hmi(endpoint, config, "--station", "demo-screen", "--screenshot", str(out), "--after", "3"),
+        res = subprocess.run(_hmi(endpoint, config, "--station", "demo-screen", "--screenshot", str(out)),
                              capture_output=True, text=True, timeout=120)
     except subprocess.TimeoutExpired:
         return ["the operator screen did not render within 120 s"]
