@@ -305,14 +305,10 @@ class MachineModel(Observable):
     def caught_up(self) -> bool:
         """The screen shows what the controller says: reachable, its status and position in, the
         history up to the status's newest entry, and the program the status names."""
-        with self._lock:
+        with self._lock:  # re-entrant: the properties below take it too
             st = self._status
-            if not self._reachable or st is None or self._position is None:
-                return False
-            if max(self._history, default=0) < st.alarm_seq:
-                return False
-            running = st.program
-            return running is None or not running.hash or (self._program is not None and self._program.hash == running.hash)
+            return (self._reachable and st is not None and self._position is not None and self.last_seq >= st.alarm_seq
+                    and not self.program_outdated)
 
     @property
     def error(self) -> str:
