@@ -27,7 +27,7 @@ from hmi.controls import STOP_ALL_KEY
 from hmi.model import Screen
 from hmi.session import OperatorScreen
 
-from .conftest import NEAR_HOME, REPO, logic, machine_config
+from .conftest import NEAR_HOME, REPO, free_port, logic, machine_config
 from .test_hmi_model import start_controller
 from .test_zenoh_interface import PART
 
@@ -367,6 +367,19 @@ def test_waterjet_hmi_refuses_bad_options_naming_them():
     assert bad.returncode == 2 and "--credentials /nonexistent/creds" in bad.stderr
     headless = run("--connect", "tcp/127.0.0.1:1")
     assert headless.returncode == 2 and "no display" in headless.stderr and "--screenshot" in headless.stderr
+
+
+def test_a_screenshot_of_an_unreachable_controller_is_rendered_after_the_latest_wait_and_says_so(tmp_path):
+    """`--screenshot` waits for the screen to catch up with the controller; with none there it
+    renders at `--after` and the screen says the controller is unreachable."""
+    out = tmp_path / "away.png"
+    cli = subprocess.run(
+        [sys.executable, "-m", "cnc.cli", "hmi", "--connect", f"tcp/127.0.0.1:{free_port()}", "--screenshot", str(out),
+         "--after", "0.5"],
+        capture_output=True, text=True, timeout=60, env={**os.environ, "QT_QPA_PLATFORM": "offscreen"},
+    )
+    assert cli.returncode == 0, cli.stderr
+    assert "(offline, controller unreachable)" in cli.stdout and out.stat().st_size > 10000
 
 
 def test_a_program_file_that_is_not_utf8_text_is_refused_before_it_is_sent_naming_line_and_column(tmp_path):
