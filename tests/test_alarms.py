@@ -514,6 +514,30 @@ def test_an_alarm_the_machine_file_no_longer_declares_comes_back_latched_and_res
     assert [a.id for a in restarted.active().alarms] == ["estop"]
 
 
+def test_cut_points_written_before_how_far_into_the_segment_was_kept_are_migrated_and_read(tmp_path):
+    """An older jobs.sqlite whose cut points lack segment_mm: read as unknown (-1, an arc's first
+    turn) before and after the writer adds the column; a new cut point keeps it."""
+    import sqlite3
+
+    from cnc.gateway.jobs import CutPoint, CutPoints
+
+    path = tmp_path / "jobs.sqlite"
+    db = sqlite3.connect(path)
+    db.execute("CREATE TABLE cut_points (hash TEXT PRIMARY KEY, program TEXT NOT NULL, segment INTEGER NOT NULL, "
+               "x_mm REAL NOT NULL, y_mm REAL NOT NULL, line INTEGER NOT NULL, updated_ns INTEGER NOT NULL)")
+    db.execute("INSERT INTO cut_points VALUES ('h', 'old.ngc', 4, 10.5, 20.25, 9, 1)")
+    db.commit()
+    db.close()
+    reader = CutPoints(path, readonly=True)
+    assert reader.get("h") == CutPoint("h", "old.ngc", 4, 10.5, 20.25, 9, 1, -1.0)
+    writer = CutPoints(path)
+    assert writer.get("h").segment_mm == -1.0
+    writer.save(CutPoint("h2", "new.ngc", 7, 1.0, 2.0, 12, 5, segment_mm=180.5))
+    assert CutPoints(path, readonly=True).get("h2") == CutPoint("h2", "new.ngc", 7, 1.0, 2.0, 12, 5, 180.5)
+    writer.close()
+    reader.close()
+
+
 def test_a_job_history_written_before_planned_times_were_kept_is_migrated_and_read(tmp_path):
     """An older jobs.sqlite (no planned_s column) is read as before, and the writer adds the column:
     its old runs read -1 (not known), new runs keep their planned cycle time."""

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from cnc.planner.preflight import preflight
 from cnc.planner.recovery import (
-    RecoveryError, continue_at, cut_starts, locate, point_at, run_from_line, segment_length, start_at_part,
+    RecoveryError, continue_at, cut_starts, into_segments, locate, point_at, run_from_line, segment_length, start_at_part,
 )
 from cnc.planner.steps import ProgramTiming
 from cnc.machine_dialect import dialect_for
@@ -138,6 +138,33 @@ def test_an_arc_of_several_turns_stopped_in_its_first_turn_keeps_the_turns_left(
     rest = r.program.segments[1]
     assert int(rest["turns"]) == 1 and segment_length(rest) == pytest.approx(full - 30.0)
     assert locate(seg[k], point_at(seg[k], 30.0)) == pytest.approx(30.0)
+
+
+@pytest.mark.parametrize("into", [30.0, 126.0, 160.0, 250.0])
+def test_an_arc_of_several_turns_continues_in_the_turn_its_cut_point_was_on(into):
+    """The cut point says roughly how far into the segment the jet stopped (the planner's progress,
+    a few mm off either way): the restart backs up from there in that turn. Without it, the first."""
+    prog = program()
+    seg = prog.segments
+    k = next(i for i, s in enumerate(seg) if int(s["kind"]) == ARC and s["turns"] == 1)
+    full = segment_length(seg[k])
+    stop = point_at(seg[k], into)
+    for hint in (into - 3.0, into + 3.0):
+        assert locate(seg[k], stop, hint) == pytest.approx(into)
+        r = continue_at(prog, k, stop, 5.0, HEAD, segment_mm=hint)
+        assert r.segment == k and r.into_mm == pytest.approx(into - 5.0)
+        assert segment_length(r.program.segments[1]) == pytest.approx(full - (into - 5.0))
+    assert locate(seg[k], stop) == pytest.approx(into % (full / 2.0)), "no hint: the first turn"
+
+
+def test_how_far_into_its_segment_each_setpoint_lies_carries_across_bursts_and_a_restart():
+    into, carry = into_segments(np.array([0, 0, 1, 1, 1, 2, 2]), np.arange(7.0), (-1, 0.0))
+    assert into.tolist() == [0, 1, 0, 1, 2, 0, 1]
+    into, carry = into_segments(np.array([2, 2, 3]), np.array([7.0, 8.0, 9.0]), carry)
+    assert into.tolist() == [2, 3, 0], "the segment under way when the last burst ended goes on"
+    # a restart: its segment 1 begins 40 mm into the program's segment, its segment 0 is the rapid there
+    into, _ = into_segments(np.array([0, 0, 0, 1, 1]), np.array([0.0, 5.0, 5.0, 10.0, 12.0]), (-1, 0.0), restart_into_mm=40.0)
+    assert into.tolist() == [40, 40, 40, 40, 42]
 
 
 def test_a_nest_starts_at_part_n_and_from_a_line_and_the_planner_runs_each():

@@ -670,6 +670,7 @@ class RestartAt(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     x_mm: float = 0.0
     y_mm: float = 0.0
     overlap_mm: float = 0.0
+    segment_mm: float = -1.0  # roughly how far into `segment` the jet stopped (-1 unknown): an arc's turn
 
 
 class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

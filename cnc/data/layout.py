@@ -196,6 +196,7 @@ def motion_layout(n: int) -> BlockLayout:
             F("segment", "q"),  # program segment the servo is on (-1 when none)
             F("line", "q"),  # its source line
             F("done_mm", "d"),  # path done by the servo
+            F("segment_mm", "d"),  # how far into that segment, roughly (-1 none): an arc's turn, for "continue"
             F("eta_s", "d"),  # time left, from the planned profile (-1 while unknown)
             F("override", "d"),  # feed override ratio in force (0..2)
             F("fifo_min_fill", "q"),  # lowest FIFO fill seen at a refill during the run (-1: none yet)

@@ -25,7 +25,9 @@ _ADDED = (("planned_s", "REAL NOT NULL DEFAULT -1"), ("cut", "TEXT NOT NULL DEFA
 
 
 _CUTS = ("CREATE TABLE IF NOT EXISTS cut_points (hash TEXT PRIMARY KEY, program TEXT NOT NULL, segment INTEGER NOT NULL, "
-         "x_mm REAL NOT NULL, y_mm REAL NOT NULL, line INTEGER NOT NULL, updated_ns INTEGER NOT NULL)")
+         "x_mm REAL NOT NULL, y_mm REAL NOT NULL, line INTEGER NOT NULL, updated_ns INTEGER NOT NULL, "
+         "segment_mm REAL NOT NULL DEFAULT -1)")
+_CUT_COLUMNS = "hash, program, segment, x_mm, y_mm, line, updated_ns"
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,7 @@ class CutPoint:
     y_mm: float
     line: int
     updated_ns: int = 0
+    segment_mm: float = -1.0  # roughly how far into the segment (-1 unknown): which turn of an arc of several
 
 
 class CutPoints:
@@ -46,12 +49,13 @@ class CutPoints:
     after the controller was restarted or lost its power. Beside the job history, in its file."""
 
     def __init__(self, path: str | Path, readonly: bool = False) -> None:
-        self.db = open_store(Path(path), _CUTS, "job history (cut points)", readonly)
+        self.db = open_store(Path(path), _CUTS, "job history (cut points)", readonly,
+                             setup=None if readonly else _add_cut_columns)
 
     def save(self, p: CutPoint) -> None:
-        self.db.execute("INSERT OR REPLACE INTO cut_points (hash, program, segment, x_mm, y_mm, line, updated_ns) "
-                        "VALUES (?, ?, ?, ?, ?, ?, ?)", (p.hash, p.program, p.segment, p.x_mm, p.y_mm, p.line,
-                                                         p.updated_ns or time.time_ns()))
+        self.db.execute(f"INSERT OR REPLACE INTO cut_points ({_CUT_COLUMNS}, segment_mm) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                        (p.hash, p.program, p.segment, p.x_mm, p.y_mm, p.line, p.updated_ns or time.time_ns(),
+                         p.segment_mm))
         self.db.commit()
 
     def clear(self, hash: str) -> None:
@@ -61,8 +65,9 @@ class CutPoints:
 
     def get(self, hash: str) -> CutPoint | None:
         try:
-            row = self.db.execute("SELECT hash, program, segment, x_mm, y_mm, line, updated_ns FROM cut_points WHERE hash = ?",
-                                  (hash,)).fetchone()
+            # a file written before segment_mm was kept, read by a reader that does not migrate it: without it
+            extra = ", segment_mm" if "segment_mm" in _table_columns(self.db, "cut_points") else ""
+            row = self.db.execute(f"SELECT {_CUT_COLUMNS}{extra} FROM cut_points WHERE hash = ?", (hash,)).fetchone()
         except sqlite3.OperationalError as exc:  # a store whose writer has not created the table yet
             if "no such table" in str(exc):
                 return None
@@ -103,7 +108,17 @@ class CutSetups:
 
 
 def _columns(db: sqlite3.Connection) -> set[str]:
-    return {row[1] for row in db.execute("PRAGMA table_info(jobs)")}
+    return _table_columns(db, "jobs")
+
+
+def _table_columns(db: sqlite3.Connection, table: str) -> set[str]:
+    return {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
+
+
+def _add_cut_columns(db: sqlite3.Connection) -> None:
+    """Cut points written before segment_mm was kept get its column (-1: unknown, the first turn)."""
+    if "segment_mm" not in _table_columns(db, "cut_points"):
+        db.execute("ALTER TABLE cut_points ADD COLUMN segment_mm REAL NOT NULL DEFAULT -1")
 
 
 def _add_columns(db: sqlite3.Connection) -> None:

@@ -373,7 +373,8 @@ class Logic:
             if point is None:
                 raise CommandRefused(f"no interrupted cut of {m['program_name']} is known (it ran to its end, or never "
                                      "cut): start at a part or from a line instead")
-            restart = RestartAt("continue", segment=point.segment, x_mm=point.x_mm, y_mm=point.y_mm, overlap_mm=overlap)
+            restart = RestartAt("continue", segment=point.segment, x_mm=point.x_mm, y_mm=point.y_mm, overlap_mm=overlap,
+                                segment_mm=point.segment_mm)
             what = f"continuing {m['program_name']} at line {point.line}, {overlap:g} mm back"
         else:
             if msg.number < 1:
@@ -1047,13 +1048,25 @@ class Logic:
             x = float(pos[self.names.index("x")]) if "x" in self.names else 0.0
             y = float(pos[self.names.index("y")]) if "y" in self.names else 0.0
             self.cut_point = CutPoint(m["program_hash"], m["program_name"], int(sv["jet_on_segment"]), x, y,
-                                      int(sv["jet_on_line"]))
+                                      int(sv["jet_on_line"]), segment_mm=self._into_segment(sv, m, x, y))
             saved = self.cut_saved
             if saved is None or saved.hash != self.cut_point.hash or math.hypot(
                     x - saved.x_mm, y - saved.y_mm) >= self.config.cycle.recovery_save_mm:
                 self._save_cut()
         if not snap.jet_on and self.cut_point is not None and self.cut_point is not self.cut_saved:
             self._save_cut()  # the jet closed (a stop, a fault, the end of a part): where it last cut
+
+    def _into_segment(self, sv: dict, m: dict, x: float, y: float) -> float:
+        """Roughly how far into its segment the jet last cut (-1 unknown): which turn of an arc of
+        several "continue" is to back up in. The planner's progress says it while the servo follows
+        the setpoints (to within a planner period); a trip flushes them and the progress jumps
+        to the last one pushed, so from then on it is the last one taken plus the way on from there."""
+        segment, last = int(sv["jet_on_segment"]), self.cut_point
+        if sv["state"] == ServoState.TRACKING and int(m["segment"]) == segment:
+            return float(m["segment_mm"])
+        if last is not None and last.segment == segment and last.segment_mm >= 0.0 and last.hash == m["program_hash"]:
+            return last.segment_mm + math.hypot(x - last.x_mm, y - last.y_mm)
+        return -1.0
 
     def _save_cut(self) -> None:
         point = self.cut_saved = self.cut_point

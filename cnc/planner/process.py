@@ -69,7 +69,7 @@ from .overlap import CornerOverlap
 from .preflight import PreflightError, preflight
 from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
-from .recovery import Restart, RecoveryError, continue_at, run_from_line, start_at_part
+from .recovery import Restart, RecoveryError, continue_at, into_segments, run_from_line, start_at_part
 from .quality import CutPlan, CutPlanError, cut_plan_for
 from .sections import iter_steps, move_steps, pierce_dwell_s
 from .steps import ProgramTiming, StepSource
@@ -193,6 +193,8 @@ class Planner:
         self.ring_done = np.zeros(cap)
         self.ring_segment = np.full(cap, -1, dtype=np.int64)
         self.ring_line = np.zeros(cap, dtype=np.int64)
+        self.ring_into = np.zeros(cap)  # how far into its segment each record lies (`recovery.into_segments`)
+        self.into_carry = (-1, 0.0)
         self.run_first = 0  # FIFO head counter at the run's first record
         self.track_fill = False
         self.last_pushed: np.ndarray | None = None
@@ -355,7 +357,8 @@ class Planner:
         program = self.loaded.program
         self._set(
             program_seq=self.out.get("program_seq") + 1, program_name=self.loaded.name, program_hash=self.loaded.hash,
-            program_lines=program.stats.lines, done_mm=0.0, segment=-1, line=0, run_result=int(RunResult.NONE),
+            program_lines=program.stats.lines, done_mm=0.0, segment=-1, segment_mm=-1.0, line=0,
+            run_result=int(RunResult.NONE),
             cut=self.loaded.cut_text,
         )
 
@@ -420,7 +423,7 @@ class Planner:
             return
         log.warning("planner: the program %s was lost with the planner's restart: load it again", lost)
         self._set(program_seq=self.out.get("program_seq") + 1, program_name="", program_hash="", program_lines=0,
-                  planned_s=0.0, total_mm=0.0, done_mm=0.0, segment=-1, line=0, eta_s=0.0)
+                  planned_s=0.0, total_mm=0.0, done_mm=0.0, segment=-1, segment_mm=-1.0, line=0, eta_s=0.0)
 
     def _prepare(self, path: str, data: bytes, start: tuple, check_travel: bool = False, probe: bool = True,
                  setup: CutSetup | None = None) -> LoadedProgram:
@@ -543,7 +546,7 @@ class Planner:
         program = self.loaded.program
         try:
             if at.kind == "continue":
-                restart = continue_at(program, at.segment, (at.x_mm, at.y_mm), at.overlap_mm, head)
+                restart = continue_at(program, at.segment, (at.x_mm, at.y_mm), at.overlap_mm, head, at.segment_mm)
             elif at.kind == "part":
                 restart = start_at_part(program, at.number, head)
             elif at.kind == "line":
@@ -773,8 +776,10 @@ class Planner:
         self.motion_epoch = self.servo_r.read_dict()["motion_epoch"]
         self.jog_continuous = False
         self.run_first = self.fifo.head()
+        self.into_carry = (-1, 0.0)
         self.track_fill = False
-        self._set(state=int(kind), fifo_min_fill=-1, segment=-1, line=0, done_mm=0.0, pierce_s=runner.pierce_s)
+        self._set(state=int(kind), fifo_min_fill=-1, segment=-1, line=0, done_mm=0.0, segment_mm=-1.0,
+                  pierce_s=runner.pierce_s)
 
     def _end_run(self, result: RunResult) -> None:
         self._progress(self.servo_r.read_dict())
@@ -849,6 +854,8 @@ class Planner:
         if not len(records):
             return
         records["epoch"] = self.motion_epoch & 0xFFFF_FFFF
+        into, self.into_carry = into_segments(records["segment"], done, self.into_carry,
+                                              self.restart.into_mm if self.restart is not None else None)
         if self.restart is not None:  # a run from inside the program: its segments as the program's
             records["segment"] = self.restart.original_segment(records["segment"])
         head = self.fifo.head()
@@ -857,6 +864,7 @@ class Planner:
             raise RuntimeError(f"the FIFO took {taken} of {len(records)} records")
         idx = (head + np.arange(taken)) % self.fifo.capacity
         self.ring_done[idx], self.ring_segment[idx], self.ring_line[idx] = done, records["segment"], records["line"]
+        self.ring_into[idx] = into
         self.last_pushed = records[-1]
         self._set(records_pushed=self.out.get("records_pushed") + taken)
 
@@ -874,7 +882,8 @@ class Planner:
         consumed = self.fifo.tail()
         if consumed > self.run_first:
             k = (consumed - 1) % self.fifo.capacity
-            self._set(done_mm=float(self.ring_done[k]), segment=int(self.ring_segment[k]), line=int(self.ring_line[k]))
+            self._set(done_mm=float(self.ring_done[k]), segment=int(self.ring_segment[k]), line=int(self.ring_line[k]),
+                      segment_mm=float(self.ring_into[k]))
         eta = self.runner.remaining_s() + self.fifo.fill() * self.dt
         self._set(eta_s=eta if math.isfinite(eta) else -1.0)
 

@@ -80,9 +80,10 @@ def point_at(s: np.void, into_mm: float) -> tuple[float, float, float]:
     return (float(x0 + (x1 - x0) * f), float(y0 + (y1 - y0) * f), float(z0 + (z1 - z0) * f))
 
 
-def locate(s: np.void, point: tuple[float, ...]) -> float:
-    """How far along one segment the point nearest `point` (x, y) lies, in mm (an arc of several
-    turns: within its first turn)."""
+def locate(s: np.void, point: tuple[float, ...], hint_mm: float = -1.0) -> float:
+    """How far along one segment the point nearest `point` (x, y) lies, in mm. An arc of several
+    turns passes every point once a turn: the pass nearest `hint_mm` (how far into the segment the
+    head was known to be, roughly; a few mm off picks the right turn), its first when negative."""
     (x0, y0, z0), (x1, y1, z1) = s["start"], s["end"]
     px, py = float(point[0]), float(point[1])
     length = segment_length(s)
@@ -90,19 +91,43 @@ def locate(s: np.void, point: tuple[float, ...]) -> float:
         return 0.0
     if int(s["kind"]) == ARC:
         cx, cy = s["center"]
-        swept = sweep(x0, y0, x1, y1, cx, cy, bool(s["cw"]), int(s["turns"]))
+        swept = abs(sweep(x0, y0, x1, y1, cx, cy, bool(s["cw"]), int(s["turns"])))
         rel = math.atan2(py - cy, px - cx) - math.atan2(y0 - cy, x0 - cx)
-        rel = (-rel if swept < 0 else rel) % _TWO_PI
-        f = rel / abs(swept)
-        if f > 1.0:  # beyond the arc's end: the nearer of its two ends
-            f = 1.0 if rel - abs(swept) < _TWO_PI - rel else 0.0
-        return f * length
+        rel = (-rel if s["cw"] else rel) % _TWO_PI
+        if rel > swept:  # beyond the arc's end: the nearer of its two ends
+            return length if rel - swept < _TWO_PI - rel else 0.0
+        passes = int((swept - rel) // _TWO_PI)  # the turns after the first pass that pass it again
+        if hint_mm >= 0.0 and passes:
+            rel += _TWO_PI * min(max(round((hint_mm / length * swept - rel) / _TWO_PI), 0), passes)
+        return rel / swept * length
     dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
     planar = dx * dx + dy * dy
     if planar <= 0.0:
         return 0.0
     t = ((px - x0) * dx + (py - y0) * dy) / planar
     return min(max(t, 0.0), 1.0) * length
+
+
+def into_segments(segment: np.ndarray, done_mm: np.ndarray, carry: tuple[int, float],
+                  restart_into_mm: float | None = None) -> tuple[np.ndarray, tuple[int, float]]:
+    """How far into its segment each of a run's setpoints lies, mm, from the program position
+    `done_mm` of each and its `segment` (the run's own numbering), roughly: from where the
+    segment's first setpoint was (a blend's share and a sample's step off). `carry`: (segment,
+    base) of the last setpoint before these ((-1, 0) at a run's start), returned for the next.
+    `restart_into_mm`: a restart's, how far into the program's segment its segment 1 begins; its
+    segment 0, the rapid there (and the pierce at its end), is at that point too.
+    Kept with the cut point: which turn of an arc of several the jet stopped on."""
+    if not len(segment):
+        return np.zeros(0), carry
+    before = np.concatenate(([carry[0]], segment[:-1]))
+    starts = np.where(segment != before, np.arange(len(segment)), -1)
+    first = np.maximum.accumulate(starts)
+    base_at = done_mm if restart_into_mm is None else done_mm - np.where(segment == 1, restart_into_mm, 0.0)
+    base = np.where(first >= 0, base_at[np.maximum(first, 0)], carry[1])
+    into = done_mm - base
+    if restart_into_mm is not None:
+        into = np.where(segment == 0, restart_into_mm, into)
+    return into, (int(segment[-1]), float(base[-1]))
 
 
 def _cut_short(s: np.void, into_mm: float) -> np.void:
@@ -127,9 +152,10 @@ def _cut_short(s: np.void, into_mm: float) -> np.void:
 
 # -- the restarts -----------------------------------------------------------------------------
 def continue_at(program: Program, segment: int, point: tuple[float, ...], overlap_mm: float,
-                head: tuple[float, float, float]) -> Restart:
+                head: tuple[float, float, float], segment_mm: float = -1.0) -> Restart:
     """Continue a cut stopped at `point` on `segment` (where the jet was last open), backed up by
-    `overlap_mm` along the cut (not past its pierce); the head now at `head`."""
+    `overlap_mm` along the cut (not past its pierce); the head now at `head`. `segment_mm`: roughly
+    how far into the segment the jet stopped (-1 unknown), which turn of an arc of several."""
     seg = program.segments
     if not 0 <= segment < len(seg):
         raise RecoveryError(f"segment {segment} is not in {_name(program)} (it has {len(seg)})")
@@ -138,7 +164,7 @@ def continue_at(program: Program, segment: int, point: tuple[float, ...], overla
     s = seg[segment]
     if not s["jet"] or int(s["kind"]) in (RAPID, DWELL):
         raise RecoveryError(f"{_name(program)}:{int(s['line'])}: the jet was not cutting there; start at the next part instead")
-    k, into = segment, locate(s, point)
+    k, into = segment, locate(s, point, segment_mm)
     back = overlap_mm
     while back > 1e-12:
         if into >= back:
