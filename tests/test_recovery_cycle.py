@@ -86,6 +86,8 @@ def test_a_cut_stopped_by_a_door_or_the_e_stop_continues_an_overlap_back_from_wh
         assert stored.program == "nest.ngc" and stored.line == 5
         # where the jet last cut, to the tick (the board's read-back of the valve lags the servo by one: 0.1 mm here)
         assert stored.y_mm == pytest.approx(100.0) and -1e-6 <= stopped_at[0] - stored.x_mm <= 0.1 + 1e-6, (stored, stopped_at)
+        # and roughly how far into its segment (from X100), from the planner's progress: an arc's turn
+        assert abs(stored.segment_mm - (stored.x_mm - 100.0)) <= 2.0, stored
 
         sup.set_sim(**cleared)
         sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
@@ -102,6 +104,53 @@ def test_a_cut_stopped_by_a_door_or_the_e_stop_continues_an_overlap_back_from_wh
         assert m["run_result"] == RunResult.DONE and m["state"] == PlannerState.IDLE
         sup.wait_until(lambda: _stored(sup) is None, 10.0, "the cut point cleared once the program ran to its end")
         assert "no interrupted cut" in refusal(sup, Recover("continue"))
+
+
+# three turns of R20 around (220, 100): every point of the circle is cut three times
+TURNS = """(an arc of three turns)
+G21 G90 G64 P0.05 F6000
+G0 X200 Y100
+M3
+G2 X200 Y100 I20 J0 P3
+M5
+G0 X60 Y60
+M2
+"""
+
+
+def test_an_arc_of_several_turns_stopped_beyond_its_first_turn_continues_in_the_turn_it_stopped_on(plc_controller,
+                                                                                                  tmp_path):
+    """The job record keeps roughly how far into the segment the jet stopped, so "continue" backs
+    up in the turn it stopped on, not in the first one that passes the same point."""
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, TURNS)
+    turn = 2.0 * math.pi * 20.0
+    command(sup, CycleStart(cycles=1))
+    arc = 1  # the program's segments: the rapid there, the arc, the rapid away
+    press_button_when_asked(sup, lambda: jet_open(sup) and sup.motion()["segment"] == arc, 60.0, "the arc under way")
+    sup.pause_virtual_clock()  # the door opens in the tick asked for, however late the host looks
+    step_until(sup, lambda: sup.motion()["segment_mm"] > 1.3 * turn, 20000, "the second turn")
+    sup.set_sim(doors_open=1)
+    sup.resume_virtual_clock()
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] == MachineState.FAULT, 30.0,
+                   "the fault")
+    # written every few mm while it cut, and once more where the jet closed (off the scan): wait for that one
+    # (a few mm behind the progress the door was opened at: the planner's progress is a period ahead)
+    sup.wait_until(lambda: (p := _stored(sup)) is not None and p.segment_mm > 1.2 * turn, 10.0,
+                   "where the jet closed in the second turn, in the job record")
+    stored = _stored(sup)
+    assert stored.line == 5 and 1.2 * turn < stored.segment_mm < 3.0 * turn, stored
+    sup.set_sim(doors_open=0)
+    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
+    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
+    at = continue_and_pierce(sup, "continuing nest.ngc at line 5, 2 mm back")
+    assert math.hypot(at[0] - 220.0, at[1] - 100.0) == pytest.approx(20.0, abs=0.01)
+    overlap = sup.config.cycle.recovery_overlap_mm
+    into = sup.motion()["segment_mm"]  # where the continued run is in the arc: the second turn, 2 mm back
+    assert abs(into - (stored.segment_mm - overlap)) < 3.0, (into, stored)
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
+                   "the rest of the arc and the unload")
+    assert sup.motion()["run_result"] == RunResult.DONE
 
 
 def test_a_part_or_a_line_starts_the_cycle_there_and_impossible_starts_are_refused(plc_controller, tmp_path):
