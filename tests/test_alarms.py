@@ -514,20 +514,27 @@ def test_an_alarm_the_machine_file_no_longer_declares_comes_back_latched_and_res
     assert [a.id for a in restarted.active().alarms] == ["estop"]
 
 
+def older_file(path, *statements: str):
+    """A store as an older version wrote it: its statements run on a new SQLite file."""
+    import sqlite3
+
+    db = sqlite3.connect(path)
+    for statement in statements:
+        db.execute(statement)
+    db.commit()
+    db.close()
+    return path
+
+
 def test_cut_points_written_before_how_far_into_the_segment_was_kept_are_migrated_and_read(tmp_path):
     """An older jobs.sqlite whose cut points lack segment_mm: read as unknown (-1, an arc's first
     turn) before and after the writer adds the column; a new cut point keeps it."""
-    import sqlite3
-
     from cnc.gateway.jobs import CutPoint, CutPoints
 
-    path = tmp_path / "jobs.sqlite"
-    db = sqlite3.connect(path)
-    db.execute("CREATE TABLE cut_points (hash TEXT PRIMARY KEY, program TEXT NOT NULL, segment INTEGER NOT NULL, "
-               "x_mm REAL NOT NULL, y_mm REAL NOT NULL, line INTEGER NOT NULL, updated_ns INTEGER NOT NULL)")
-    db.execute("INSERT INTO cut_points VALUES ('h', 'old.ngc', 4, 10.5, 20.25, 9, 1)")
-    db.commit()
-    db.close()
+    path = older_file(tmp_path / "jobs.sqlite",
+                      "CREATE TABLE cut_points (hash TEXT PRIMARY KEY, program TEXT NOT NULL, segment INTEGER NOT NULL, "
+                      "x_mm REAL NOT NULL, y_mm REAL NOT NULL, line INTEGER NOT NULL, updated_ns INTEGER NOT NULL)",
+                      "INSERT INTO cut_points VALUES ('h', 'old.ngc', 4, 10.5, 20.25, 9, 1)")
     reader = CutPoints(path, readonly=True)
     assert reader.get("h") == CutPoint("h", "old.ngc", 4, 10.5, 20.25, 9, 1, -1.0)
     writer = CutPoints(path)
@@ -541,17 +548,13 @@ def test_cut_points_written_before_how_far_into_the_segment_was_kept_are_migrate
 def test_a_job_history_written_before_planned_times_were_kept_is_migrated_and_read(tmp_path):
     """An older jobs.sqlite (no planned_s column) is read as before, and the writer adds the column:
     its old runs read -1 (not known), new runs keep their planned cycle time."""
-    import sqlite3
-
     from cnc.gateway.jobs import JobHistory
 
-    path = tmp_path / "jobs.sqlite"
-    db = sqlite3.connect(path)
-    db.execute("CREATE TABLE jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, program TEXT NOT NULL, hash TEXT NOT NULL, "
-               "start_ns INTEGER NOT NULL, end_ns INTEGER NOT NULL, result TEXT NOT NULL, cycle_time_s REAL NOT NULL)")
-    db.execute("INSERT INTO jobs (program, hash, start_ns, end_ns, result, cycle_time_s) VALUES ('old.ngc', 'h', 1, 2, 'DONE', 9.5)")
-    db.commit()
-    db.close()
+    path = older_file(tmp_path / "jobs.sqlite",
+                      "CREATE TABLE jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, program TEXT NOT NULL, hash TEXT NOT NULL, "
+                      "start_ns INTEGER NOT NULL, end_ns INTEGER NOT NULL, result TEXT NOT NULL, cycle_time_s REAL NOT NULL)",
+                      "INSERT INTO jobs (program, hash, start_ns, end_ns, result, cycle_time_s) "
+                      "VALUES ('old.ngc', 'h', 1, 2, 'DONE', 9.5)")
     reader = JobHistory(path, readonly=True)
     assert [(j.program, j.cycle_time_s, j.planned_s) for j in reader.page().entries] == [("old.ngc", 9.5, -1.0)]
     writer = JobHistory(path)
