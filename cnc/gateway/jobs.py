@@ -107,10 +107,6 @@ class CutSetups:
         self.db.close()
 
 
-def _columns(db: sqlite3.Connection) -> set[str]:
-    return _table_columns(db, "jobs")
-
-
 def _table_columns(db: sqlite3.Connection, table: str) -> set[str]:
     return {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
 
@@ -123,7 +119,7 @@ def _add_cut_columns(db: sqlite3.Connection) -> None:
 
 def _add_columns(db: sqlite3.Connection) -> None:
     """A history written before these were kept gets their columns."""
-    have = _columns(db)
+    have = _table_columns(db, "jobs")
     for name, kind in _ADDED:
         if name not in have:
             db.execute(f"ALTER TABLE jobs ADD COLUMN {name} {kind}")
@@ -143,7 +139,7 @@ class JobHistory:
 
     def _select(self) -> str:
         """The columns a JobRecord takes, as far as this file has them (an older one may lack the last)."""
-        have = _columns(self.db)
+        have = _table_columns(self.db, "jobs")
         extra = []
         for name, _ in _ADDED:
             if name not in have:

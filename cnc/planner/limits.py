@@ -395,9 +395,8 @@ def _kink_caps(
         v_own = k / kink_angles
         hi = np.minimum(v_own, v_top)
         lo = f(hi)
-        done = lo >= hi  # the fastest it runs holds, or the kink alone caps it
-        v = np.where(done, np.minimum(lo, v_own), lo)
-        hi = np.where(done, v, hi)
+        v = lo  # holds (never above v_own: phi is at least the kink's own turn)
+        hi = np.where(lo >= hi, lo, hi)  # the fastest it runs holds, or the kink alone caps it: done
         for _ in range(KINK_BISECTIONS):
             mid = 0.5 * (v + hi)
             holds = mid <= f(mid)
