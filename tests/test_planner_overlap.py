@@ -193,3 +193,61 @@ def test_random_polylines_under_the_operators_controls_at_random_keep_every_limi
     assert (within_tolerance(program, records) <= 1e-9).all()
     if not stopped:
         assert records["position"][-1] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9)
+
+
+def _lead_in_and_chords(radius: float = 16.0, chords: int = 56) -> str:
+    """A CAM part as the comparison nest cuts its round ones: a lead-in along +Y, then a circle in
+    chords whose first runs a few degrees off +X (both moves share the Y axis, one barely)."""
+    cx, cy = 0.0, 3.0 + radius
+    lines = ["G21 G90 G64 P0.05", "G1 X0 Y0 F2400", "G1 Y3"]
+    for k in range(1, chords + 1):
+        a = -math.pi / 2 + 2 * math.pi * k / chords
+        lines.append(f"G1 X{cx + radius * math.cos(a):.4f} Y{cy + radius * math.sin(a):.4f}")
+    return "\n".join(lines + ["M2"]) + "\n"
+
+
+def test_a_lead_in_into_a_contour_a_few_degrees_off_square_overlaps_as_the_tolerance_allows(monkeypatch):
+    """The lead-in's last jerk and the contour's first add on Y, where the contour's first chord
+    barely moves: at the axis's full jerk the overlap was refused for 1 % too much and the head
+    stood at the corner. The straight lead-in now leaves a few per cent of its jerk unused there
+    (`sections._jerk_reserves`): the corner overlaps far longer, every axis keeps its limits, every
+    record stays within P, and the planned time is the one run."""
+    from cnc.planner import sections
+
+    text = _lead_in_and_chords()
+    program, _, records, planned = run(text, chunk=41)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    monkeypatch.setattr(sections, "JERK_RESERVE", 0.0)
+    _, _, full_jerk, planned_full = run(text, chunk=41)
+    within_limits(full_jerk)
+    assert len(full_jerk) == planned_full
+    assert len(full_jerk) - len(records) >= 20, "the overlap at the lead-in's corner is tens of ms longer"
+    first_pass = records[: len(records) // 2]  # the circle closes at the corner: its end stops there
+    assert corner_speeds(first_pass, [(0.0, 3.0)])[0] > 10.0, "the head passes the corner at speed"
+    assert corner_speeds(full_jerk[: len(full_jerk) // 2], [(0.0, 3.0)])[0] == 0.0, "with the whole jerk it stood there"
+
+
+def test_only_a_straight_move_at_a_corner_sharing_an_axis_barely_leaves_jerk_unused():
+    """A square's corners (the two moves on different axes) and a zigzag's (both well along a
+    common axis) take the whole jerk; a lead-in meeting a contour that starts a few degrees off
+    square leaves `JERK_RESERVE` of it unused, and so does a rapid arriving a little across it."""
+    from cnc.planner.path import iter_elements
+    from cnc.planner.sections import JERK_RESERVE, _jerk_reserves
+
+    config = machine_config()
+
+    def reserves(text: str) -> list[float]:
+        elements = [e for e in iter_elements(interpret(text, dialect_for(config)).segments)]
+        return _jerk_reserves([[e] for e in elements], config)
+
+    assert reserves(square()) == [0.0] * 4
+    zigzag = "G21 G90 G64 P0.05\nG1 X10 Y0 F6000\nG1 X18.66 Y5\nG1 X10 Y10\nM2\n"
+    assert reserves(zigzag) == [0.0] * 3
+    # a rapid arriving from the left and a little below, the lead-in up, the contour a few degrees off +X
+    lead_in = "G21 G90 G64 P0.05\nG0 X-57 Y-1\nG0 X0 Y0\nG1 X0 Y3 F2400\nG1 X10 Y3.5\nM2\n"
+    assert reserves(lead_in) == [0.0, JERK_RESERVE, JERK_RESERVE, JERK_RESERVE]
+    no_tolerance = lead_in.replace("G64 P0.05", "G61")
+    assert reserves(no_tolerance) == [0.0] * 4, "no overlap under an exact stop, nothing to reserve for"
+

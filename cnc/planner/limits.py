@@ -73,6 +73,7 @@ class Smoothing:
     jerk_path: float  # jerk along the path the profile may use, mm/s^3
     deviation_mm: float  # how far the axis average may stray from the path
     geometry_share: float = 0.0  # share of the jerk kept for curvature and kinks (0: a straight section)
+    jerk_reserve: float = 0.0  # share of the axes' jerk left unused, for the corner overlaps at its ends (`sections.py`)
 
     @property
     def extension_s(self) -> float:
@@ -104,7 +105,7 @@ class SectionLimits:
 
 def smoothing_for(
     config: MachineConfig, tolerance_mm: float, has_curves: bool, has_kinks: bool, blended: bool,
-    geometry_share: float = GEOMETRY_JERK_SHARE, top_speed_mm_s: float = math.inf,
+    geometry_share: float = GEOMETRY_JERK_SHARE, top_speed_mm_s: float = math.inf, jerk_reserve: float = 0.0,
 ) -> Smoothing:
     """The averages of a section whose tightest corner tolerance is `tolerance_mm`; a section with
     curves or kinks keeps `geometry_share` of the jerk for them.
@@ -116,19 +117,23 @@ def smoothing_for(
     stops within a shorter distance (v^2/2a + v a/2J, also growing above sqrt(v J)), at
     a = min(A, sqrt(v_top J)). Slow sections (a waterjet's cutting feeds) then ramp in
     2 sqrt(v/J) instead of v/A + A/J: 28 ms against 33 ms from 40 mm/s, 14 ms against 27 ms
-    from 10 mm/s at this machine's limits."""
+    from 10 mm/s at this machine's limits.
+
+    `jerk_reserve`: the share of the axes' jerk the section leaves unused, so that where it meets
+    the next (or last) section the two motions' jerks may add in a corner overlap (`overlap.py`)."""
     dt = config.timing.period_s
     a_min, j_min = _axis_min(config, "max_accel_mm_s2"), _axis_min(config, "max_jerk_mm_s3")
     geometry = has_curves or has_kinks
     n_axis = axis_average_samples(config, tolerance_mm) if geometry else 1  # a straight path has nothing to smooth
     share = geometry_share if geometry else 0.0
-    jerk_path = j_min * (1.0 - share)
+    jerk_path = j_min * (1.0 - jerk_reserve) * (1.0 - share)
     accel_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if has_kinks else a_min
     if 0.0 < top_speed_mm_s < math.inf:
         accel_cap = min(accel_cap, math.sqrt(top_speed_mm_s * jerk_path))
     n_path = max(1, math.ceil(accel_cap / (jerk_path * dt) - 1e-9))
     deviation = tolerance_mm * (1.0 - BLEND_SHARE) if blended else tolerance_mm
-    return Smoothing(dt, n_path, n_axis, accel_cap, accel_cap / (n_path * dt), deviation if n_axis > 1 else 0.0, share)
+    return Smoothing(dt, n_path, n_axis, accel_cap, accel_cap / (n_path * dt), deviation if n_axis > 1 else 0.0, share,
+                     jerk_reserve)
 
 
 def axis_average_samples(config: MachineConfig, tolerance_mm: float) -> int:
@@ -193,9 +198,10 @@ def path_caps(path: PathArrays, config: MachineConfig) -> PathCaps:
 
 def section_limits(
     path: PathArrays, feed_mm_s: np.ndarray, rapid: np.ndarray, tolerance_mm: float, blended: bool, config: MachineConfig,
-    geometry_share: float = GEOMETRY_JERK_SHARE, caps: PathCaps | None = None,
+    geometry_share: float = GEOMETRY_JERK_SHARE, caps: PathCaps | None = None, jerk_reserve: float = 0.0,
 ) -> SectionLimits:
-    """Caps for every element and junction of one section (`caps`: its path's, when made already)."""
+    """Caps for every element and junction of one section (`caps`: its path's, when made already;
+    `jerk_reserve`: the share of the jerk it leaves unused, `smoothing_for`)."""
     n = len(path)
     caps = caps or path_caps(path, config)
     kinks, kink = caps.kinks, caps.kink
@@ -206,9 +212,10 @@ def section_limits(
     # the fastest each element may run at any override (feeds up to 200 %, rapids up to 100 %)
     v_fast = np.minimum(v_axis, np.where(rapid, np.inf, 2.0 * v_feed))
     v_top = float(v_fast.max()) if n else math.inf
-    sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended, geometry_share, v_top)
+    sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended, geometry_share, v_top,
+                       jerk_reserve)
     a_axis = np.minimum(a_axis, sm.accel_cap)
-    j_geometry = j_min - sm.jerk_path
+    j_geometry = j_min * (1.0 - jerk_reserve) - sm.jerk_path
     share_kink = KINK_SHARE if kink.any() else 0.0
     v_hard, accel = v_axis.copy(), a_axis.copy()
     if curved.any():

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..config import MachineConfig
 from .path import Element, distance_to
-from .sections import Section
+from .sections import Section, overlap_may_apply
 from .stream import SectionStream
 
 CONTEXT = 4  # samples either side of an overlap whose differences are checked too (a third difference spans 4)
@@ -68,12 +68,7 @@ class CornerOverlap:
         """Whether the corner from section a into section b, next to each other, may be overlapped:
         a tolerance there, the same outputs on both sides, and a flat corner (the check measures
         the deviation in XY)."""
-        if self.max_samples < 1:
-            return False
-        last, first = a.elements[-1], b.elements[0]
-        if min(last.tolerance_mm, first.tolerance_mm) <= 0.0 or int(a.flags[-1]) != int(b.flags[0]):
-            return False
-        return _flat(last) and _flat(first) and max(abs(p - q) for p, q in zip(last.end, first.start)) <= 1e-9
+        return self.max_samples >= 1 and overlap_may_apply(a.elements[-1], b.elements[0])
 
     def samples(self, a: SectionStream, b: SectionStream, a_summed: int = 0) -> int:
         """How many samples of b may be added to a's last ones (0: a stop at the corner). `a` must be
