@@ -251,3 +251,36 @@ def test_only_a_straight_move_at_a_corner_sharing_an_axis_barely_leaves_jerk_unu
     no_tolerance = lead_in.replace("G64 P0.05", "G61")
     assert reserves(no_tolerance) == [0.0] * 4, "no overlap under an exact stop, nothing to reserve for"
 
+
+def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeypatch):
+    """A lead-in along Y into a round part in chords and arcs, as CAM writes one: the lead-in's
+    corner is sharp (a stop, overlapped) and the next, between the first two chords, turns 7
+    degrees. The averages spread the sharp blend's crawl over the gentle one's cap, which made
+    the gentle corner a stop as well. It is weighed at the speed its own curvature allows when
+    the sharp corner beside it is a stop (`sections._corners_to_stop`): blended, passed at the feed."""
+    from cnc.planner import sections
+
+    radius, chords = 11.5379, 54
+    lines = ["G21 G90 G64 P0.05", "G1 X0 Y0 F2400", "G1 Y3"]
+    points = [(radius * math.cos(a), 3.0 + radius + radius * math.sin(a))
+              for a in (-math.pi / 2 + 2 * math.pi * k / chords for k in range(1, chords + 1))]
+    for k, (x, y) in enumerate(points, 1):
+        lines.append(f"G3 X{x:.4f} Y{y:.4f} R{radius:.4f}" if k % 3 == 0 else f"G1 X{x:.4f} Y{y:.4f}")
+    text = "\n".join(lines + ["M2"]) + "\n"
+    gentle_corner = np.asarray(points[0])
+
+    def speed_at_gentle_corner(records) -> float:  # lowest within 0.3 mm (the sharp corner is 1.4 mm away)
+        first_pass = records[: len(records) // 2]
+        near = np.hypot(*(first_pass["position"][:, :2] - gentle_corner).T) < 0.3
+        return float(speed(first_pass)[near].min())
+
+    program, _, records, planned = run(text, chunk=29)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    assert speed_at_gentle_corner(records) > 30.0, "passed near F2400 (40 mm/s)"
+
+    monkeypatch.setattr(sections, "_blend_own_cap", lambda *args: 0.0)  # every blend weighed as a sharp one, as before
+    _, _, stopping, _ = run(text, chunk=29)
+    assert speed_at_gentle_corner(stopping) < 1.0, "a stop before (overlapped by a few ms)"
+    assert len(stopping) - len(records) >= 20

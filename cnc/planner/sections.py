@@ -256,10 +256,18 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
 
     each with the acceleration (and so the path average's span in T_ext and T_settle) the
     sections get at that speed (`limits.smoothing_for`).
+
+    The averages spread a sharp blend's cap over the blends within their span: a gentle corner
+    next to a sharp one (a lead-in's corner, then the first chords of a round part) got the sharp
+    one's crawl and was made a stop as well. A blend whose own curvature allows the neighbours'
+    speed (`_blend_own_cap`) is kept when a sharp corner to be stopped at lies within that span:
+    with that corner a stop, the blend runs at its own speed.
     """
     straight = smoothing_for(config, 0.0, False, False, False)
     dt, accel, jerk = straight.dt, straight.accel_cap, straight.jerk_path
     out: set[int] = set()
+    j_geometry = jerk * GEOMETRY_JERK_SHARE
+    a_normal = config.planner.arc_normal_share * accel
     for section in sections:
         lim = section.limits
         # the neighbours' speed without the blend: a programmed arc's cap already carries the
@@ -271,6 +279,7 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
         span_s = 2.0 * lim.smoothing.extension_s
         a_blend = lim.smoothing.accel_cap
         elements = section.elements
+        chosen = []  # (where along the section, the neighbours' speed, gentle by itself, the blend's segment)
         for k in range(1, len(elements) - 1):
             if not elements[k].blend:
                 continue
@@ -282,8 +291,25 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
             a_stop = min(accel, math.sqrt(2.0 * v * jerk)) if v > 0.0 else accel
             settle_s = (max(1, math.ceil(a_stop / (jerk * dt) - 1e-9)) + straight.n_axis + REST_SAMPLES) * dt
             if settle_s + (v / a_stop if v > 0.0 else 0.0) < blend_s:
-                out.add(elements[k].segment)
+                gentle = _blend_own_cap(elements[k], a_normal, j_geometry, span_s) >= v
+                chosen.append((float(section.path.s0[k]) + elements[k].length_mm / 2.0, v, gentle, elements[k].segment))
+        # a gentle blend whose cap is a sharp one's nearby, spread by the windows: with the sharp
+        # corner a stop, the gentle one runs at its own speed (a lead-in's corner and the next chord's)
+        sharp = [s for s, _, gentle, _ in chosen if not gentle]
+        for s, v, gentle, segment in chosen:
+            if not (gentle and any(abs(s - t) <= v * span_s for t in sharp)):
+                out.add(segment)
     return out
+
+
+def _blend_own_cap(blend: Element, a_normal: float, j_geometry: float, span_s: float) -> float:
+    """The speed a corner blend's own curvature allows (radius R: its normal acceleration, the
+    curvature's jerk v^3/R^2, and the step of normal acceleration v^2/R taken within the averages'
+    span), however slow the corners near it are."""
+    radius = math.hypot(blend.start[0] - blend.center[0], blend.start[1] - blend.center[1])
+    return min(math.sqrt(a_normal * radius), (j_geometry * radius * radius) ** (1.0 / 3.0),
+               math.sqrt(j_geometry * span_s * radius))
+
 
 def _whole_length(elements: list[Element], k: int, step: int) -> float:
     """Length of the element beside a blend at k (step -1: before it, +1: after it), all of it
