@@ -284,3 +284,40 @@ def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeyp
     _, _, stopping, _ = run(text, chunk=29)
     assert speed_at_gentle_corner(stopping) < 1.0, "a stop before (overlapped by a few ms)"
     assert len(stopping) - len(records) >= 20
+
+
+def _round_part(kerf_by_controller: bool) -> str:
+    """A round part of the comparison nest (`bench/gcode_speed.py`: R11.5379 in 52 chords, every
+    third an arc, a lead-in along Y), its kerf offset by the controller (G41 with the jet, the
+    pierce dwell and G40) or already by CAM (the path as programmed)."""
+    ox, oy, radius, n = 625.0, 20.0, 11.5379, 52
+    lines = ["G21 G90 G17 G64 P0.05", "T1 M6", f"G0 X{ox:.3f} Y{oy - 3:.3f}"]
+    lines += ["M3", "G4 P0.3", f"G41 D1 G1 X{ox:.3f} Y{oy:.3f} F2400"] if kerf_by_controller else [f"G1 X{ox:.3f} Y{oy:.3f} F2400"]
+    for k in range(1, n + 1):
+        a = -math.pi / 2 + 2 * math.pi * k / n
+        x, y = ox + radius * math.cos(a), oy + radius + radius * math.sin(a)
+        lines.append(f"G3 X{x:.4f} Y{y:.4f} R{radius:.4f}" if k % 3 == 0 else f"G1 X{x:.4f} Y{y:.4f}")
+    lines += [f"G40 G1 X{ox - 2:.3f} Y{oy - 2:.3f}", "M5"] if kerf_by_controller else [f"G1 X{ox - 2:.3f} Y{oy - 2:.3f}"]
+    return "\n".join(lines + ["M2"]) + "\n"
+
+
+@pytest.mark.parametrize("kerf_by_controller", [False, True])
+def test_a_gentle_corner_kept_beside_a_sharp_one_is_weighed_again_and_never_slows_a_part(monkeypatch, kerf_by_controller):
+    """The gentle corners kept beside a stopped sharp one are weighed again once it is a stop. With
+    the kerf by CAM the round part runs sooner for them; with G41 the compensated path near the
+    lead-in still caps the gentle blend, and weighed again it is a stop as before (kept blended, the
+    part took 98 ms longer). Neither is slower than without the rule, and the timing is the run."""
+    from cnc.planner import sections
+
+    text = _round_part(kerf_by_controller)
+    program, _, records, planned = run(text, chunk=53)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    monkeypatch.setattr(sections, "_blend_own_cap", lambda *args: 0.0)  # no gentle corner kept
+    _, _, without, planned_without = run(text, chunk=53)
+    assert len(without) == planned_without
+    if kerf_by_controller:
+        assert len(records) <= len(without)
+    else:
+        assert len(without) - len(records) >= 20

@@ -228,9 +228,15 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
     whichever is faster."""
     corners: dict = {}  # each corner's blend, made once for both passes
     first = _split(blend_corners(run, memo=corners), config, offset, notes, choose_jerk=False, cut=cut)
-    stops = _corners_to_stop(first, config)
+    stops, kept = _corners_to_stop(first, config)
     if stops:
         out = _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut)
+        # the gentle corners kept beside sharp ones, weighed again with those a stop: a stop after all
+        # where their own caps say so
+        again = _corners_to_stop(out, config, only=kept)[0] if kept else set()
+        if again:
+            stops |= again
+            out = _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut)
     else:
         out = first
         for section in first:  # the same path and sections: only the share of jerk is still to choose
@@ -244,8 +250,10 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
     return out
 
 
-def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]:
-    """Segments whose corner is faster to stop at than to blend.
+def _corners_to_stop(sections: list[Section], config: MachineConfig,
+                     only: set[int] | None = None) -> tuple[set[int], set[int]]:
+    """Segments whose corner is faster to stop at than to blend, and the gentle ones kept (below);
+    `only`: weigh only these corners, each by itself.
 
     A blend's speed cap v_b holds for the averages' span T_ext on either side of it, so the
     head crawls through the corner for about 2 T_ext; a stop costs the averages' settling of
@@ -260,12 +268,14 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
     The averages spread a sharp blend's cap over the blends within their span: a gentle corner
     next to a sharp one (a lead-in's corner, then the first chords of a round part) got the sharp
     one's crawl and was made a stop as well. A blend whose own curvature allows the neighbours'
-    speed (`_blend_own_cap`) is kept when a sharp corner to be stopped at lies within that span:
-    with that corner a stop, the blend runs at its own speed.
+    speed (`_blend_own_cap`) is kept when a sharp corner to be stopped at lies within that span,
+    and weighed again once that corner is a stop (`_sections_of`, `only`): what else was near it
+    (a kerf compensation's arc, another corner) may still make it a stop.
     """
     straight = smoothing_for(config, 0.0, False, False, False)
     dt, accel, jerk = straight.dt, straight.accel_cap, straight.jerk_path
     out: set[int] = set()
+    kept: set[int] = set()
     j_geometry = jerk * GEOMETRY_JERK_SHARE
     a_normal = config.planner.arc_normal_share * accel
     for section in sections:
@@ -281,7 +291,7 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
         elements = section.elements
         chosen = []  # (where along the section, the neighbours' speed, gentle by itself, the blend's segment)
         for k in range(1, len(elements) - 1):
-            if not elements[k].blend:
+            if not elements[k].blend or (only is not None and elements[k].segment not in only):
                 continue
             shortest = min(_whole_length(elements, k, -1), _whole_length(elements, k, 1)) + elements[k].length_mm / 2.0
             v = min(near[k - 1], near[k + 1], math.sqrt(accel * shortest))
@@ -291,15 +301,14 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig) -> set[int]
             a_stop = min(accel, math.sqrt(2.0 * v * jerk)) if v > 0.0 else accel
             settle_s = (max(1, math.ceil(a_stop / (jerk * dt) - 1e-9)) + straight.n_axis + REST_SAMPLES) * dt
             if settle_s + (v / a_stop if v > 0.0 else 0.0) < blend_s:
-                gentle = _blend_own_cap(elements[k], a_normal, j_geometry, span_s) >= v
+                gentle = only is None and _blend_own_cap(elements[k], a_normal, j_geometry, span_s) >= v
                 chosen.append((float(section.path.s0[k]) + elements[k].length_mm / 2.0, v, gentle, elements[k].segment))
         # a gentle blend whose cap is a sharp one's nearby, spread by the windows: with the sharp
         # corner a stop, the gentle one runs at its own speed (a lead-in's corner and the next chord's)
         sharp = [s for s, _, gentle, _ in chosen if not gentle]
         for s, v, gentle, segment in chosen:
-            if not (gentle and any(abs(s - t) <= v * span_s for t in sharp)):
-                out.add(segment)
-    return out
+            (kept if gentle and any(abs(s - t) <= v * span_s for t in sharp) else out).add(segment)
+    return out, kept
 
 
 def _blend_own_cap(blend: Element, a_normal: float, j_geometry: float, span_s: float) -> float:
