@@ -37,7 +37,7 @@ import numpy as np
 
 from ..config import MachineConfig
 from .path import Element, distance_to
-from .sections import Section, overlap_may_apply
+from .sections import Section, flat, overlap_may_apply
 from .stream import SectionStream
 
 CONTEXT = 4  # samples either side of an overlap whose differences are checked too (a third difference spans 4)
@@ -89,7 +89,7 @@ class CornerOverlap:
         tail, a_from, _ = a.positions(n_a - most - CONTEXT, n_a)
         head, _, b_to = b.positions(1, most + CONTEXT)
         near = _near_corner(a.section, a_from, b.section, b_to)
-        if not all(_flat(e) for e in near):
+        if not all(flat(e) for e in near):
             return 0
         tolerance = min(e.tolerance_mm for e in near)
         summed = _candidates(tail - corner, head - corner, most)  # (most, width, 3), row k - 1: overlap k
@@ -147,6 +147,3 @@ def _near_corner(a: Section, a_from_mm: float, b: Section, b_to_mm: float) -> li
     head = [e for e, s0 in zip(b.elements, b.path.s0[:-1]) if s0 <= b_to_mm + 1e-9]
     return tail + head
 
-
-def _flat(e: Element) -> bool:
-    return e.start[2] == e.end[2]

@@ -385,8 +385,12 @@ def overlap_may_apply(last: Element, first: Element) -> bool:
     measures the deviation in XY) and meeting."""
     if min(last.tolerance_mm, first.tolerance_mm) <= 0.0 or _flags(last) != _flags(first):
         return False
-    return (last.start[2] == last.end[2] and first.start[2] == first.end[2]
-            and max(abs(p - q) for p, q in zip(last.end, first.start)) <= 1e-9)
+    return flat(last) and flat(first) and max(abs(p - q) for p, q in zip(last.end, first.start)) <= 1e-9
+
+
+def flat(e: Element) -> bool:
+    """The element keeps its height (no Z motion along it)."""
+    return e.start[2] == e.end[2]
 
 
 def _jerk_reserves(groups: list[list[Element]], config: MachineConfig) -> list[float]:
@@ -404,7 +408,8 @@ def _jerk_reserves(groups: list[list[Element]], config: MachineConfig) -> list[f
     (a zigzag's corners), a few per cent would not make room: no reserve there. The comparison nest
     of `bench/linuxcnc_compare.py` runs 0.6 s (0.3 %) sooner; no other comparison program changes.
     Curved sections never reserve: their share of the jerk is chosen by the time it takes
-    (`_fastest_limits`)."""
+    (`_fastest_limits`). The corners weighed are those between the sections of one piece of a run
+    (`iter_steps`); one where a long run is cut into pieces gets no reserve."""
     reserves = [0.0] * len(groups)
     if config.planner.corner_overlap_ms <= 0.0:
         return reserves
