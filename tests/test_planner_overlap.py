@@ -252,6 +252,26 @@ def test_only_a_straight_move_at_a_corner_sharing_an_axis_barely_leaves_jerk_unu
     assert reserves(no_tolerance) == [0.0] * 4, "no overlap under an exact stop, nothing to reserve for"
 
 
+def _round_part(kerf_by_controller: bool) -> str:
+    """A round part of the comparison nest (`bench/gcode_speed.py`: R11.5379 in 52 chords, every
+    third an arc, a lead-in along Y), its kerf offset by the controller (G41 with the jet, the
+    pierce dwell and G40) or already by CAM (the path as programmed)."""
+    ox, oy, radius, n = ROUND_PART
+    lines = ["G21 G90 G17 G64 P0.05", "T1 M6", f"G0 X{ox:.3f} Y{oy - 3:.3f}"]
+    lines += ["M3", "G4 P0.3", f"G41 D1 G1 X{ox:.3f} Y{oy:.3f} F2400"] if kerf_by_controller else [f"G1 X{ox:.3f} Y{oy:.3f} F2400"]
+    for k in range(1, n + 1):
+        a = -math.pi / 2 + 2 * math.pi * k / n
+        x, y = ox + radius * math.cos(a), oy + radius + radius * math.sin(a)
+        lines.append(f"G3 X{x:.4f} Y{y:.4f} R{radius:.4f}" if k % 3 == 0 else f"G1 X{x:.4f} Y{y:.4f}")
+    lines += [f"G40 G1 X{ox - 2:.3f} Y{oy - 2:.3f}", "M5"] if kerf_by_controller else [f"G1 X{ox - 2:.3f} Y{oy - 2:.3f}"]
+    return "\n".join(lines + ["M2"]) + "\n"
+
+
+ROUND_PART = (625.0, 20.0, 11.5379, 52)  # lead-in end (X, Y), radius, chords
+ROUND_PART_FIRST_CHORD_END = (ROUND_PART[0] + ROUND_PART[2] * math.cos(-math.pi / 2 + 2 * math.pi / ROUND_PART[3]),
+                              ROUND_PART[1] + ROUND_PART[2] + ROUND_PART[2] * math.sin(-math.pi / 2 + 2 * math.pi / ROUND_PART[3]))
+
+
 def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeypatch):
     """A lead-in along Y into a round part in chords and arcs, as CAM writes one: the lead-in's
     corner is sharp (a stop, overlapped) and the next, between the first two chords, turns 7
@@ -260,14 +280,8 @@ def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeyp
     the sharp corner beside it is a stop (`sections._corners_to_stop`): blended, passed at the feed."""
     from cnc.planner import sections
 
-    radius, chords = 11.5379, 54
-    lines = ["G21 G90 G64 P0.05", "G1 X0 Y0 F2400", "G1 Y3"]
-    points = [(radius * math.cos(a), 3.0 + radius + radius * math.sin(a))
-              for a in (-math.pi / 2 + 2 * math.pi * k / chords for k in range(1, chords + 1))]
-    for k, (x, y) in enumerate(points, 1):
-        lines.append(f"G3 X{x:.4f} Y{y:.4f} R{radius:.4f}" if k % 3 == 0 else f"G1 X{x:.4f} Y{y:.4f}")
-    text = "\n".join(lines + ["M2"]) + "\n"
-    gentle_corner = np.asarray(points[0])
+    text = _round_part(kerf_by_controller=False)
+    gentle_corner = np.asarray(ROUND_PART_FIRST_CHORD_END)
 
     def speed_at_gentle_corner(records) -> float:  # lowest within 0.3 mm (the sharp corner is 1.4 mm away)
         first_pass = records[: len(records) // 2]
@@ -284,21 +298,6 @@ def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeyp
     _, _, stopping, _ = run(text, chunk=29)
     assert speed_at_gentle_corner(stopping) < 1.0, "a stop before (overlapped by a few ms)"
     assert len(stopping) - len(records) >= 20
-
-
-def _round_part(kerf_by_controller: bool) -> str:
-    """A round part of the comparison nest (`bench/gcode_speed.py`: R11.5379 in 52 chords, every
-    third an arc, a lead-in along Y), its kerf offset by the controller (G41 with the jet, the
-    pierce dwell and G40) or already by CAM (the path as programmed)."""
-    ox, oy, radius, n = 625.0, 20.0, 11.5379, 52
-    lines = ["G21 G90 G17 G64 P0.05", "T1 M6", f"G0 X{ox:.3f} Y{oy - 3:.3f}"]
-    lines += ["M3", "G4 P0.3", f"G41 D1 G1 X{ox:.3f} Y{oy:.3f} F2400"] if kerf_by_controller else [f"G1 X{ox:.3f} Y{oy:.3f} F2400"]
-    for k in range(1, n + 1):
-        a = -math.pi / 2 + 2 * math.pi * k / n
-        x, y = ox + radius * math.cos(a), oy + radius + radius * math.sin(a)
-        lines.append(f"G3 X{x:.4f} Y{y:.4f} R{radius:.4f}" if k % 3 == 0 else f"G1 X{x:.4f} Y{y:.4f}")
-    lines += [f"G40 G1 X{ox - 2:.3f} Y{oy - 2:.3f}", "M5"] if kerf_by_controller else [f"G1 X{ox - 2:.3f} Y{oy - 2:.3f}"]
-    return "\n".join(lines + ["M2"]) + "\n"
 
 
 @pytest.mark.parametrize("kerf_by_controller", [False, True])
