@@ -49,6 +49,28 @@ def cam_nest(parts: int, seed: int = 7, subroutines: bool = False, inch_every: i
     return "\n".join(out) + "\n"
 
 
+def production_nest(parts: int, shapes: int = 12, seed: int = 7) -> str:
+    """A production nest: `parts` copies of `shapes` different parts of `cam_nest`'s kind (lead-in
+    with G41/G42, rounded rectangle in lines and arcs, lead-out), on a 55 x 45 mm grid, each part
+    `shapes` places after its last copy: how a sheet of the same few parts is cut in a run."""
+    rng = random.Random(seed)
+    kinds = [("G41" if rng.random() < 0.7 else "G42", rng.uniform(20, 45), rng.uniform(15, 35), rng.uniform(2, 5),
+              rng.randint(4, 10)) for _ in range(shapes)]
+    out = ["%", f"(production nest: {parts} parts of {shapes} shapes, seed {seed})", "G21 G90 G17 G64 P0.05", "T1 M6",
+           "F3000"]
+    per_row = int(SHEET_X // 55.0)
+    fmt = lambda v: f"{v:.3f}"  # noqa: E731
+    for p in range(parts):
+        col, row = p % per_row, (p // per_row) % int(SHEET_Y // 45.0)
+        ox, oy = 40.0 + col * 55.0, 40.0 + row * 45.0
+        side, w, h, r, steps = kinds[p % shapes]
+        out += [f"G0 X{fmt(ox)} Y{fmt(oy - 3)}", "M3", "G4 P0.3", f"{side} D1 G1 X{fmt(ox)} Y{fmt(oy)} F2400.0"]
+        out += rounded_rect(ox, oy, w, h, r, steps, fmt, top_r=True)
+        out += [f"G40 G1 X{fmt(ox - 2)} Y{fmt(oy - 2)}", "M5"]
+    out += ["G0 X0 Y0", "M2", "%"]
+    return "\n".join(out) + "\n"
+
+
 def _subroutine() -> list[str]:
     """O100: a round part of radius #3 at (#1, #2), lead-in with G41, 24 chords and two arcs."""
     body = ["O100 SUB", "G41 D1 G1 X[#1 + #3] Y#2 F2400"]

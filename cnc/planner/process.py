@@ -71,7 +71,7 @@ from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
 from .recovery import Restart, RecoveryError, continue_at, into_segments, run_from_line, start_at_part
 from .quality import CutPlan, CutPlanError, cut_plan_for
-from .sections import iter_steps, move_steps, pierce_dwell_s
+from .sections import RunMemo, iter_steps, move_steps, pierce_dwell_s
 from .steps import ProgramTiming, StepSource
 
 MDI_NAME = "MDI"  # how an MDI entry's errors name it
@@ -568,7 +568,7 @@ class Planner:
             cut = CutPlan(self.loaded.cut.model, self.loaded.cut.quality[np.clip(original, 0, len(self.loaded.cut.quality) - 1)])
         timing = ProgramTiming(self.dt, CornerOverlap.of(self.config))
         if len(restart.program.segments) <= TIMED_AT_LOAD_SEGMENTS:
-            timing.compute(iter_steps(restart.program, self.config, cut))
+            timing.compute(iter_steps(restart.program, self.config, cut, memo=RunMemo()))
         log.info("planner: %s: %s", self.loaded.name, restart.description)
         self._event("restart", restart.description, restart.line)
         steps = StepSource(iter_steps(restart.program, self.config, cut))

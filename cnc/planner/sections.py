@@ -41,6 +41,10 @@ REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and t
 JERK_RESERVE = 0.03  # share of the axes' jerk a straight move leaves unused at a corner overlap (`_jerk_reserves`)
 JERK_RESERVE_SHARED = 0.25  # ... where one of the two moves takes at most this share of the axis they share
 
+MEMO_RUNS = 1024  # runs a program's timing remembers (`RunMemo`): a nest of up to this many different parts
+MEMO_DECIMALS = 6  # a remembered run's coordinates, relative to its start, rounded to this many decimals of a mm
+MEMO_SHORTEST_MM = 1e-3  # a run with an element shorter than this is never remembered (its direction is rounding)
+
 STOP_KINDS = {"stop": "M0 program stop", "optional_stop": "M1 optional stop", "pallet": "M60 pallet change"}
 
 
@@ -97,6 +101,75 @@ class Pause:
 Step = Section | Pause
 
 
+class RunMemo:
+    """What a program's timing learnt of its runs of elements between two pauses, by their shape.
+
+    A CAM nest cuts the same part again and again at other places: its run of elements (lead-in,
+    contour, lead-out between the pierce and the jet going off) has the same shape, feeds and
+    tolerances each time, only moved, and so the same sections, profile and servo periods. The
+    timing (`steps.ProgramTiming`) makes such a run's sections once: `iter_steps` keys each run
+    between two pauses by its elements relative to its first point (`run_key`), and where the key is
+    known yields the ticks already timed (`KnownRun`) instead of making the sections again. Only runs
+    between pauses are kept: no corner overlap joins them to their neighbours, so their ticks are
+    theirs alone. Holds at most `MEMO_RUNS` runs, the oldest dropped first."""
+
+    def __init__(self, size: int = MEMO_RUNS) -> None:
+        self.size = size
+        self.runs: dict[tuple, tuple[tuple[int, ...], float]] = {}
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, key: tuple) -> tuple[tuple[int, ...], float] | None:
+        known = self.runs.get(key)
+        if known is None:
+            self.misses += 1
+        else:
+            self.hits += 1
+        return known
+
+    def put(self, key: tuple, ticks: tuple[int, ...], length_mm: float) -> None:
+        if len(self.runs) >= self.size:
+            del self.runs[next(iter(self.runs))]
+        self.runs[key] = (ticks, length_mm)
+
+
+@dataclass
+class RunStart:
+    """Marks the sections that follow, up to the next pause, as a run the memo keeps once timed."""
+
+    key: tuple
+    memo: RunMemo
+
+
+@dataclass
+class KnownRun:
+    """A run timed before at another place (`RunMemo`): its sections' servo periods and path length."""
+
+    ticks: tuple[int, ...]
+    length_mm: float
+
+
+def run_key(run: list[Element], cut: "CutPlan | None" = None) -> tuple | None:
+    """What a run's sections and their ticks depend on, wherever it is: per element its kind, its
+    points relative to the run's first (rounded to `MEMO_DECIMALS`), direction and turns, feed,
+    tolerance, outputs and the cutting model's quality there. None for a run never remembered: one
+    with an element so short that its direction is rounding."""
+    ox, oy, oz = run[0].start
+    d = MEMO_DECIMALS
+    key = []
+    for e in run:
+        if e.length_mm < MEMO_SHORTEST_MM:
+            return None
+        (sx, sy, sz), (ex, ey, ez), c = e.start, e.end, e.center
+        key.append((
+            e.kind, round(sx - ox, d), round(sy - oy, d), round(sz - oz, d), round(ex - ox, d), round(ey - oy, d),
+            round(ez - oz, d), None if c is None else (round(c[0] - ox, d), round(c[1] - oy, d)), e.cw, e.turns,
+            e.feed_mm_s, e.tolerance_mm, e.jet, e.aux, e.outputs, e.blend,
+            cut.quality_of(e.segment) if cut is not None else 0,
+        ))
+    return tuple(key)
+
+
 def output_flags(jet: bool, aux: int, outputs: int) -> int:
     """Setpoint output bits: the jet, the M-code map's outputs (abrasive, aux1..) and M62-M65 P0..P3."""
     bits = int(SetpointFlag.JET_ON) if jet else 0
@@ -118,7 +191,8 @@ def program_steps(program: Program, config: MachineConfig, cut: "CutPlan | None"
 
 
 def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = None,
-               first: int = 0, end: int | None = None) -> Iterator[Step]:
+               first: int = 0, end: int | None = None,
+               memo: RunMemo | None = None) -> Iterator[Step | RunStart | KnownRun]:
     """The program's sections and pauses, in order, each made when it is asked for: only the run of
     elements between two hard stops (jet or outputs switching, a dwell, a program stop) is held
     while its sections are made, so the cost and memory of the next step do not grow with the
@@ -128,7 +202,9 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
     cutting model's speed caps (`quality.py`), taken as the feed wherever they are lower, in its
     "quality" mode. `first`, `end`: only the steps of segments first..end - 1; from a pierce
     (`pierce_boundaries`) to the next, they are exactly the whole program's steps there (the
-    program's timing is made in such pieces at once, `steps.ProgramTiming`)."""
+    program's timing is made in such pieces at once, `steps.ProgramTiming`). `memo`: for the
+    timing only, runs between two pauses timed before at another place come as `KnownRun`, and
+    those to be timed are announced by a `RunStart` (`RunMemo`)."""
     pierce_s = pierce_dwell_s(config, cut)
     if cut is not None and not cut.applies:
         cut = None
@@ -143,31 +219,45 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
     made_any = False
     where_last = None  # where the last step made ends
 
-    def close_run() -> Iterator[Step]:
-        nonlocal offset, run, made_any, where_last
+    after_pause = True  # nothing yielded yet, or a pause last: no corner overlap reaches back past it
+
+    def close_run(then_pause: bool) -> Iterator[Step]:
+        """The run's sections; `then_pause`: what comes next is a pause or the end."""
+        nonlocal offset, run, made_any, where_last, after_pause
         if run:
-            for section in _sections_of(run, config, offset, notes, cut):
-                offset += section.length_mm
-                made_any, where_last = True, section.end
-                yield section
+            key = run_key(run, cut) if memo is not None and after_pause and then_pause else None
+            known = memo.get(key) if key is not None else None
+            if known is not None:
+                ticks, length_mm = known
+                offset += length_mm
+                if ticks:
+                    made_any, where_last, after_pause = True, run[-1].end, False
+                    yield KnownRun(ticks, length_mm)
+            else:
+                if key is not None:
+                    yield RunStart(key, memo)
+                for section in _sections_of(run, config, offset, notes, cut):
+                    offset += section.length_mm
+                    made_any, where_last, after_pause = True, section.end, False
+                    yield section
         run = []
 
     def pause(p: Pause) -> Pause:
-        nonlocal made_any, where_last
-        made_any, where_last = True, p.position
+        nonlocal made_any, where_last, after_pause
+        made_any, where_last, after_pause = True, p.position, True
         return p
 
     last = None
     for e in iter_elements(program.segments if end is None else program.segments[:end], first):
         if e.segment in stops and (run or made_any):
-            yield from close_run()
+            yield from close_run(True)
             where = where_last if where_last is not None else e.start
             m = stops.pop(e.segment)
             yield pause(Pause("program_stop", 0.0, _flags(last) if last else 0, where, e.segment, m.line, STOP_KINDS[m.kind]))
         # the jet and outputs switch first, a dwell programmed after M3 (the CAM pierce) included:
         # the on delay and pierce dwell always come before what the program adds
         if last is not None and (last.jet, last.aux) != (e.jet, e.aux):
-            yield from close_run()
+            yield from close_run(last.jet != e.jet)  # the jet switching is a pause; an output alone is not
             where = e.start
             if e.jet and not last.jet:
                 yield pause(Pause("pierce", jet.on_delay_s + pierce_s, _flags(e), where, e.segment, e.line, "jet on, pierce"))
@@ -176,14 +266,14 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
         elif last is None and e.jet:
             yield pause(Pause("pierce", jet.on_delay_s + pierce_s, _flags(e), e.start, e.segment, e.line, "jet on, pierce"))
         elif e.kind != DWELL and len(run) >= RUN_PIECE and _boundary(run[-1], e):
-            yield from close_run()
+            yield from close_run(False)
         last = e
         if e.kind == DWELL:
-            yield from close_run()
+            yield from close_run(True)
             yield pause(Pause("dwell", e.dwell_s, _flags(e), e.start, e.segment, e.line, f"G4 P{e.dwell_s:g}"))
             continue
         run.append(e)
-    yield from close_run()
+    yield from close_run(True)
     if last is not None and last.jet:
         where = where_last if where_last is not None else last.end
         yield Pause("jet_off", jet.off_delay_s, 0, where, last.segment, last.line, "jet off at the end")

@@ -29,7 +29,7 @@ from gcode.program import Program
 from ..config import MachineConfig
 from ..runtime.child import die_with
 from .overlap import CornerOverlap
-from .sections import Pause, Section, Step, iter_steps, pierce_boundaries
+from .sections import KnownRun, Pause, RunMemo, RunStart, Section, Step, iter_steps, pierce_boundaries
 from .stream import SectionStream
 
 STEPS_AHEAD = 48  # steps the worker keeps made beyond the one under way (a nest: a dozen parts)
@@ -126,7 +126,7 @@ class ProgramTiming:
         timing = cls(config.timing.period_s, CornerOverlap.of(config))
         pieces = _pieces(program, workers) if workers > 1 else []
         if len(pieces) < 2:
-            return timing.compute(iter_steps(program, config, cut))
+            return timing.compute(iter_steps(program, config, cut, memo=RunMemo()))
         try:
             timed = _time_pieces(program, config, cut, pieces, workers)
         except BaseException as exc:  # kept for the caller to report, as `compute` keeps its own
@@ -135,15 +135,28 @@ class ProgramTiming:
         timing.adopt(np.concatenate([ticks for ticks, _ in timed]), float(sum(mm for _, mm in timed)))
         return timing
 
-    def compute(self, steps: Iterable[Step]) -> "ProgramTiming":
-        """Walk the steps (each made, timed and dropped) to the end."""
+    def compute(self, steps: Iterable[Step | RunStart | KnownRun]) -> "ProgramTiming":
+        """Walk the steps (each made, timed and dropped) to the end. With a memo (`iter_steps`), a
+        run timed before comes whole (`KnownRun`), and one announced by a `RunStart` is given to its
+        memo once timed, at the pause after it."""
         try:
             ticks, total_mm = array("q"), 0.0
             last, summed = None, 0  # the stream of the section just timed (when a section), and how
             # many of its first samples are added to the one before it
+            run: RunStart | None = None  # the run being timed for the memo, its first step and path before it
+            run_from, run_mm = 0, 0.0
             for step in steps:
                 if not isinstance(step, Section):
-                    ticks.append(step_ticks(step, self.dt))
+                    if run is not None:  # a run the memo keeps ends at a pause (or a run after one)
+                        run.memo.put(run.key, tuple(ticks[run_from:]), total_mm - run_mm)
+                        run = None
+                    if isinstance(step, RunStart):
+                        run, run_from, run_mm = step, len(ticks), total_mm
+                    elif isinstance(step, KnownRun):
+                        ticks.extend(step.ticks)
+                        total_mm += step.length_mm
+                    else:
+                        ticks.append(step_ticks(step, self.dt))
                     last = None
                     continue
                 stream = SectionStream(step)
@@ -154,6 +167,8 @@ class ProgramTiming:
                     ticks[-2] -= overlap
                 last, summed = stream, overlap
                 total_mm += step.length_mm
+            if run is not None:
+                run.memo.put(run.key, tuple(ticks[run_from:]), total_mm - run_mm)
             self.adopt(np.array(ticks, dtype=np.int64), total_mm)
         except BaseException as exc:  # kept for the planner to report; the run itself makes the same steps
             self.failure = exc
@@ -201,7 +216,8 @@ _JOB: tuple | None = None  # (program, config, cut) for the forked processes (in
 
 def _time_piece(span: tuple[int, int]) -> tuple[np.ndarray, float]:
     program, config, cut = _JOB
-    timing = ProgramTiming(config.timing.period_s, CornerOverlap.of(config)).compute(iter_steps(program, config, cut, *span))
+    timing = ProgramTiming(config.timing.period_s, CornerOverlap.of(config)).compute(
+        iter_steps(program, config, cut, *span, memo=RunMemo()))
     if timing.failure is not None:
         raise timing.failure
     return np.asarray(timing.step_ticks, dtype=np.int64), timing.total_mm
