@@ -49,11 +49,14 @@ def cam_nest(parts: int, seed: int = 7, subroutines: bool = False, inch_every: i
     return "\n".join(out) + "\n"
 
 
-def production_nest(parts: int, shapes: int = 12, seed: int = 7) -> str:
+def production_nest(parts: int, shapes: int = 12, seed: int = 7, free: bool = False) -> str:
     """A production nest: `parts` copies of `shapes` different parts of `cam_nest`'s kind (lead-in
     with G41/G42, rounded rectangle in lines and arcs, lead-out), on a 55 x 45 mm grid, each part
-    `shapes` places after its last copy: how a sheet of the same few parts is cut in a run."""
+    `shapes` places after its last copy: how a sheet of the same few parts is cut in a run. `free`:
+    each part moved off its grid place by up to 4 mm, as a nesting program places them, so that its
+    coordinates, written to 3 decimals, differ from its copies' by up to a micrometre."""
     rng = random.Random(seed)
+    place = random.Random(seed + 1)
     kinds = [("G41" if rng.random() < 0.7 else "G42", rng.uniform(20, 45), rng.uniform(15, 35), rng.uniform(2, 5),
               rng.randint(4, 10)) for _ in range(shapes)]
     out = ["%", f"(production nest: {parts} parts of {shapes} shapes, seed {seed})", "G21 G90 G17 G64 P0.05", "T1 M6",
@@ -63,6 +66,8 @@ def production_nest(parts: int, shapes: int = 12, seed: int = 7) -> str:
     for p in range(parts):
         col, row = p % per_row, (p // per_row) % int(SHEET_Y // 45.0)
         ox, oy = 40.0 + col * 55.0, 40.0 + row * 45.0
+        if free:
+            ox, oy = ox + place.uniform(0.0, 4.0), oy + place.uniform(0.0, 4.0)
         side, w, h, r, steps = kinds[p % shapes]
         out += [f"G0 X{fmt(ox)} Y{fmt(oy - 3)}", "M3", "G4 P0.3", f"{side} D1 G1 X{fmt(ox)} Y{fmt(oy)} F2400.0"]
         out += rounded_rect(ox, oy, w, h, r, steps, fmt, top_r=True)

@@ -7,7 +7,9 @@ copies' servo periods from it (`cnc.planner.sections.RunMemo`). This times, with
 `waterjet check` runs, on one CPU (the timing whole) and on every CPU this process may use (in
 pieces cut at pierces, one process each):
 
-- `production_nest`: N copies of 12 shapes (`bench/nests.py`), and
+- `production_nest`: N copies of 12 shapes on a grid (`bench/nests.py`),
+- the same placed freely (each part moved off its grid place by up to 4 mm, its coordinates written
+  to 3 decimals: copies that differ by that rounding, which the memo does not take for copies), and
 - `cam_nest`: N parts all different (the memo finds nothing to reuse but the rapids),
 
 each against the same timing without the memo (every run made), the cycle times compared to the
@@ -86,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     config = load_machine(args.machine)
     workers = timing_workers()
     rows = [measure(f"production_nest({args.parts})", production_nest(args.parts), config, workers),
+            measure("  placed freely", production_nest(args.parts, free=True), config, workers),
             measure(f"cam_nest({args.parts})", cam_nest(args.parts), config, workers)]
     print(render(rows))
     if args.json:
