@@ -145,10 +145,15 @@ class ProgramTiming:
             # many of its first samples are added to the one before it
             run: RunStart | None = None  # the run being timed for the memo, its first step and path before it
             run_from, run_mm = 0, 0.0
+
+            def keep() -> None:
+                """The run announced ends here, at a pause or the program's end: its ticks are its own."""
+                run.memo.put(run.key, tuple(ticks[run_from:]), total_mm - run_mm)
+
             for step in steps:
                 if not isinstance(step, Section):
-                    if run is not None:  # a run the memo keeps ends at a pause (or a run after one)
-                        run.memo.put(run.key, tuple(ticks[run_from:]), total_mm - run_mm)
+                    if run is not None:
+                        keep()
                         run = None
                     if isinstance(step, RunStart):
                         run, run_from, run_mm = step, len(ticks), total_mm
@@ -168,7 +173,7 @@ class ProgramTiming:
                 last, summed = stream, overlap
                 total_mm += step.length_mm
             if run is not None:
-                run.memo.put(run.key, tuple(ticks[run_from:]), total_mm - run_mm)
+                keep()
             self.adopt(np.array(ticks, dtype=np.int64), total_mm)
         except BaseException as exc:  # kept for the planner to report; the run itself makes the same steps
             self.failure = exc
