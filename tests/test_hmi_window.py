@@ -53,13 +53,14 @@ def open_screen(qtbot, config, station: str = "panel") -> OperatorScreen:
     return screen
 
 
-def click(qtbot, screen: OperatorScreen, button: QPushButton, ok: bool = True):
-    """Click an enabled button and wait for the controller's answer to the command it sent."""
+def click(qtbot, screen: OperatorScreen, button: QPushButton, ok: bool | None = True):
+    """Click an enabled button and wait for the controller's answer to the command it sent (`ok`:
+    what it must say; None: either)."""
     qtbot.waitUntil(button.isEnabled, timeout=WAIT_MS)
     with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as blocker:
         qtbot.mouseClick(button, Qt.MouseButton.LeftButton)
     label, reply = blocker.args
-    assert reply.ok == ok, f"{label}: {reply.reason}"
+    assert ok is None or reply.ok == ok, f"{label}: {reply.reason}"
     return reply
 
 
@@ -242,7 +243,16 @@ def test_an_alarm_shows_in_the_list_faults_messages_and_history_and_is_acknowled
     sup.set_sim(doors_open=0)
     qtbot.waitUntil(lambda: [r[5] for r in w.alarms.rows() if r[1] == "2292"] == ["cleared, reset needed"]
                     and "Safety door open" not in w.faults.entries(), timeout=WAIT_MS)
-    click(qtbot, screen, w.bar.reset)
+    # the first reset, the door still open, switched the drives on and they tripped at once: a reset is
+    # refused until their stop (20 ticks) has run out, which a busy host's clock may not have yet; the
+    # operator presses it again
+    for _ in range(100):
+        reply = click(qtbot, screen, w.bar.reset, ok=None)
+        if reply.ok:
+            break
+        assert "the axes are still stopping" in reply.reason, reply.reason
+        qtbot.wait(20)
+    assert reply.ok, reply.reason
     qtbot.waitUntil(lambda: model.active_alarms == [] and w.alarms.rows() == [], timeout=WAIT_MS)
     qtbot.waitUntil(lambda: w.current_screen is Screen.MANUAL, timeout=WAIT_MS)
     with qtbot.waitSignal(screen.commands.replied, timeout=WAIT_MS) as esc:
