@@ -17,7 +17,7 @@ from cnc.planner.overlap import CornerOverlap
 from cnc.planner.path import Element
 from cnc.planner.quality import cut_plan_for
 from cnc.planner.runner import ProgramRunner
-from cnc.planner.sections import KnownRun, RunMemo, RunStart, iter_steps, run_key
+from cnc.planner.sections import KnownRun, RunMemo, iter_steps, run_key
 from cnc.planner.steps import ProgramTiming, StepSource
 from gcode.canon import LINE
 from gcode.interp import Interpreter
