@@ -51,6 +51,9 @@ _PLC_LINK, _COMMANDER = int(StopCause.PLC_LINK), int(StopCause.COMMANDER)
 _ESTOP_OK, _MAINS_ON, _DOORS_CLOSED = int(DigitalIn.ESTOP_OK), int(DigitalIn.MAINS_ON), int(DigitalIn.DOORS_CLOSED)
 _LINK_OK = int(LinkState.OK)
 ALWAYS_ARMED = StopCause.ESTOP | StopCause.MAINS | StopCause.DOORS
+# the board's own causes, which no reset clears: drives switched on while one is present trip in the
+# next tick, so a reset leaves them off (cnc.logic.process); plain int, as the servo publishes its causes
+DRIVES_HELD_OFF = int(ALWAYS_ARMED)
 PLC_CAUSES = StopCause.SAFETY_CIRCUIT | StopCause.PUMP | StopCause.PLC_LINK
 
 # the servo fault a cause trips with; the first present in this order names the trip

@@ -15,14 +15,15 @@ import pytest
 
 from cnc.alarms import AlarmHistory
 from cnc.bus.keys import Keys
-from cnc.bus.messages import Jog, Reset, SetMode, Stop
+from cnc.bus.messages import Drives, Jog, Reset, SetMode, Stop
 from cnc.bus.operator import OperatorStation
 from cnc.bus.session import open_client
 from cnc.sim.faultinject import (
     SCENARIO_OVERRIDES, Fault, ask, catalogue, cutting_now, inject_during_cut, logic_block, pause_on_the_straight,
-    program_path, ready_to_cut, recover, start_cut,
+    program_path, ready_to_cut, recover, reset_until_clear, start_cut,
 )
 from cnc.hw.board import DigitalOut
+from cnc.interlock import DRIVES_HELD_OFF
 from cnc.data.layout import PlannerState, ServoFault, ServoState
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.runtime.supervisor import Supervisor
@@ -111,6 +112,55 @@ def test_a_reset_pressed_while_the_axes_run_out_a_stop_changes_nothing(controlle
         sup.set_sim(doors_open=0)
     ready_to_cut(sup, program_path(workdir, 50.0))
     start_cut(sup, 50.0)
+
+
+HELD_OFF = [f for f in FAULTS if f.name in ("e-stop pressed", "door opened", "mains loss")]
+
+
+@pytest.mark.parametrize("drives_on", [True, False], ids=["drives on", "drives off"])
+@pytest.mark.parametrize("fault", HELD_OFF, ids=[f.name for f in HELD_OFF])
+def test_a_reset_while_the_board_still_shows_the_cause_leaves_the_drives_off_and_trips_nothing(
+        controller, workdir, fault: Fault, drives_on: bool):
+    """An operator who presses reset before closing the door (releasing the e-stop, switching the
+    mains on): the drives stay off, the answer says why, nothing trips or brakes in the ticks after
+    it; with the cause gone, a reset switches them on. (Switched on, they would trip in the next
+    tick: a stop of a machine at rest, and a reset refused until it had run out.)"""
+    sup = controller
+    if logic_block(sup)["phase"] != CyclePhase.NONE:
+        ask(sup, Stop(), "a stop of the cycle under way")
+        sup.wait_until(lambda: logic_block(sup)["phase"] == CyclePhase.NONE, 120.0, "the cycle to end")
+    reset_until_clear(sup)  # at rest, drives on, nothing waiting
+    if not drives_on:
+        ask(sup, Drives(False), "the drives off")
+        sup.wait_until(lambda: sup.servo()["state"] == ServoState.DISABLED, 10.0, "the drives off")
+    with AlarmHistory(sup.history_path, readonly=True) as history:
+        seq0 = history.last_seq()
+    fault.inject(sup)
+    try:
+        def raised() -> bool:
+            with AlarmHistory(sup.history_path, readonly=True) as history:
+                return any(e.id == fault.alarm and e.action == "raised" for e in history.after(seq0, 1000).entries)
+        sup.wait_until(lambda: raised() and sup.servo()["state"] != ServoState.STOPPING
+                       and sup.servo()["stop_causes"] & DRIVES_HELD_OFF, 30.0, f"{fault.name}: its alarm, the axes at rest")
+        trips = sup.servo()["trip_seq"]
+        sup.pause_virtual_clock()
+        reply = sup.logic.request(Reset())
+        assert reply.ok and "the drives stay off while" in reply.reason and "still present: " in reply.reason, reply.reason
+        for _ in range(60):  # 15 scans of the logic: it has written the drives off, the servo has read them
+            sup.run_ticks(1)
+            servo = sup.servo()
+            assert servo["state"] in (ServoState.DISABLED, ServoState.FAULT), ServoState(servo["state"]).name
+            assert servo["trip_seq"] == trips, "a trip after the reset"
+        assert logic_block(sup)["drives_on"] == 0
+    finally:
+        sup.resume_virtual_clock()
+        fault.clear(sup)
+    sup.wait_until(lambda: not sup.servo()["stop_causes"] & DRIVES_HELD_OFF, 10.0, "the cause gone from the tick")
+    reset_until_clear(sup)  # drives on, holding, nothing waiting
+    assert sup.servo()["trip_seq"] == trips, "a trip at the reset that switched the drives on"
+    with AlarmHistory(sup.history_path, readonly=True) as history:
+        actions = [e.action for e in history.after(seq0, 1000).entries if e.id == fault.alarm]
+    assert actions.count("raised") == 1, actions
 
 
 def test_losing_the_lock_holders_station_holds_the_cut_and_stops_a_jog(controller, workdir):

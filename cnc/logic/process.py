@@ -51,7 +51,7 @@ from ..control.trajectories import run_text
 from ..data.dataserver import SharedArea
 from ..data.injection import injected_bugs
 from ..hw.board import AxisIn, DigitalOut
-from ..interlock import StopCause
+from ..interlock import DRIVES_HELD_OFF, StopCause
 from ..gateway.jobs import CutPoint, CutPoints, JobHistory, jobs_path
 from ..data.layout import HIST_BINS, ClockKind, LinkState, PlannerState, Proc, RunResult, ServoFault, ServoState
 from ..safety import fault_alarm
@@ -462,7 +462,14 @@ class Logic:
 
     def _cmd_reset(self, msg, snap, now, request) -> Reply:
         """Reset: servo and watchdog faults that tripped before it, the PLC's faults, then every
-        alarm whose cause has gone. Nothing, while the axes still run out a stop."""
+        alarm whose cause has gone. Nothing, while the axes still run out a stop.
+
+        The drives come on with the reset, unless the board still shows an open door, a pressed
+        e-stop or the mains off (`DRIVES_HELD_OFF`): drives switched on then would trip in the
+        next tick (a controlled stop of a machine at rest, a second trip in the history, and a
+        reset refused until that stop has run out). They stay off, the answer says why, and the
+        reset pressed once the cause has gone (which its alarm waits for anyway) switches them on.
+        The PLC's causes are not held against it: the reset's own pulse may clear them."""
         if snap.servo["state"] == ServoState.STOPPING or snap.hw["braking"]:
             raise CommandRefused("the axes are still stopping: reset once they stand still")
         # the reset covers the trips this scan has seen, and no later one
@@ -473,14 +480,16 @@ class Logic:
         self.jet_test = False
         self.barriers_latched = False
         self.plc_reset_until = now + PLC_RESET_PULSE_S
-        self.drives_wanted = True
+        held_off = snap.servo["stop_causes"] & DRIVES_HELD_OFF
+        self.drives_wanted = not held_off
         self.drives_off_at_rest = False
         if self.cycle.stopped:
             self.cycle.stopped = False
         still = self.book.reset()
+        said = [f"the drives stay off while {_causes_text(held_off)}"] if held_off else []
         if still:
-            return Reply(True, "reset; still present: " + ", ".join(f"{a.code} {a.text}" for a in still))
-        return Reply(True)
+            said.append("still present: " + ", ".join(f"{a.code} {a.text}" for a in still))
+        return Reply(True, "reset; " + "; ".join(said) if said else "")
 
     def _cmd_drives(self, msg, snap, now, request) -> None:
         if msg.on:
