@@ -31,6 +31,12 @@ From the repository root, with the project installed (LinuxCNC runs in real time
 For the nest it also gives each planner's time by what the lines do (rapids, lead-ins, contours,
 lead-outs: `line_kinds`).
 
+Beside each program, a time no planner holding our jerk limit beats (`jerk_bound_s`: the feeds
+and the ramps at rest); on the squares and zigzags the corners counted too (`corner_bound.py`:
+the least servo periods of any sampled trajectory within the limits and P, by linear
+programming, a few minutes on two CPUs). Where LinuxCNC is below it, <= 1.0x is impossible
+while jerk-limited, and the table says BOUND.
+
 Exits 0 when every program ran on both (or LinuxCNC is unavailable here: then only our
 figures are shown, with the reason), 1 when a LinuxCNC run failed.
 """
@@ -41,6 +47,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import random
 import re
 import sys
@@ -52,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+import corner_bound
 import linuxcnc_sim
 from gcode_speed import nesting_program
 
@@ -98,6 +106,8 @@ class Bench:
     name: str
     text: str
     quick: bool = False  # part of the --quick subset
+    polyline: tuple[tuple[float, float], ...] | None = None  # straight moves through these, rest to rest
+    feed_mm_min: float = 0.0  # of those moves
 
 
 @dataclass
@@ -123,7 +133,8 @@ class Comparison:
     ours: Figures
     linuxcnc: Figures | None = None
     linuxcnc_error: str = ""
-    jerk_bound_s: float = 0.0  # `jerk_bound_s`: no jerk-limited planner is faster
+    jerk_bound_s: float = 0.0  # no jerk-limited planner is faster: `jerk_bound_s`, or the corner bound where larger
+    corner_bound_s: float | None = None  # `corner_bound.polyline_bound_ticks` (the polylines of straight moves)
 
     @property
     def beyond_jerk(self) -> bool:
@@ -172,7 +183,7 @@ def corner_benches() -> list[Bench]:
             for p in CORNER_TOLERANCES_MM:
                 name = f"{shape} F{feed} P{p:g}"
                 quick = (shape, feed, p) in (("square 100", 12000, 0.05), ("zigzag", 30000, 0.005))
-                benches.append(Bench(name, _program(name, p, feed, points(origin)), quick))
+                benches.append(Bench(name, _program(name, p, feed, points(origin)), quick, tuple(points(origin)), feed))
     return benches
 
 
@@ -400,6 +411,18 @@ def jerk_bound_s(program: Program, config: MachineConfig) -> float:
     return total
 
 
+def corner_bound_s(bench: Bench, tolerance_mm: float, config: MachineConfig) -> float:
+    """The bound that counts the corners too, for a polyline of straight moves from rest to rest
+    (`corner_bound.py`: the least servo periods of any sampled trajectory holding the axes'
+    velocity, acceleration and jerk, the feed, and G64 P)."""
+    axes = [config.axis[a] for a in AXES]
+    limits = corner_bound.Limits(config.timing.period_s, tuple(a.max_velocity_mm_s for a in axes),
+                                 tuple(a.max_accel_mm_s2 for a in axes), tuple(a.max_jerk_mm_s3 for a in axes),
+                                 bench.feed_mm_min / 60.0, tolerance_mm)
+    workers = len(os.sched_getaffinity(0))
+    return corner_bound.polyline_bound_ticks(list(bench.polyline), limits, workers) * config.timing.period_s
+
+
 def _axis_factor(e) -> float:
     """How much faster than one axis's limit the path may accelerate along element e."""
     if e.kind == ARC:
@@ -481,6 +504,9 @@ def compare(bench: Bench, config: MachineConfig, workdir: Path, with_linuxcnc: b
     kinds = line_kinds(bench.text)
     result = Comparison(bench, tolerance_mm, start, run_ours(program, start, config, kinds),
                         jerk_bound_s=jerk_bound_s(program, config))
+    if bench.polyline is not None:
+        result.corner_bound_s = corner_bound_s(bench, tolerance_mm, config)
+        result.jerk_bound_s = max(result.jerk_bound_s, result.corner_bound_s)
     if with_linuxcnc:
         program_file = workdir / (re.sub(r"[^\w.]+", "_", bench.name) + ".ngc")
         program_file.write_text(bench.text)
@@ -523,7 +549,8 @@ def render_targets(rows: list[Comparison]) -> list[str]:
                     f"{_verdict(theirs.max_deviation_mm <= p):>6}")
         out.append(f"{c.bench.name:34} {p:6.3f} {ours.cycle_time_s:8.3f} {peer}")
     out.append("<=1.0: BOUND where LinuxCNC is faster than any planner holding our jerk limit can be "
-               "(its time is below j-bound, `jerk_bound_s`); /bound: ours over that bound")
+               "(its time is below j-bound: `jerk_bound_s`, on the squares and zigzags the corners counted too, "
+               "`corner_bound.py`); /bound: ours over that bound")
     return out
 
 
@@ -583,7 +610,8 @@ def to_json(rows: list[Comparison], config: MachineConfig, linuxcnc: str, wall_s
     keys = ("max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3", "travel_min_mm", "travel_max_mm")
     limits = {ax: {k: getattr(config.axis[ax], k) for k in keys} for ax in AXES}
     programs = [{"name": c.bench.name, "tolerance_mm": c.tolerance_mm, "start_mm": c.start_mm, "ratio": c.ratio,
-                 "jerk_bound_s": c.jerk_bound_s, "linuxcnc_beyond_jerk_bound": c.beyond_jerk,
+                 "jerk_bound_s": c.jerk_bound_s, "corner_bound_s": c.corner_bound_s,
+                 "linuxcnc_beyond_jerk_bound": c.beyond_jerk,
                  "ours": dataclasses.asdict(c.ours),
                  "linuxcnc": dataclasses.asdict(c.linuxcnc) if c.linuxcnc else None,
                  "linuxcnc_error": c.linuxcnc_error or None, "gcode": c.bench.text} for c in rows]
@@ -604,8 +632,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.bounds:
         for bench in benches():
             program, _ = interpret_from_start(bench.text, config)
+            corners = "" if bench.polyline is None else \
+                f"   with its corners {corner_bound_s(bench, float(program.segments['tolerance'].max()), config):9.3f} s"
             print(f"{bench.name:<34} feed bound {feed_bound_s(program, config):9.3f} s   "
-                  f"jerk-limited bound {jerk_bound_s(program, config):9.3f} s")
+                  f"jerk-limited bound {jerk_bound_s(program, config):9.3f} s{corners}")
         return 0
     available, reason = linuxcnc_sim.available()
     rows: list[Comparison] = []

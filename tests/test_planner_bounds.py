@@ -59,3 +59,45 @@ def test_the_nest_comparison_tells_rapids_lead_ins_contours_and_lead_outs_apart(
                      7: "rapids", 8: "lead-ins", 9: "lead-outs"}
     seconds = lc.seconds_by_kind([2, 2, 3, 4, 4, 5, 6, 1, 10], kinds, 0.001)  # lines 1 and 10 move nothing
     assert seconds == pytest.approx({"rapids": 0.002, "lead-ins": 0.001, "contours": 0.003, "lead-outs": 0.001})
+
+
+def _limits(feed_mm_min: float, tolerance_mm: float) -> "lc.corner_bound.Limits":
+    axes = [CONFIG.axis[a] for a in ("x", "y")]
+    return lc.corner_bound.Limits(CONFIG.timing.period_s, tuple(a.max_velocity_mm_s for a in axes),
+                                  tuple(a.max_accel_mm_s2 for a in axes), tuple(a.max_jerk_mm_s3 for a in axes),
+                                  feed_mm_min / 60.0, tolerance_mm)
+
+
+def _rest_to_rest_ticks(length_mm: float, v: float) -> int:
+    """The closed form of a straight move from rest to rest at v (long enough to reach it): its
+    samples hold every limit (a backward difference is a mean of the derivative), so it is a
+    trajectory the bound may not be above."""
+    ramp_s, _ = lc._ramp(v, CONFIG.axis["x"].max_accel_mm_s2, CONFIG.axis["x"].max_jerk_mm_s3)
+    return math.ceil((length_mm / v + ramp_s) / CONFIG.timing.period_s)
+
+
+def test_the_corner_bound_of_a_straight_move_is_its_closed_form_sampled():
+    """10 mm at 50 mm/s from rest to rest: 200 ms cruising and a ramp of 2 sqrt(v / J) = 32 ms
+    in closed form; the least sampled trajectory is at most that and not more than a few periods
+    under it."""
+    ticks = lc.corner_bound.polyline_bound_ticks([(100.0, 100.0), (110.0, 100.0)], _limits(3000, 0.05))
+    assert _rest_to_rest_ticks(10.0, 50.0) - 4 <= ticks <= _rest_to_rest_ticks(10.0, 50.0)
+
+
+def test_a_corner_costs_time_more_under_a_tighter_tolerance_and_never_more_than_stopping_there():
+    """A right angle of two 4 mm legs at 50 mm/s: dearer than the straight 8 mm, dearer at
+    P 0.005 than at 0.05, and never dearer than stopping at the corner (two rest-to-rest moves,
+    a trajectory that exists)."""
+    corner = [(100.0, 100.0), (104.0, 100.0), (104.0, 104.0)]
+    loose = lc.corner_bound.polyline_bound_ticks(corner, _limits(3000, 0.05))
+    tight = lc.corner_bound.polyline_bound_ticks(corner, _limits(3000, 0.005))
+    straight = lc.corner_bound.polyline_bound_ticks([(100.0, 100.0), (108.0, 100.0)], _limits(3000, 0.05))
+    assert straight < loose < tight <= 2 * _rest_to_rest_ticks(4.0, 50.0)
+
+
+def test_our_planner_never_beats_the_corner_bound():
+    points = [(100.0, 100.0), (104.0, 100.0), (101.3333, 102.6667)]  # a 135 degree turn
+    text = "G21 G90 G64 P0.005 G0 X100 Y100\nF3000\nG1 X104 Y100\nG1 X101.3333 Y102.6667\nM2\n"
+    program, _ = lc.interpret_from_start(text, CONFIG)
+    ours = ProgramRunner(program, CONFIG).planned_ticks()
+    assert lc.corner_bound.polyline_bound_ticks(points, _limits(3000, 0.005)) <= ours
