@@ -24,8 +24,9 @@ first sample past its ending cut, so consecutive windows share a sample and the 
 to the whole; its starting state is free (any speed, acceleration), which can only make it
 shorter than in the whole trajectory. A straight stretch between two cuts takes at least its
 length over F dt, less one period. In a corner's window the samples up to some index k lie near
-the incoming leg and those after near the outgoing leg (anywhere along them, also behind the
-cut); the least number of periods N is found by bisection on N (taking a window that can be run
+the incoming leg (the first among them) and those after near the outgoing leg (the last among
+them), none more than P behind the window's starting cut (a trajectory going back along the
+path further is not considered: both planners only go forward); the least number of periods N is found by bisection on N (taking a window that can be run
 in N periods to be runnable in N + 1), each N feasible when some k is. The k are searched by
 branch and bound: for a range of k the samples in it need only lie in a polygon around both
 legs' rectangles (the support function of their union), which is feasible whenever any k in
@@ -83,8 +84,6 @@ class Window:
     end: tuple[float, float]
     rest_start: bool
     rest_end: bool
-    back: float = 0.0  # how far the incoming leg goes on behind `start` (mm): a sample may lie there too
-    ahead: float = 0.0  # how far the outgoing leg goes on beyond `end`
 
     @property
     def length_mm(self) -> float:
@@ -110,17 +109,13 @@ def windows(points: list[tuple[float, float]], reach_mm: float = math.inf) -> li
         length = math.dist(a, b)
         cuts.append([along(a, b, length / 2.0)] if length <= 2.0 * reach_mm
                     else [along(a, b, reach_mm), along(a, b, length - reach_mm)])
-    def window(start, corner, end, rest_start, rest_end, leg_in: int, leg_out: int) -> Window:
-        return Window(start, corner, end, rest_start, rest_end, math.dist(pts[leg_in], start),
-                      math.dist(end, pts[leg_out + 1]))
-
-    out = [window(pts[0], None, cuts[0][0], True, False, 0, 0)]
+    out = [Window(pts[0], None, cuts[0][0], True, False)]
     for k in range(len(pts) - 1):
         if len(cuts[k]) == 2:
-            out.append(window(cuts[k][0], None, cuts[k][1], False, False, k, k))
+            out.append(Window(cuts[k][0], None, cuts[k][1], False, False))
         if k + 1 < len(pts) - 1:
-            out.append(window(cuts[k][-1], pts[k + 1], cuts[k + 1][0], False, False, k, k + 1))
-    out.append(window(cuts[-1][-1], None, pts[-1], False, True, len(pts) - 2, len(pts) - 2))
+            out.append(Window(cuts[k][-1], pts[k + 1], cuts[k + 1][0], False, False))
+    out.append(Window(cuts[-1][-1], None, pts[-1], False, True))
     return out
 
 
@@ -202,8 +197,7 @@ def _canonical(w: Window, limits: Limits) -> Window:
                 for s in (1, -1) for t in (1, -1) for swap in (False, True)]
     candidates = [tuple((round(a, 9) + 0.0, round(b, 9) + 0.0) for a, b in (f(*p) for p in points)) for f in maps]
     start, corner, end = min(candidates)
-    return Window(start, corner if w.corner is not None else None, end, w.rest_start, w.rest_end,
-                  round(w.back, 9), round(w.ahead, 9))
+    return Window(start, corner if w.corner is not None else None, end, w.rest_start, w.rest_end)
 
 
 _HINTS: dict[Window, int] = {}  # the k of the last feasible programme of each window: tried first
@@ -251,10 +245,13 @@ def _feasible(w: Window, limits: Limits, n_periods: int) -> bool:
     hint = _HINTS.get(w)
     if hint is not None:  # where the last feasible one switched legs, and next to it: one programme each
         for k in (hint, hint + 1, hint - 1):
-            if -1 <= k <= n_periods and _solve(w, limits, n_periods, origin, legs, (k, k)):
+            if 0 <= k <= n_periods - 1 and _solve(w, limits, n_periods, origin, legs, (k, k)):
                 _HINTS[w] = k
                 return True
-    stack = [(-1, n_periods)]  # k: the last sample near the incoming leg
+    # k: the last sample near the incoming leg; the first sample is near it and the last near the
+    # outgoing one (else the cuts' conditions could be met by a sample near the other leg: past a
+    # sharp corner the outgoing leg runs back along the incoming one)
+    stack = [(0, n_periods - 1)]
     while stack:
         k1, k2 = stack.pop()
         if not _solve(w, limits, n_periods, origin, legs, (k1, k2)):
@@ -306,11 +303,13 @@ def _solve(w: Window, limits: Limits, n_periods: int, origin: np.ndarray, legs: 
     step = limits.feed * dt / math.cos(math.pi / FEED_SIDES) / unit * widen
 
     def leg_box(leg: int) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """The rectangle around a leg's capsule, as far along it as it goes (behind the window's
-        start, beyond its end): the incoming leg ends at the corner, the outgoing starts there."""
+        """The rectangle around a leg's capsule within the window: from P behind the starting cut
+        (a trajectory that goes back along the path further than that is not considered; both
+        planners go forward) to the corner, from the corner to a period past the ending cut (no
+        sample of the window but its last is past that cut)."""
         u, n, a, b = legs[leg]
-        a_lo = (a - w.back) / unit - s_tol if leg == 0 else -s_tol
-        b_hi = max((b + w.ahead) / unit + s_tol, b / unit + step) if leg == len(legs) - 1 else s_tol
+        a_lo = a / unit - s_tol if leg == 0 else -s_tol
+        b_hi = b / unit + step if leg == len(legs) - 1 else s_tol
         return u, n, a_lo, b_hi
 
     def rows_of(samples: np.ndarray, d: np.ndarray) -> sparse.spmatrix:

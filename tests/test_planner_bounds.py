@@ -95,9 +95,18 @@ def test_a_corner_costs_time_more_under_a_tighter_tolerance_and_never_more_than_
     assert straight < loose < tight <= 2 * _rest_to_rest_ticks(4.0, 50.0)
 
 
-def test_our_planner_never_beats_the_corner_bound():
-    points = [(100.0, 100.0), (104.0, 100.0), (101.3333, 102.6667)]  # a 135 degree turn
+def test_our_planner_never_beats_the_corner_bound_and_a_sharp_turn_costs_more_than_going_straight():
+    """A 135 degree turn (the outgoing leg runs back along the incoming one: its cut must not be
+    met by a sample near the incoming leg)."""
+    points = [(100.0, 100.0), (104.0, 100.0), (101.3333, 102.6667)]
     text = "G21 G90 G64 P0.005 G0 X100 Y100\nF3000\nG1 X104 Y100\nG1 X101.3333 Y102.6667\nM2\n"
     program, _ = lc.interpret_from_start(text, CONFIG)
     ours = ProgramRunner(program, CONFIG).planned_ticks()
-    assert lc.corner_bound.polyline_bound_ticks(points, _limits(3000, 0.005)) <= ours
+    straight = lc.corner_bound.polyline_bound_ticks([(100.0, 100.0), (107.7712, 100.0)], _limits(3000, 0.005))
+    assert straight < lc.corner_bound.polyline_bound_ticks(points, _limits(3000, 0.005)) <= ours
+
+
+def test_the_corner_bound_refuses_a_polyline_whose_other_legs_come_near():
+    hairpin = [(100.0, 100.0), (110.0, 100.0), (110.0, 100.08), (100.0, 100.08)]
+    with pytest.raises(ValueError, match="legs 1 and 3 of the polyline come within 0.080 mm"):
+        lc.corner_bound.polyline_bound_ticks(hairpin, _limits(3000, 0.05))
