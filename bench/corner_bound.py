@@ -49,7 +49,6 @@ import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from scipy import sparse
@@ -203,13 +202,16 @@ def _canonical(w: Window, limits: Limits) -> Window:
 _HINTS: dict[Window, int] = {}  # the k of the last feasible programme of each window: tried first
 
 
-_SOLVED: dict[tuple[Window, Limits], int] = {}  # windows solved by a pool's processes
+_SOLVED: dict[tuple[Window, Limits], int] = {}  # windows solved, here or by a pool's processes
 
 
-@lru_cache(maxsize=256)
 def _window_ticks(w: Window, limits: Limits) -> int:
-    if (w, limits) in _SOLVED:
-        return _SOLVED[(w, limits)]
+    if (w, limits) not in _SOLVED:
+        _SOLVED[(w, limits)] = _least_ticks(w, limits)
+    return _SOLVED[(w, limits)]
+
+
+def _least_ticks(w: Window, limits: Limits) -> int:
     step = limits.feed * limits.dt / math.cos(math.pi / FEED_SIDES)
     lo = max(1, math.floor((w.length_mm - 20.0 * limits.tolerance) / step) - 2)  # cannot be done in fewer: too far
     if _feasible(w, limits, lo):
