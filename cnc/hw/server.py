@@ -237,8 +237,12 @@ class HardwareServer:
 
     def _serve_reset(self, cmd: tuple) -> None:
         """A reset from the commander clears a watchdog trip that is not newer than the request, once
-        the servo runs again and the ramp has brought the axes to rest. A new commander (another
-        token) is a new baseline, not a request."""
+        the servo runs on time again and the ramp has brought the axes to rest. Until then the
+        request waits (this server's `reset_seq` stays behind the commander's, so the servo, which
+        acts on a reset only once this server has, waits with it): a servo a tick late just when the
+        reset comes, on a busy host, must not swallow the operator's reset. A trip newer than the
+        request is not cleared by it. A new commander (another token) is a new baseline, not a
+        request."""
         idx, v = self._i, self.hw.values
         i_reset, i_reset_tick, i_token = self._c
         if cmd[i_token] != v[idx["commander_token"]]:
@@ -246,11 +250,12 @@ class HardwareServer:
             return
         if cmd[i_reset] == v[idx["reset_seq"]]:
             return
-        v[idx["reset_seq"]] = cmd[i_reset]
-        ramping = self.ramp is not None and not self.ramp.done
-        if (v[idx["watchdog_tripped"]] and v[idx["watchdog_missed"]] == 0 and not ramping
-                and v[idx["watchdog_trip_tick"]] <= cmd[i_reset_tick]):
+        if v[idx["watchdog_tripped"]] and v[idx["watchdog_trip_tick"]] <= cmd[i_reset_tick]:
+            ramping = self.ramp is not None and not self.ramp.done
+            if v[idx["watchdog_missed"]] != 0 or ramping:
+                return  # pending: served at the first tick the servo is on time with the axes at rest
             v[idx["watchdog_tripped"]] = 0
+        v[idx["reset_seq"]] = cmd[i_reset]
 
     def _gate(self, tick: int, i_until: int, i_shutdown: int) -> int:
         """Virtual clock: hold time still while the commander has set a tick not to pass; returns
