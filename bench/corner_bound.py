@@ -164,14 +164,23 @@ def polyline_bound_ticks(points: list[tuple[float, float]], limits: Limits, work
     """Servo periods no jerk-limited trajectory along `points` (rest to rest, within P) beats;
     the windows' programmes solved in `workers` processes."""
     check_apart(points, limits)
-    parts = windows(points, reach_for(limits))
     if workers > 1:
-        todo = sorted({_canonical(w, limits) for w in parts if w.corner is not None or w.rest_start or w.rest_end},
-                      key=lambda w: -w.length_mm)
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
-            for w, ticks in zip(todo, pool.map(_window_ticks, todo, [limits] * len(todo))):
-                _SOLVED[(w, limits)] = ticks
-    return sum(window_ticks(w, limits) for w in parts)
+        presolve([points], limits, workers)
+    return sum(window_ticks(w, limits) for w in windows(points, reach_for(limits)))
+
+
+def presolve(polylines: list[list[tuple[float, float]]], limits: Limits, workers: int) -> None:
+    """Solve the corner and end windows of all these polylines in `workers` processes at once
+    (the longest first), so that `polyline_bound_ticks` then finds every one of them solved."""
+    reach = reach_for(limits)
+    shapes = {_canonical(w, limits) for points in polylines for w in windows(points, reach)
+              if w.corner is not None or w.rest_start or w.rest_end}
+    todo = sorted((w for w in shapes if (w, limits) not in _SOLVED), key=lambda w: -w.length_mm)
+    if not todo:
+        return
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+        for w, ticks in zip(todo, pool.map(_window_ticks, todo, [limits] * len(todo))):
+            _SOLVED[(w, limits)] = ticks
 
 
 def window_ticks(w: Window, limits: Limits) -> int:
@@ -388,14 +397,11 @@ def main() -> int:
     from cnc.config import load_machine
 
     config = load_machine(lc.MACHINE_FILE, lc.NO_JET_DELAYS)
-    axes = [config.axis[a] for a in ("x", "y")]
     print(f"{'program':<28}{'window':>8}{'ticks':>8}{'cruise':>8}{'corner cost ms':>16}")
     for shape, points, origin in (("square 100", lc._square, (200.0, 200.0)), ("zigzag", lc._zigzag, (600.0, 400.0))):
         for feed in lc.CORNER_FEEDS:
             for p in lc.CORNER_TOLERANCES_MM:
-                limits = Limits(config.timing.period_s, tuple(a.max_velocity_mm_s for a in axes),
-                                tuple(a.max_accel_mm_s2 for a in axes), tuple(a.max_jerk_mm_s3 for a in axes),
-                                feed / 60.0, p)
+                limits = lc.corner_limits(config, feed, p)
                 total = 0
                 polyline_bound_ticks(points(origin), limits, workers=len(os.sched_getaffinity(0)))  # every window, in parallel
                 for k, w in enumerate(windows(points(origin), reach_for(limits))):

@@ -411,14 +411,19 @@ def jerk_bound_s(program: Program, config: MachineConfig) -> float:
     return total
 
 
+def corner_limits(config: MachineConfig, feed_mm_min: float, tolerance_mm: float) -> corner_bound.Limits:
+    """The corner bound's problem for this machine's X and Y axes, a feed and a G64 P."""
+    axes = [config.axis[a] for a in AXES]
+    return corner_bound.Limits(config.timing.period_s, tuple(a.max_velocity_mm_s for a in axes),
+                               tuple(a.max_accel_mm_s2 for a in axes), tuple(a.max_jerk_mm_s3 for a in axes),
+                               feed_mm_min / 60.0, tolerance_mm)
+
+
 def corner_bound_s(bench: Bench, tolerance_mm: float, config: MachineConfig) -> float:
     """The bound that counts the corners too, for a polyline of straight moves from rest to rest
     (`corner_bound.py`: the least servo periods of any sampled trajectory holding the axes'
     velocity, acceleration and jerk, the feed, and G64 P)."""
-    axes = [config.axis[a] for a in AXES]
-    limits = corner_bound.Limits(config.timing.period_s, tuple(a.max_velocity_mm_s for a in axes),
-                                 tuple(a.max_accel_mm_s2 for a in axes), tuple(a.max_jerk_mm_s3 for a in axes),
-                                 bench.feed_mm_min / 60.0, tolerance_mm)
+    limits = corner_limits(config, bench.feed_mm_min, tolerance_mm)
     workers = len(os.sched_getaffinity(0))
     return corner_bound.polyline_bound_ticks(list(bench.polyline), limits, workers) * config.timing.period_s
 

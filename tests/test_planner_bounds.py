@@ -62,10 +62,7 @@ def test_the_nest_comparison_tells_rapids_lead_ins_contours_and_lead_outs_apart(
 
 
 def _limits(feed_mm_min: float, tolerance_mm: float) -> "lc.corner_bound.Limits":
-    axes = [CONFIG.axis[a] for a in ("x", "y")]
-    return lc.corner_bound.Limits(CONFIG.timing.period_s, tuple(a.max_velocity_mm_s for a in axes),
-                                  tuple(a.max_accel_mm_s2 for a in axes), tuple(a.max_jerk_mm_s3 for a in axes),
-                                  feed_mm_min / 60.0, tolerance_mm)
+    return lc.corner_limits(CONFIG, feed_mm_min, tolerance_mm)
 
 
 def _rest_to_rest_ticks(length_mm: float, v: float) -> int:
