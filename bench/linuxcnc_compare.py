@@ -322,6 +322,32 @@ def line_kinds(text: str) -> dict[int, str]:
     return kinds
 
 
+def line_parts(text: str) -> dict[int, int]:
+    """Each motion line's part of a nest: a part starts at each rapid (part 0 is what comes before
+    the first)."""
+    parts: dict[int, int] = {}
+    part = 0
+    for number, raw in enumerate(text.splitlines(), 1):
+        words = raw.split()
+        if not words or not re.fullmatch(r"G0?[0-3]", words[0]):
+            continue
+        if words[0] in ("G0", "G00"):
+            part += 1
+        parts[number] = part
+    return parts
+
+
+def seconds_by_part(sample_lines: np.ndarray, parts: dict[int, int], dt: float) -> list[float]:
+    """Servo periods counted to the program line each sample carries, summed by `line_parts`: a
+    corner's time may go to either of its lines, but within a part either is the part's."""
+    out = [0.0] * (max(parts.values(), default=0) + 1)
+    lines, counts = np.unique(np.asarray(sample_lines, dtype=np.int64), return_counts=True)
+    for line, n in zip(lines.tolist(), counts.tolist()):
+        if line in parts:
+            out[parts[line]] += n * dt
+    return out
+
+
 def seconds_by_kind(sample_lines: np.ndarray, kinds: dict[int, str], dt: float) -> dict[str, float]:
     """Servo periods counted to the program line each sample carries, summed by `line_kinds`."""
     out = dict.fromkeys(LINE_KINDS, 0.0)
@@ -464,7 +490,8 @@ def _stretch_bound_s(elements: list, speeds: list[float], a_axis: float, j_axis:
     return max(cruise, 2.0 * _ramp(lo, a, j)[0])
 
 
-def run_ours(program: Program, start: tuple[float, float], config: MachineConfig, kinds: dict[int, str]) -> Figures:
+def run_ours(program: Program, start: tuple[float, float], config: MachineConfig, kinds: dict[int, str],
+             parts: dict[int, int]) -> Figures:
     dt = config.timing.period_s
     runner = ProgramRunner(program, config)
     planned = runner.planned_ticks()
@@ -481,11 +508,12 @@ def run_ours(program: Program, start: tuple[float, float], config: MachineConfig
     deviation = path.distance(xy, tags, TAG_WINDOW)
     return figures(path, xy, deviation, dt,
                    records_s=len(records) * dt, planned_s=planned * dt, planning_wall_s=wall,
-                   by_line_kind_s=seconds_by_kind(program.segments["line"][records["segment"]], kinds, dt))
+                   by_line_kind_s=seconds_by_kind(program.segments["line"][records["segment"]], kinds, dt),
+                   by_part_s=seconds_by_part(program.segments["line"][records["segment"]], parts, dt))
 
 
 def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
-               config: MachineConfig, kinds: dict[int, str]) -> Figures:
+               config: MachineConfig, kinds: dict[int, str], parts: dict[int, int]) -> Figures:
     dt = config.timing.period_s
     wall = time.monotonic()
     res = linuxcnc_sim.run_linuxcnc(
@@ -500,14 +528,14 @@ def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
     return figures(path, xy, deviation_by_line(path, program, xy, res["line"]), dt,
                    linuxcnc_cycle_time_s=res["cycle_time_s"], in_position_time_s=res["in_position_time_s"],
                    version=res["version"], how=res["how"], run_wall_s=wall,
-                   by_line_kind_s=seconds_by_kind(res["line"], kinds, dt))
+                   by_line_kind_s=seconds_by_kind(res["line"], kinds, dt), by_part_s=seconds_by_part(res["line"], parts, dt))
 
 
 def compare(bench: Bench, config: MachineConfig, workdir: Path, with_linuxcnc: bool) -> Comparison:
     program, start = interpret_from_start(bench.text, config)
     tolerance_mm = float(program.segments["tolerance"].max())
-    kinds = line_kinds(bench.text)
-    result = Comparison(bench, tolerance_mm, start, run_ours(program, start, config, kinds),
+    kinds, parts = line_kinds(bench.text), line_parts(bench.text)
+    result = Comparison(bench, tolerance_mm, start, run_ours(program, start, config, kinds, parts),
                         jerk_bound_s=jerk_bound_s(program, config))
     if bench.polyline is not None:
         result.corner_bound_s = corner_bound_s(bench, tolerance_mm, config)
@@ -516,7 +544,7 @@ def compare(bench: Bench, config: MachineConfig, workdir: Path, with_linuxcnc: b
         program_file = workdir / (re.sub(r"[^\w.]+", "_", bench.name) + ".ngc")
         program_file.write_text(bench.text)
         try:
-            result.linuxcnc = run_theirs(program_file, program, start, config, kinds)
+            result.linuxcnc = run_theirs(program_file, program, start, config, kinds, parts)
         except linuxcnc_sim.LinuxCNCRunError as exc:
             result.linuxcnc_error = str(exc)
     return result
@@ -608,6 +636,12 @@ def render_by_line(rows: list[Comparison]) -> list[str]:
         out += [f"{c.bench.name}: time by line kind", f"{'lines':<12}{'ours s':>10}{'LCNC s':>10}{'ours - LCNC':>13}"]
         for kind in LINE_KINDS:
             out.append(f"{kind:<12}{ours[kind]:10.2f}{theirs[kind]:10.2f}{ours[kind] - theirs[kind]:+13.2f}")
+        delta_ms = 1000.0 * (np.array(c.ours.extra["by_part_s"]) - np.array(c.linuxcnc.extra["by_part_s"]))[1:]
+        if len(delta_ms):
+            worst = np.argsort(delta_ms)[::-1][:3] + 1
+            out.append(f"by part (from one rapid to the next, {len(delta_ms)} parts): ours - LCNC min {delta_ms.min():+.0f} ms, "
+                       f"median {np.median(delta_ms):+.0f} ms, max {delta_ms.max():+.0f} ms; ours slower on "
+                       f"{int((delta_ms > 0).sum())}; the most: parts {', '.join(str(int(k)) for k in worst)}")
     return out
 
 
