@@ -55,7 +55,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -309,11 +309,8 @@ def line_kinds(text: str) -> dict[int, str]:
         for k, line in enumerate(feeds):
             kinds[line] = "lead-ins" if k == 0 else "lead-outs" if k == len(feeds) - 1 else "contours"
         feeds.clear()
-    for number, raw in enumerate(text.splitlines(), 1):
-        words = raw.split()
-        if not words or not re.fullmatch(r"G0?[0-3]", words[0]):
-            continue
-        if words[0] in ("G0", "G00"):
+    for number, rapid in _motion_lines(text):
+        if rapid:
             close()
             kinds[number] = "rapids"
         else:
@@ -327,35 +324,36 @@ def line_parts(text: str) -> dict[int, int]:
     the first)."""
     parts: dict[int, int] = {}
     part = 0
-    for number, raw in enumerate(text.splitlines(), 1):
-        words = raw.split()
-        if not words or not re.fullmatch(r"G0?[0-3]", words[0]):
-            continue
-        if words[0] in ("G0", "G00"):
-            part += 1
+    for number, rapid in _motion_lines(text):
+        part += rapid
         parts[number] = part
     return parts
 
 
-def seconds_by_part(sample_lines: np.ndarray, parts: dict[int, int], dt: float) -> list[float]:
-    """Servo periods counted to the program line each sample carries, summed by `line_parts`: a
-    corner's time may go to either of its lines, but within a part either is the part's."""
-    out = [0.0] * (max(parts.values(), default=0) + 1)
+def _motion_lines(text: str) -> Iterator[tuple[int, bool]]:
+    """(line number, whether it is a rapid) of each line that starts with G0 to G3."""
+    for number, raw in enumerate(text.splitlines(), 1):
+        words = raw.split()
+        if words and re.fullmatch(r"G0?[0-3]", words[0]):
+            yield number, words[0] in ("G0", "G00")
+
+
+def seconds_by(sample_lines: np.ndarray, groups: dict[int, Any], dt: float) -> dict[Any, float]:
+    """Servo periods counted to the program line each sample carries, summed by the group each
+    line is in (`line_kinds`, `line_parts`; a corner's time may go to either of its lines)."""
+    out: dict[Any, float] = {}
     lines, counts = np.unique(np.asarray(sample_lines, dtype=np.int64), return_counts=True)
     for line, n in zip(lines.tolist(), counts.tolist()):
-        if line in parts:
-            out[parts[line]] += n * dt
+        if line in groups:
+            out[groups[line]] = out.get(groups[line], 0.0) + n * dt
     return out
 
 
-def seconds_by_kind(sample_lines: np.ndarray, kinds: dict[int, str], dt: float) -> dict[str, float]:
-    """Servo periods counted to the program line each sample carries, summed by `line_kinds`."""
-    out = dict.fromkeys(LINE_KINDS, 0.0)
-    lines, counts = np.unique(np.asarray(sample_lines, dtype=np.int64), return_counts=True)
-    for line, n in zip(lines.tolist(), counts.tolist()):
-        if line in kinds:
-            out[kinds[line]] += n * dt
-    return out
+def time_split(sample_lines: np.ndarray, kinds: dict[int, str], parts: dict[int, int], dt: float) -> dict[str, Any]:
+    """A run's time by line kind (every kind, 0 where none) and by part (a list, part 0 first)."""
+    by_kind, by_part = seconds_by(sample_lines, kinds, dt), seconds_by(sample_lines, parts, dt)
+    return {"by_line_kind_s": {k: by_kind.get(k, 0.0) for k in LINE_KINDS},
+            "by_part_s": [by_part.get(p, 0.0) for p in range(max(parts.values(), default=0) + 1)]}
 
 
 # --------------------------------------------------------------------------------------
@@ -508,8 +506,7 @@ def run_ours(program: Program, start: tuple[float, float], config: MachineConfig
     deviation = path.distance(xy, tags, TAG_WINDOW)
     return figures(path, xy, deviation, dt,
                    records_s=len(records) * dt, planned_s=planned * dt, planning_wall_s=wall,
-                   by_line_kind_s=seconds_by_kind(program.segments["line"][records["segment"]], kinds, dt),
-                   by_part_s=seconds_by_part(program.segments["line"][records["segment"]], parts, dt))
+                   **time_split(program.segments["line"][records["segment"]], kinds, parts, dt))
 
 
 def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
@@ -528,7 +525,7 @@ def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
     return figures(path, xy, deviation_by_line(path, program, xy, res["line"]), dt,
                    linuxcnc_cycle_time_s=res["cycle_time_s"], in_position_time_s=res["in_position_time_s"],
                    version=res["version"], how=res["how"], run_wall_s=wall,
-                   by_line_kind_s=seconds_by_kind(res["line"], kinds, dt), by_part_s=seconds_by_part(res["line"], parts, dt))
+                   **time_split(res["line"], kinds, parts, dt))
 
 
 def compare(bench: Bench, config: MachineConfig, workdir: Path, with_linuxcnc: bool) -> Comparison:

@@ -51,14 +51,17 @@ def test_our_planner_never_beats_the_bounds(text):
     assert lc.feed_bound_s(program, CONFIG) < lc.jerk_bound_s(program, CONFIG) <= ours_s
 
 
-def test_the_nest_comparison_tells_rapids_lead_ins_contours_and_lead_outs_apart():
+def test_the_nest_comparison_tells_rapids_lead_ins_contours_lead_outs_and_parts_apart():
     text = ("G21 G90\nG0 X0 Y0\nG1 X0 Y3 F2400\nG1 X10 Y3\nG3 X10 Y9 I0 J3\nG1 X-2 Y1\n"
             "G0 X50 Y0\nG1 X50 Y3\nG1 X48 Y1\nM2\n")
-    kinds = lc.line_kinds(text)
+    kinds, parts = lc.line_kinds(text), lc.line_parts(text)
     assert kinds == {2: "rapids", 3: "lead-ins", 4: "contours", 5: "contours", 6: "lead-outs",
                      7: "rapids", 8: "lead-ins", 9: "lead-outs"}
-    seconds = lc.seconds_by_kind([2, 2, 3, 4, 4, 5, 6, 1, 10], kinds, 0.001)  # lines 1 and 10 move nothing
-    assert seconds == pytest.approx({"rapids": 0.002, "lead-ins": 0.001, "contours": 0.003, "lead-outs": 0.001})
+    assert parts == {2: 1, 3: 1, 4: 1, 5: 1, 6: 1, 7: 2, 8: 2, 9: 2}
+    split = lc.time_split([2, 2, 3, 4, 4, 5, 6, 1, 10, 8], kinds, parts, 0.001)  # lines 1 and 10 move nothing
+    assert split["by_line_kind_s"] == pytest.approx({"rapids": 0.002, "lead-ins": 0.002, "contours": 0.003,
+                                                     "lead-outs": 0.001})
+    assert split["by_part_s"] == pytest.approx([0.0, 0.007, 0.001])
 
 
 def _limits(feed_mm_min: float, tolerance_mm: float) -> "lc.corner_bound.Limits":
