@@ -15,13 +15,16 @@ sides, so the ramps at rest cancel and only the corner remains. The last column 
 planner does there: stops (the corner is a section boundary with no overlap), or the least
 path speed it passes at (a blend, or two sections overlapped: `overlap.py`).
 
-From the repository root (about four minutes on two CPUs, the linear programmes in parallel):
+From the repository root (about four minutes on two CPUs, the linear programmes in parallel;
+`--feeds`, `--tolerances` and `--angles` choose other corners, e.g. the nest's feed):
 
     .venv/bin/python bench/corner_costs.py
+    .venv/bin/python bench/corner_costs.py --feeds 2400 --tolerances 0.05 --angles 45 90 135
 """
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import sys
@@ -75,24 +78,37 @@ def optimum(points: list[tuple[float, float]], feed: int, tolerance: float, conf
     return corner_bound.polyline_bound_ticks(points, lc.corner_limits(config, feed, tolerance))
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--feeds", type=int, nargs="+", default=list(lc.CORNER_FEEDS), metavar="MM_MIN",
+                    help="feeds (mm/min; default: the comparison's corner feeds)")
+    ap.add_argument("--tolerances", type=float, nargs="+", default=list(lc.CORNER_TOLERANCES_MM), metavar="P",
+                    help="G64 P values (mm; default: the comparison's)")
+    ap.add_argument("--angles", type=float, nargs="+", default=list(lc.CORNER_ANGLES_DEG), metavar="DEG",
+                    help="interior angles (degrees, between 0 and 180; default: the zigzag's)")
+    args = ap.parse_args(argv)
+    bad = [a for a in args.angles if not 0.0 < a < 180.0] + [f for f in args.feeds if f <= 0] + \
+        [p for p in args.tolerances if p <= 0.0]
+    if bad:
+        ap.error(f"out of range: {', '.join(f'{b:g}' for b in bad)} (angles between 0 and 180, feeds and P above 0)")
     config = load_machine(lc.MACHINE_FILE, lc.NO_JET_DELAYS)
     dt_ms = config.timing.period_s * 1000.0
     began = time.monotonic()
     print(f"{'feed':>6} {'P mm':>6} {'interior':>9} {'optimum ms':>11} {'ours ms':>8} {'ratio':>6}  ours at the corner")
-    for feed in lc.CORNER_FEEDS:
-        for tolerance in lc.CORNER_TOLERANCES_MM:
-            corner_bound.presolve([legs(a) for a in (None, *lc.CORNER_ANGLES_DEG)], lc.corner_limits(config, feed, tolerance),
+    for feed in args.feeds:
+        for tolerance in args.tolerances:
+            corner_bound.presolve([legs(a) for a in (None, *args.angles)], lc.corner_limits(config, feed, tolerance),
                                   len(os.sched_getaffinity(0)))
             straight_ours, _ = ours(legs(None), feed, tolerance, config)
             straight_best = optimum(legs(None), feed, tolerance, config)
-            for interior in lc.CORNER_ANGLES_DEG:
+            for interior in args.angles:
                 ticks, slowest = ours(legs(interior), feed, tolerance, config)
                 best = optimum(legs(interior), feed, tolerance, config) - straight_best
                 cost = ticks - straight_ours
                 at = "stops" if slowest <= STILL_MM_S else f"passes at {slowest:.1f} mm/s"
+                ratio = f"{cost / best:6.2f}" if best > 0 else f"{'-':>6}"  # a corner cut within P may save time
                 print(f"{feed:>6} {tolerance:>6g} {interior:>8g}° {best * dt_ms:>11.0f} {cost * dt_ms:>8.0f} "
-                      f"{cost / best if best > 0 else math.inf:>6.2f}  {at}", flush=True)
+                      f"{ratio}  {at}", flush=True)
     print(f"(cost: two {lc.ZIGZAG_LEG_MM:g} mm legs at the angle less one straight move of their length, from rest "
           f"to rest; optimum: corner_bound.py's least periods for both; {time.monotonic() - began:.0f} s)")
     return 0
