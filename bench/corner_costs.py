@@ -60,12 +60,7 @@ def ours(points: list[tuple[float, float]], feed: int, tolerance: float, config:
     """Our planner's servo periods from the first moving sample to the last, and the least path
     speed within a leg's length of the corner (mm/s)."""
     program, start = lc.interpret_from_start(lc._program("corner", tolerance, feed, points), config)
-    runner = ProgramRunner(program, config)
-    chunks = []
-    while not runner.finished:
-        records, _ = runner.take(5000)
-        chunks.append(records)
-    xy = np.concatenate(([start], np.concatenate(chunks)["position"][:, :2]))
+    xy = np.concatenate(([start], lc.every_record(ProgramRunner(program, config))["position"][:, :2]))
     speed = np.linalg.norm(np.diff(xy, axis=0), axis=1) / config.timing.period_s
     moving = np.flatnonzero(speed > STILL_MM_S)
     corner = np.asarray(points[1])

@@ -488,18 +488,23 @@ def _stretch_bound_s(elements: list, speeds: list[float], a_axis: float, j_axis:
     return max(cruise, 2.0 * _ramp(lo, a, j)[0])
 
 
+def every_record(runner: ProgramRunner) -> np.ndarray:
+    """The runner's setpoint records from where it stands to the program's end, in one array."""
+    chunks = []
+    while not runner.finished:
+        records, _ = runner.take(1000)
+        chunks.append(records)
+    return np.concatenate(chunks)
+
+
 def run_ours(program: Program, start: tuple[float, float], config: MachineConfig, kinds: dict[int, str],
              parts: dict[int, int]) -> Figures:
     dt = config.timing.period_s
     runner = ProgramRunner(program, config)
     planned = runner.planned_ticks()
-    chunks = []
     wall = time.monotonic()
-    while not runner.finished:
-        records, _ = runner.take(1000)
-        chunks.append(records)
+    records = every_record(runner)
     wall = time.monotonic() - wall
-    records = np.concatenate(chunks)
     xy = np.concatenate(([start], records["position"]))
     tags = np.concatenate((records["segment"][:1], records["segment"]))
     path = ProgrammedPath(program.segments)

@@ -16,6 +16,17 @@ from cnc.runtime.supervisor import DIRECT_FEED, Supervisor
 from .conftest import enable_and_hold, machine_config
 
 
+def kill_the_servo_and_wait_for_the_trip(sup: Supervisor) -> None:
+    """SIGKILL the servo and wait for the watchdog's own reaction, without supervising (the
+    supervisor, which acts only when polled, might restart the servo before the missed ticks)."""
+    os.kill(sup.children["servo"].process.pid, signal.SIGKILL)
+    sup.children["servo"].process.join(5.0)
+    deadline = time.monotonic() + 10.0 * sup.wait_margin  # a hang guard, not a timing figure
+    while not sup.hw()["watchdog_tripped"]:
+        assert time.monotonic() < deadline, "the watchdog did not trip"
+        time.sleep(0.002)
+
+
 @pytest.mark.parametrize("clock", ["virtual", "realtime"])
 def test_killing_the_servo_trips_the_watchdog_within_the_configured_ticks(clock):
     # a short virtual-clock wait per missed tick, so the trip comes before the supervisor restarts the servo.
@@ -30,14 +41,7 @@ def test_killing_the_servo_trips_the_watchdog_within_the_configured_ticks(clock)
         sup.wait_until(lambda: sup.hw()["digital_out"] & DigitalOut.JET_VALVE, 5.0, "the jet to open")
         assert all(a & AxisIn.DRIVE_ENABLED for a in sup.hw()["axis_inputs"])
 
-        os.kill(sup.children["servo"].process.pid, signal.SIGKILL)
-        sup.children["servo"].process.join(5.0)
-        # the watchdog's own reaction: waited for without supervising, since the supervisor (which acts
-        # only when polled) might restart the servo before four missed ticks of the virtual clock)
-        deadline = time.monotonic() + 10.0 * sup.wait_margin  # a hang guard, not a timing figure
-        while not sup.hw()["watchdog_tripped"]:
-            assert time.monotonic() < deadline, "the watchdog did not trip"
-            time.sleep(0.002)
+        kill_the_servo_and_wait_for_the_trip(sup)
         hw = sup.hw()
         # the servo's last tick, read once it is surely dead (a killed process may still run a few
         # ticks while the kernel tears it down), as the watchdog sees it: the tick of its last whole
@@ -72,12 +76,7 @@ def test_a_reset_while_the_restarted_servo_is_a_tick_late_waits_for_it_instead_o
     config = machine_config(**{"timing.watchdog_missed_ticks": 4, "timing.virtual_client_timeout_s": 0.02})
     with Supervisor(config, clock="virtual", processes=DIRECT_FEED) as sup:
         held = enable_and_hold(sup)
-        os.kill(sup.children["servo"].process.pid, signal.SIGKILL)
-        sup.children["servo"].process.join(5.0)
-        deadline = time.monotonic() + 10.0 * sup.wait_margin  # a hang guard, not a timing figure
-        while not sup.hw()["watchdog_tripped"]:  # not supervised meanwhile: the restart would come first
-            assert time.monotonic() < deadline, "the watchdog did not trip"
-            time.sleep(0.002)
+        kill_the_servo_and_wait_for_the_trip(sup)
         sup.wait_until(lambda: any("restarted" in e for e in sup.events), 30.0, "the servo restart")
         sup.wait_until(lambda: sup.servo()["fault"] == ServoFault.RESTARTED, 10.0, "the restarted servo's fault")
 
