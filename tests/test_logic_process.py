@@ -22,6 +22,7 @@ from cnc.hw.board import DigitalOut
 from cnc.data.layout import LinkState, PlannerState, RunResult, ServoFault, ServoState
 from cnc.logic.states import CyclePhase, MachineState
 from cnc.runtime.supervisor import Supervisor
+from cnc.sim.operator import ScriptError
 
 from .conftest import logic, press_button_when_asked, reset_and_home
 from .test_stale_motion import slow_to_prepare
@@ -340,6 +341,9 @@ def test_closing_the_pty_cuts_the_plc_link_mid_cut_and_a_new_simulator_is_reconn
     press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0, "the cutting phase")
     before = sup.area.reader("plc").read_dict()
     sup.plc_sim.stop()  # closes the simulator's end of the pty
+    # a script waiting for the cycle's end (the demo, a test) learns why it will not come, at once
+    with pytest.raises(ScriptError, match="faulted while waiting for the cycle's end: safe stop: plc_link_lost"):
+        press_button_when_asked(sup, lambda: logic(sup)["cycles_done"] == 1, 120.0, "the cycle's end")
     sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.LOST, 5.0, "the link to be lost")
     assert sup.area.reader("plc").read_dict()["failed"] - before["failed"] <= sup.config.plc.lost_after_cycles
     sup.wait_until(lambda: 1020 in events.codes(), 5.0, "alarm 1020 PLC link lost")

@@ -4,7 +4,7 @@ at the simulated machine instead of a person, written once.
 It commands through the supervisor's own clients (the private plane: the control logic's, or the
 planner's where no logic runs), reads the shared-memory blocks, and plays the operator at the
 transport station (its button) when the guided procedure asks. Every wait is bounded and says
-what it waited for.
+what it waited for; a wait for the cycle's progress ends at once when the machine faults, saying why.
 """
 
 from __future__ import annotations
@@ -64,12 +64,26 @@ def ask_planner(sup: Supervisor, msg: msgspec.Struct, what: str) -> None:
 
 def press_button_when_asked(sup: Supervisor, until: Callable[[], bool], timeout_s: float, what: str) -> None:
     """Wait for `until()`, playing the operator at the transport station: press its button
-    whenever the transport procedure waits for it."""
+    whenever the transport procedure waits for it.
+
+    A cycle that faults meanwhile (the PLC link lost on a host too busy for its answers, a door)
+    waits for a reset and never gets there: the wait ends at once with ScriptError naming what
+    it waited for and why the machine stopped, rather than after `timeout_s` saying only that it
+    timed out. The state is taken from the second scan after the wait began at the earliest, so
+    that a block published before the command the caller has just sent (a reset) is not read
+    as the answer to it."""
+    first_scan = logic_block(sup)["scans"] + 2
+
     def step() -> bool:
         lo = logic_block(sup)
         if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
             sup.plc_sim.press_button()
-        return until()
+        if until():
+            return True
+        lo = logic_block(sup)
+        if lo["state"] == MachineState.FAULT and lo["scans"] >= first_scan:
+            raise ScriptError(f"the machine faulted while waiting for {what}: {lo['message'] or 'no reason given'}")
+        return False
     sup.wait_until(step, timeout_s, what)
 
 
