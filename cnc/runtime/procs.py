@@ -19,7 +19,7 @@ from ..data.dataserver import SharedArea
 from ..data.fifo import SetpointFifo
 from ..data.injection import servo_stall
 from ..data.layout import ClockKind, Proc, controller_layouts
-from .rt import enter_realtime, keep_gc_out
+from .rt import enter_realtime, keep_gc_out, step_aside_for_wall_time
 from .table import realtime_priority
 from .child import Runtime, child_setup, set_ready
 from ..data.trace import TraceRing
@@ -42,6 +42,7 @@ def run_hardware(rt: Runtime, ready) -> None:
     from ..hw.server import HardwareServer, make_board
 
     child_setup(rt, "hardware")
+    step_aside_for_wall_time(rt.clock)  # before its threads start: they inherit it
     area = _attach(rt)
     board = make_board(rt.config)
     running: list = []  # the server, once it exists (the handler may come before, or during the end)
@@ -78,6 +79,7 @@ def run_servo(rt: Runtime, ready) -> None:
     from ..servo import Servo
 
     child_setup(rt, "servo")
+    step_aside_for_wall_time(rt.clock)  # before its threads start: they inherit it
     area = _attach(rt)
     fifo = SetpointFifo.attach(rt.fifo_name)
     trace = TraceRing.attach(rt.trace_name) if rt.trace_name else None
@@ -121,6 +123,7 @@ def run_planner(rt: Runtime, ready) -> None:
     from ..planner.process import Planner
 
     child_setup(rt, "planner")
+    step_aside_for_wall_time(rt.clock)  # before its threads start: they inherit it
     area = _attach(rt)
     fifo = SetpointFifo.attach(rt.fifo_name)
     session = open_client(rt.zenoh_connect, rt.zenoh_credentials)
@@ -174,6 +177,7 @@ def run_logic(rt: Runtime, ready) -> None:
     from ..logic.process import Logic
 
     child_setup(rt, "logic")
+    step_aside_for_wall_time(rt.clock)  # before its threads start: they inherit it
     area = _attach(rt)
     session = open_client(rt.zenoh_connect, rt.zenoh_credentials)
     logic = Logic(rt.config, area, session, rt.timer_clients["logic"], rt.history_path)

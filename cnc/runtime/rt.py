@@ -52,6 +52,32 @@ def enter_realtime(priority: int, name: str) -> RtStatus:
     return status
 
 
+#: how far a lockstep process steps aside on the virtual clock (`step_aside_for_wall_time`)
+VIRTUAL_NICE = 5
+
+
+def step_aside_for_wall_time(clock: str) -> None:
+    """On the virtual clock (`clock` "virtual"; nothing on the real-time clock, where the process
+    asks for SCHED_FIFO): lower this process below the ones that keep wall-clock deadlines.
+
+    There the hardware server, the servo, the planner and the control logic hand ticks to each
+    other as fast as the CPUs allow, two of them polling between hand-offs (`cnc.hw.timers`), and
+    machine time simply waits when the host is busy. The PLC link does not: it counts an answer
+    missing after `[plc] timeout_ms` of wall time, and three missing are a lost link, a safe stop
+    (its simulator already runs at nice -10 where the host permits, as a PLC with a CPU of its
+    own). Nor do the gateway, the operator stations and the scripts, whose Zenoh requests have
+    wall-clock timeouts. On a 2-CPU host running several controllers (the suite with two workers,
+    a simulation beside other work) the polling processes kept the link from its CPU for 300 ms:
+    three demos at once all lost their links. At nice `VIRTUAL_NICE` they still get every CPU
+    nobody else wants, and those processes come first."""
+    if clock != "virtual":
+        return
+    try:
+        os.nice(VIRTUAL_NICE)
+    except OSError as exc:  # raising one's own nice value is always permitted; a sandbox may refuse it
+        log.debug("step_aside_for_wall_time: %s", exc)
+
+
 def leave_realtime() -> None:
     """Put the calling thread back under the normal time-sharing scheduler.
 
