@@ -34,21 +34,11 @@ demo: $(STAMP) bytecode
 	  else echo "make demo: Qt's X11 libraries are missing (sudo apt-get install $(QT_XCB_LIBS))"; fi; fi
 	$(VENV)/bin/waterjet demo
 
-# Two runs: first every test not marked `serial`, TEST_WORKERS at a time (pytest-xdist: the suite
-# mostly waits on controllers' machine time, Zenoh and process starts, one CPU of two busy on
-# average), then the `serial` ones one at a time (they time something in wall time, or look at
-# the whole host). Both run, whatever the first gives; either failing
-# fails the target. `make test TEST_WORKERS=1` runs the first one test at a time too.
-# And /dev/shm left as the run found it (the tests check their own leftovers; this, after the
-# test processes have ended, also what Python's resource tracker should have removed)
-TEST_WORKERS ?= 2
-
+# and /dev/shm left as the run found it (the tests check their own leftovers; this, after the
+# test process has ended, also what Python's resource tracker should have removed)
 test: $(STAMP) bytecode
 	@ls -A /dev/shm 2>/dev/null | sort > .shm-before || true
-	@status=0; \
-	  echo "$(PY) -m pytest -m 'not serial' -n $(TEST_WORKERS) --dist loadfile"; $(PY) -m pytest -m "not serial" -n $(TEST_WORKERS) --dist loadfile || status=1; \
-	  echo "$(PY) -m pytest -m serial"; $(PY) -m pytest -m serial || status=1; \
-	  if [ $$status != 0 ]; then rm -f .shm-before; exit 1; fi
+	$(PY) -m pytest
 	@ls -A /dev/shm 2>/dev/null | sort | comm -13 .shm-before - > .shm-left || true; \
 	  if [ -s .shm-left ]; then echo "make test: left in /dev/shm:"; cat .shm-left; rm -f .shm-before .shm-left; exit 1; fi; \
 	  rm -f .shm-before .shm-left

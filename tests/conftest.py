@@ -57,34 +57,17 @@ FAULT_REACTIONS: list = []
 SAFETY_MATRIX: list = []
 
 
-# in the controller of a run with workers (`make test`'s first run): the tables the workers made
-WORKER_TABLES: list[tuple[str, list[str]]] = []
-
-
-def result_tables() -> list[tuple[str, list[str]]]:
-    """The tables of this process's tests: (title, lines)."""
-    tables = []
+def pytest_terminal_summary(terminalreporter) -> None:
     if SAFETY_MATRIX:
-        tables.append(("safety matrix: every fault in every state (the tick rig: real hardware server, board and servo)",
-                       matrix_table(SAFETY_MATRIX)))
+        terminalreporter.section("safety matrix: every fault in every state (the tick rig: real hardware server, "
+                                 "board and servo)")
+        for line in matrix_table(SAFETY_MATRIX):
+            terminalreporter.write_line(line)
     if FAULT_REACTIONS:
         from cnc.sim.faultinject import table
 
-        tables.append(("faults injected through the real processes (virtual clock)", table(FAULT_REACTIONS).splitlines()))
-    return tables
-
-
-@pytest.hookimpl(optionalhook=True)
-def pytest_testnodedown(node, error) -> None:
-    """A worker is done: keep the tables it made, for the summary at the end of the run."""
-    WORKER_TABLES.extend((title, list(lines)) for title, lines in getattr(node, "workeroutput", {}).get("tables", []))
-
-
-def pytest_terminal_summary(terminalreporter) -> None:
-    for title, lines in result_tables() + WORKER_TABLES:
-        terminalreporter.section(title)
-        for line in lines:
-            terminalreporter.write_line(line)
+        terminalreporter.section("faults injected through the real processes (virtual clock)")
+        terminalreporter.write_line(table(FAULT_REACTIONS))
 
 
 def matrix_table(cells: list) -> list[str]:
@@ -188,11 +171,7 @@ def pytest_sessionstart(session) -> None:
 
 
 def pytest_sessionfinish(session, exitstatus) -> None:
-    """A worker hands its tables to the run's controller (`pytest_testnodedown`). The controller
-    of a run with workers: what they left in /dev/shm, once they are all done, fails the run, named."""
-    if _xdist_worker(session.config):
-        session.config.workeroutput["tables"] = [[title, lines] for title, lines in result_tables()]
-        return
+    """With workers: what they left in /dev/shm, once they are all done, fails the run, named."""
     before = session.config.stash.get(_SHM_BEFORE, None)
     if before is None:
         return

@@ -15,8 +15,6 @@ from cnc.runtime.supervisor import DIRECT_FEED, Supervisor
 
 from .conftest import REPO, enable_and_hold, feed, machine_config
 
-pytestmark = pytest.mark.serial  # the real-time clock and the scheduler
-
 
 def test_realtime_clock_counts_a_late_wake_and_skips_ahead_instead_of_bursting():
     clock = RealtimeClock(0.001)

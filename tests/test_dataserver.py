@@ -4,11 +4,7 @@ from __future__ import annotations
 
 import multiprocessing
 
-import pytest
-
 from cnc.data.dataserver import BlockLayout, FieldSpec, SharedArea, unique_name
-
-pytestmark = pytest.mark.serial  # a reader's waits in wall time
 
 LAYOUT = BlockLayout("t", [FieldSpec("a", "Q"), FieldSpec("v", "d", 5), FieldSpec("b", "I"), FieldSpec("c", "q", 3)])
 

@@ -6,11 +6,7 @@ import os
 import subprocess
 import sys
 
-import pytest
-
 from .conftest import REPO
-
-pytestmark = pytest.mark.serial  # the whole demo, parked within wall-clock limits
 
 
 def test_demo_runs_automatic_cycles_handles_a_door_fault_and_exits_0():

@@ -24,8 +24,6 @@ from hmi.model import MachineModel
 
 from .conftest import NEAR_HOME, full_controller, logic, machine_config, press_button_when_asked, reset_and_home
 
-pytestmark = pytest.mark.serial  # 50 observers and a million-line upload against wall-clock progress
-
 OBSERVERS = 50
 MILLION = 1_000_000
 MOVES = MILLION - 5  # the other lines: units and feed, the rapid to the start, M3, M5, M2

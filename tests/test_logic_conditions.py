@@ -10,8 +10,6 @@ import pytest
 
 from cnc.logic.conditions import ConditionError, compile_condition, describe_known
 
-pytestmark = pytest.mark.serial  # a scan's time in wall time
-
 WHERE = "machines/waterjet.toml: [[procedure]] #1 (transport) step #3 condition"
 KNOWN = {"din.*", "plc.mains_on", "plc.pump_fault", "plc.pump_running", "homed", "mode", "state", "pump_pressure"}
 

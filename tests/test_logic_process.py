@@ -27,8 +27,6 @@ from cnc.sim.operator import ScriptError
 from .conftest import logic, press_button_when_asked, reset_and_home
 from .test_stale_motion import slow_to_prepare
 
-pytestmark = pytest.mark.serial  # waits that assume the planner's progress in wall time
-
 
 PART = """(a part: pierce, a square with a rounded corner, jet off)
 G21 G90 G64 P0.05 F6000

@@ -3,8 +3,6 @@ error that stops the cut when they come faster than `[timing] max_overruns_per_s
 
 from __future__ import annotations
 
-import pytest
-
 from cnc.alarms import AlarmHistory
 from cnc.bus.messages import Reset
 from cnc.data.layout import ServoState
@@ -13,8 +11,6 @@ from cnc.logic.states import MachineState
 
 from .conftest import NEAR_HOME, full_controller, logic, machine_config
 from .test_logic_process import Events, command, cutting_in_auto, jet_open
-
-pytestmark = pytest.mark.serial  # late ticks
 
 PERIOD_S = 0.001
 

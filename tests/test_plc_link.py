@@ -26,8 +26,6 @@ from plc_link.sim_model import PlantTimes, PlcModel
 from plc_link.sim_server import PlcSimServer
 from tests.conftest import MACHINE_FILE
 
-pytestmark = pytest.mark.serial  # exchanges on a serial line in wall time
-
 MACHINE = load_machine(MACHINE_FILE)
 PLC = MACHINE.plc
 PLC_ADDRESS = {v.id: v.address for v in PLC.var}

@@ -18,8 +18,6 @@ from plc_link.sim_model import ModelError, PlantTimes, PlcAlarm, PlcModel, Trans
 from plc_link.sim_server import PlcSimServer, start_simulator_process
 from tests.conftest import MACHINE_FILE
 
-pytestmark = pytest.mark.serial  # answers paced like the serial line
-
 PLC = load_machine(MACHINE_FILE).plc
 FAST = PlantTimes(feed_s=0.3, gripper_s=0.1, unload_s=0.3, pneumatic_s=0.05, button_s=0.2)
 

@@ -15,8 +15,6 @@ from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import enable_and_hold, home, machine_config, wait_planner_idle
 
-pytestmark = pytest.mark.serial  # a stop answered while a start plans, in wall time
-
 NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm": 30.0}
 
 

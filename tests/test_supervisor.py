@@ -16,8 +16,6 @@ from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 
 from .conftest import MACHINE_FILE, REPO, enable_and_hold, free_port, machine_config
 
-pytestmark = pytest.mark.serial  # counts every controller segment in /dev/shm, and a signal's stop in wall time
-
 SHM = Path("/dev/shm")
 
 

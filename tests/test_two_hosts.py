@@ -26,8 +26,6 @@ from cnc.bus.users import Account, write_users
 
 from .conftest import MACHINE_FILE, REPO
 
-pytestmark = pytest.mark.serial  # network namespaces and a controller on the real-time clock
-
 HOSTS = Path(__file__).resolve().parent / "hosts"
 PID = os.getpid() % 100000
 CONTROLLER_NS, STATION_NS = f"wj-ctl-{PID}", f"wj-hmi-{PID}"

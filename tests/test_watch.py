@@ -25,8 +25,6 @@ from cnc.watch import AlarmFollower, History
 
 from .conftest import MACHINE_FILE, REPO, free_port, full_controller, machine_config
 
-pytestmark = pytest.mark.serial  # a watch's lines per wall-clock second
-
 WRONG_MODE = 37  # "Wrong operation mode": a refused CycleStart in MANUAL stores one
 
 

@@ -15,8 +15,6 @@ from cnc.runtime.supervisor import DIRECT_FEED, Supervisor
 
 from .conftest import enable_and_hold, machine_config
 
-pytestmark = pytest.mark.serial  # a servo held late on the real-time clock too
-
 
 def kill_the_servo_and_wait_for_the_trip(sup: Supervisor) -> None:
     """SIGKILL the servo and wait for the watchdog's own reaction, without supervising (the

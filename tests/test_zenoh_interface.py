@@ -23,8 +23,6 @@ from cnc.runtime.supervisor import Supervisor
 
 from .conftest import NEAR_HOME, fast_plant, full_controller, logic, machine_config, press_button_when_asked, reset_and_home
 
-pytestmark = pytest.mark.serial  # an answer beside an endless upload, in wall time
-
 PART = """(square part)
 G21 G90 G64 P0.05 F6000
 G0 X100 Y100
