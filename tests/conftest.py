@@ -127,18 +127,6 @@ logic = logic_block  # the control logic's block (mode, state, phase, cycles, pr
 
 
 SHM = Path("/dev/shm")
-_SHM_BEFORE = pytest.StashKey[set]()  # /dev/shm at the start of a run with workers
-
-
-def _shm_listing() -> set[str]:
-    """What /dev/shm holds, less Python's multiprocessing semaphores (`sem.mp-*`): their objects
-    may outlive the checks below, and its resource tracker removes them when the test process
-    ends (`make test` checks /dev/shm after it)."""
-    return {n for n in os.listdir(SHM) if not n.startswith("sem.mp-")} if SHM.is_dir() else set()
-
-
-def _xdist_worker(config) -> bool:
-    return hasattr(config, "workerinput")
 
 
 @pytest.fixture(autouse=True, scope="session")
@@ -146,41 +134,20 @@ def _dev_shm_left_as_found(request):
     """No test leaves a file in /dev/shm: the controller's segments, a station's, Zenoh's own
     (its shared-memory transport is configured off in every session, `cnc.bus.session`).
     Checked once, at the end of the run: what is there then and was not at its start fails the
-    run, named. After a failed test only a warning: its report keeps the test's objects alive
-    past this check. With several workers (`make test`'s first run) a worker's end is not the
-    run's: the other may still run a controller; the run's controller checks instead, once every
-    worker is done (`pytest_sessionfinish` below)."""
-    if _xdist_worker(request.config):
-        yield
-        return
-    before = _shm_listing()
+    run, named. Python's multiprocessing semaphores (`sem.mp-*`) are not counted here: their
+    objects may outlive this check, and its resource tracker removes them when the test process
+    ends (`make test` checks /dev/shm after it). After a failed test only a warning: its report
+    keeps the test's objects alive past this check."""
+    before = set(os.listdir(SHM)) if SHM.is_dir() else set()
     yield
     gc.collect()
-    left = sorted(_shm_listing() - before)
+    left = sorted(n for n in set(os.listdir(SHM)) - before if not n.startswith("sem.mp-")) if SHM.is_dir() else []
     if left and request.session.testsfailed:
         import warnings
 
         warnings.warn(f"a failed test left these in {SHM}: {left}")
         return
     assert not left, f"the tests left these in {SHM}: {left}"
-
-
-def pytest_sessionstart(session) -> None:
-    if session.config.pluginmanager.hasplugin("dsession"):  # the controller of a run with workers
-        session.config.stash[_SHM_BEFORE] = _shm_listing()
-
-
-def pytest_sessionfinish(session, exitstatus) -> None:
-    """With workers: what they left in /dev/shm, once they are all done, fails the run, named."""
-    before = session.config.stash.get(_SHM_BEFORE, None)
-    if before is None:
-        return
-    left = sorted(_shm_listing() - before)
-    if left:
-        session.config.get_terminal_writer().line(f"the tests left these in {SHM}: {left}", red=True)
-        if session.exitstatus == 0:
-            session.exitstatus = pytest.ExitCode.TESTS_FAILED
-
 
 
 @pytest.fixture(autouse=True, scope="module")
