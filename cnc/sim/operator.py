@@ -22,7 +22,8 @@ from ..runtime.supervisor import Supervisor
 
 
 class ScriptError(RuntimeError):
-    """The controller refused a command the script needed; the message says which and why."""
+    """The controller refused a command the script needed, or the machine faulted while the script
+    waited for a cycle's progress; the message says which and why."""
 
 
 def logic_block(sup: Supervisor) -> dict:
