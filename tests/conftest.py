@@ -97,16 +97,11 @@ def fast_plant():
 
 @contextmanager
 def full_controller(config: MachineConfig, history_path: Path):
-    """Every controller process and the PLC simulator on the virtual clock, the PLC link up and
-    the servo trusting it: the link's block says OK a tick or more before the servo's next tick
-    has read it, and until then the servo's stop causes still hold the link's (a test that
-    stalls the servo at once would freeze them there, and the logic take them for a hung link)."""
+    """Every controller process and the PLC simulator on the virtual clock, the PLC link up."""
     from cnc.data.layout import LinkState
-    from cnc.interlock import StopCause
 
     with Supervisor(config, clock="virtual", history_path=history_path, plc_sim_times=fast_plant()) as sup:
         sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
-        sup.wait_until(lambda: not sup.servo()["stop_causes"] & StopCause.PLC_LINK, 20.0, "the servo to trust the PLC link")
         yield sup
 
 

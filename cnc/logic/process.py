@@ -103,6 +103,7 @@ class Logic:
         # link (its cycles and their time-outs), "down, no error, never lost" is not yet "not started"
         plc = config.plc
         self.plc_stale_scans = 0  # consecutive scans the link was up and the tick found its inputs stale
+        self.plc_stale_tick = -1  # the servo's tick those scans last read
         self.link_grace_until = time.monotonic() + plc.lost_after_cycles * (plc.cycle_ms + plc.timeout_ms) / 1000.0
         self.overruns = OverrunWatch(int(area.reader("servo").read_dict()["overruns"]), config.timing.period_s,
                                      config.timing.max_overruns_per_s)
@@ -774,9 +775,15 @@ class Logic:
             c["barrier_interrupted"] = f"{' and '.join(barriers)} barrier interrupted" if barriers and running else None
             # the link up but the tick finding its inputs stale: a hung PLC-link process, once it lasts
             # two scans (the servo runs beside this scan: a link just come up, or back, is seen by the
-            # tick a tick later; the tick has already stopped the machine either way)
+            # tick a tick later; the tick has already stopped the machine either way). A scan counts
+            # only when the servo has run a tick since the last one: a servo late for a while (its
+            # block frozen with the cause it found before the link came up) is no news of the link
             stale = bool(causes & StopCause.PLC_LINK) and up
-            self.plc_stale_scans = self.plc_stale_scans + 1 if stale else 0
+            if not stale:
+                self.plc_stale_scans = 0
+            elif servo["tick"] != self.plc_stale_tick:
+                self.plc_stale_scans += 1
+            self.plc_stale_tick = servo["tick"]
             if self.plc_stale_scans >= 2 and c["plc_link_lost"] is None:
                 c["plc_link_lost"] = "the PLC's inputs stopped arriving (the PLC-link process is hung)"
         return c
