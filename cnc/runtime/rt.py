@@ -66,7 +66,7 @@ def step_aside_for_wall_time(clock: str) -> None:
     missing after `[plc] timeout_ms` of wall time, and three missing are a lost link, a safe stop
     (its simulator already runs at nice -10 where the host permits, as a PLC with a CPU of its
     own). Nor do the gateway, the operator stations and the scripts, whose Zenoh requests have
-    wall-clock timeouts. On a 2-CPU host running several controllers (the suite with two workers,
+    wall-clock timeouts. On a 2-CPU host running several controllers (tests two at a time,
     a simulation beside other work) the polling processes kept the link from its CPU for 300 ms:
     three demos at once all lost their links. At nice `VIRTUAL_NICE` they still get every CPU
     nobody else wants, and those processes come first."""

@@ -81,7 +81,6 @@ def press_button_when_asked(sup: Supervisor, until: Callable[[], bool], timeout_
             sup.plc_sim.press_button()
         if until():
             return True
-        lo = logic_block(sup)
         if lo["state"] == MachineState.FAULT and lo["scans"] >= first_scan:
             raise ScriptError(f"the machine faulted while waiting for {what}: {lo['message'] or 'no reason given'}")
         return False
