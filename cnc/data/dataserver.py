@@ -26,6 +26,7 @@ before writing, which would let a reader see a transient 0 and take a torn body 
 
 from __future__ import annotations
 
+import functools
 import os
 import secrets
 import struct
@@ -238,16 +239,24 @@ class BlockReader:
         return self._last
 
     def read_dict(self) -> dict[str, Any]:
-        """Consistent snapshot as {field: value, list or str}; for readers off the tick path."""
+        """Consistent snapshot as {field: value, list or str}, fields in the layout's order; for
+        readers off the tick path (the control logic reads four blocks so every scan)."""
         values, _ = self.read()
-        out = {}
-        text = self.layout.text_size
-        for name, i in self.layout.index.items():
-            if name in text:
-                out[name] = values[i].rstrip(b"\0").decode("utf-8", "replace")
-            else:
-                out[name] = list(values[i]) if isinstance(i, slice) else values[i]
+        fields, arrays, texts = self._fields
+        out = {name: values[i] for name, i in fields}  # an array's slice gives a tuple: made a list below
+        for name, i in arrays:
+            out[name] = list(values[i])
+        for name, i in texts:
+            out[name] = values[i].rstrip(b"\0").decode("utf-8", "replace")
         return out
+
+    @functools.cached_property
+    def _fields(self) -> tuple[list[tuple[str, Any]], list[tuple[str, slice]], list[tuple[str, Any]]]:
+        """(every field, the arrays, the texts) as (name, index into the flat values)."""
+        index, text = self.layout.index, self.layout.text_size
+        fields = list(index.items())
+        return (fields, [(n, i) for n, i in fields if isinstance(i, slice) and n not in text],
+                [(n, i) for n, i in fields if n in text])
 
 
 class SharedArea:

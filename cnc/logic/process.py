@@ -66,6 +66,8 @@ from .states import CyclePhase, MachineState, Mode
 log = logging.getLogger(__name__)
 
 JET_BITS = int(DigitalOut.JET_VALVE | DigitalOut.ABRASIVE)
+# plain ints: and'ing an int with an IntFlag member runs enum's Python code, every scan
+_PUMP_CAUSE, _PLC_LINK_CAUSE = int(StopCause.PUMP), int(StopCause.PLC_LINK)
 _MANUAL_MOTION = (PlannerState.JOGGING, PlannerState.MOVING, PlannerState.MDI)
 _PROGRAM_RUNS = (PlannerState.RUNNING, PlannerState.HOLDING, PlannerState.HELD, PlannerState.PAUSED, PlannerState.STOPPING)
 _MOVING = (PlannerState.RUNNING, PlannerState.HOLDING, PlannerState.STOPPING, PlannerState.HOMING,
@@ -770,7 +772,7 @@ class Logic:
                               and self.cycle.active else None)
             c["pump_pressure_fault"] = self._pump_fault(snap, signals, cutting) or (
                 "the tick found the pump faulted or its pressure below the floor with the jet open"
-                if causes & StopCause.PUMP else None)
+                if causes & _PUMP_CAUSE else None)
             barriers = [b for b in ("front", "rear") if link_ok and signals.get(f"plc.barrier_{b}_ok") is False]
             c["barrier_interrupted"] = f"{' and '.join(barriers)} barrier interrupted" if barriers and running else None
             # the link up but the tick finding its inputs stale: a hung PLC-link process, once it lasts
@@ -778,7 +780,7 @@ class Logic:
             # tick a tick later; the tick has already stopped the machine either way). A scan counts
             # only when the servo has run a tick since the last one: a servo late for a while (its
             # block frozen with the cause it found before the link came up) is no news of the link
-            stale = bool(causes & StopCause.PLC_LINK) and up
+            stale = bool(causes & _PLC_LINK_CAUSE) and up
             if not stale:
                 self.plc_stale_scans = 0
             elif servo["tick"] != self.plc_stale_tick:

@@ -12,7 +12,11 @@ from ..hw.board import DigitalIn, DigitalOut
 from ..interlock import StopCause
 from ..data.layout import LinkState, ServoState
 
-_DIN = {"estop_ok": DigitalIn.ESTOP_OK, "doors_closed": DigitalIn.DOORS_CLOSED, "mains_on": DigitalIn.MAINS_ON}
+# the bits as plain ints: an int and'ed with an IntFlag member goes through enum's Python code,
+# some microseconds each, and the logic tests these several times a scan
+_DIN = {"estop_ok": int(DigitalIn.ESTOP_OK), "doors_closed": int(DigitalIn.DOORS_CLOSED), "mains_on": int(DigitalIn.MAINS_ON)}
+_PLC_LINK_STALE = int(StopCause.PLC_LINK)
+_JET_VALVE = int(DigitalOut.JET_VALVE)
 MACHINE_SIGNALS = ("plc_link", "pump_pressure", "homed", "drives_on", "jet_on", "state", "mode", "moving")
 
 
@@ -29,11 +33,11 @@ class Snapshot:
     def link_ok(self) -> bool:
         """The PLC's inputs can be trusted: the link is up and the tick finds them fresh (a hung
         PLC-link process leaves its last OK image behind: its input sequence stops advancing)."""
-        return self.plc["state"] == LinkState.OK and not self.servo["stop_causes"] & StopCause.PLC_LINK
+        return self.plc["state"] == LinkState.OK and not self.servo["stop_causes"] & _PLC_LINK_STALE
 
     @property
     def jet_on(self) -> bool:
-        return bool(self.hw["digital_out"] & DigitalOut.JET_VALVE)
+        return bool(self.hw["digital_out"] & _JET_VALVE)
 
 
 class SignalReader:
