@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import secrets
-import subprocess
+from pathlib import Path
 
 import numpy as np
 
@@ -43,10 +43,12 @@ MEMBERS = 1 << Proc.LOGIC | 1 << Proc.PLC_LINK | 1 << Proc.PLANNER | 1 << Proc.S
 
 
 def dead_pid() -> int:
-    """The pid of a process that has ended (a writer killed): what /proc no longer knows."""
-    child = subprocess.Popen(["true"])
-    child.wait()
-    return child.pid
+    """The pid of a writer that was killed: one no process has (what /proc does not know), found
+    from the top of the pid range down, where the kernel hands out pids last."""
+    pid = int(Path("/proc/sys/kernel/pid_max").read_text()) - 1
+    while Path(f"/proc/{pid}").exists():
+        pid -= 1
+    return pid
 
 
 class Feeder:
