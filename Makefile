@@ -34,11 +34,23 @@ demo: $(STAMP) bytecode
 	  else echo "make demo: Qt's X11 libraries are missing (sudo apt-get install $(QT_XCB_LIBS))"; fi; fi
 	$(VENV)/bin/waterjet demo
 
-# and /dev/shm left as the run found it (the tests check their own leftovers; this, after the
-# test process has ended, also what Python's resource tracker should have removed)
+# Two lanes at once (tests/lanes.py): the modules marked `computes` (pure computation) in a second
+# pytest process at idle priority, using the CPU the main lane leaves idle while it waits on its
+# controllers; their report follows the main lane's. Either failing fails the target.
+# And /dev/shm left as the run found it (the tests check their own leftovers; this, after the
+# test processes have ended, also what Python's resource tracker should have removed)
 test: $(STAMP) bytecode
 	@ls -A /dev/shm 2>/dev/null | sort > .shm-before || true
-	$(PY) -m pytest
+	@base=$$(mktemp -d); \
+	  WATERJET_TEST_LANE=computes $(PY) -m pytest -m computes -p no:cacheprovider --durations=10 --basetemp=$$base/tmp \
+	    > $$base/computes.log 2>&1 & lane=$$!; \
+	  trap 'kill $$lane 2>/dev/null; rm -rf $$base' INT TERM; \
+	  echo "$(PY) -m pytest -m 'not computes'   (and the computes lane beside it, reported below)"; \
+	  $(PY) -m pytest -m "not computes" --durations=25; main=$$?; \
+	  wait $$lane; computes=$$?; \
+	  echo; echo "==== the computes lane: $(PY) -m pytest -m computes (idle priority, beside the above)"; \
+	  cat $$base/computes.log; rm -rf $$base; \
+	  if [ $$main != 0 ] || [ $$computes != 0 ]; then rm -f .shm-before; exit 1; fi
 	@ls -A /dev/shm 2>/dev/null | sort | comm -13 .shm-before - > .shm-left || true; \
 	  if [ -s .shm-left ]; then echo "make test: left in /dev/shm:"; cat .shm-left; rm -f .shm-before .shm-left; exit 1; fi; \
 	  rm -f .shm-before .shm-left

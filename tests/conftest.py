@@ -17,6 +17,8 @@ from cnc.config import MachineConfig, load_machine
 from cnc.runtime.supervisor import DIRECT_FEED, MOTION_ONLY, Supervisor
 from cnc.sim.operator import logic_block, press_button_when_asked  # noqa: F401 - the scripted operator, for the tests
 
+from . import lanes
+
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")  # Qt tests render without a display
 # A test waits on events; its limits only say when to give up. Four times the written limits: a
 # busy two-core host (a CI runner) never misses one, and a wait that succeeds returns as soon as it does.
@@ -55,6 +57,18 @@ NEAR_HOME = {"sim.axes.x.start_position_mm": 30.0, "sim.axes.y.start_position_mm
 FAULT_REACTIONS: list = []
 # the cells of the safety matrix (test_safety_matrix.Cell), printed at the end too
 SAFETY_MATRIX: list = []
+
+
+def pytest_configure(config) -> None:
+    """`make test`'s computes lane (tests/lanes.py): idle priority, its own segment prefix, and
+    nothing that waits."""
+    if lanes.in_computes_lane():
+        lanes.enter_computes_lane()
+
+
+def pytest_collection_finish(session) -> None:
+    if lanes.in_computes_lane():
+        lanes.refuse_waiting()
 
 
 def pytest_terminal_summary(terminalreporter) -> None:
@@ -131,12 +145,14 @@ def _dev_shm_left_as_found(request):
     Checked once, at the end of the run: what is there then and was not at its start fails the
     run, named. Python's multiprocessing semaphores (`sem.mp-*`) are not counted here: their
     objects may outlive this check, and its resource tracker removes them when the test process
-    ends (`make test` checks /dev/shm after it). After a failed test only a warning: its report
-    keeps the test's objects alive past this check."""
+    ends (`make test` checks /dev/shm after it). Nor are the other lane's (tests/lanes.py), which
+    `make test` checks once both have ended. After a failed test only a warning: its report keeps
+    the test's objects alive past this check."""
     before = set(os.listdir(SHM)) if SHM.is_dir() else set()
     yield
     gc.collect()
-    left = sorted(n for n in set(os.listdir(SHM)) - before if not n.startswith("sem.mp-")) if SHM.is_dir() else []
+    left = sorted(n for n in set(os.listdir(SHM)) - before
+                  if not n.startswith("sem.mp-") and not lanes.other_lanes_segment(n)) if SHM.is_dir() else []
     if left and request.session.testsfailed:
         import warnings
 

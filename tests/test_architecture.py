@@ -6,7 +6,11 @@ import ast
 import enum
 from pathlib import Path
 
+import pytest
+
 from .conftest import REPO
+
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
 
 def _imports(package: str) -> list[tuple[Path, str]]:

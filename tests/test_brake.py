@@ -9,6 +9,8 @@ import pytest
 
 from cnc.brake import PathBrake, PathPoint, StopProfile, stop_distance_bound_mm
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 A, J, DT = 5000.0, 200000.0, 0.001
 
 

@@ -11,6 +11,8 @@ from cnc.config import ConfigError, load_machine, loads_machine, reference_toml
 
 from .conftest import MACHINE_FILE, REPO
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 MINIMAL = "[axis.x]\ntravel_min_mm = 0\ntravel_max_mm = 100\n"
 
 

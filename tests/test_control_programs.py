@@ -34,6 +34,8 @@ from cnc.params import registry, values_of
 from .conftest import MACHINE_FILE, machine_config
 from .tickrig import Rig
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 
 def _inputs(n: int, error, velocity, accel, dt: float = 0.001) -> ControlInputs:
     inp = ControlInputs(n)

@@ -37,6 +37,8 @@ from gcode.interp import Interpreter
 
 from .conftest import MACHINE_FILE
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 # test data, as a calibration on the machine would write it: not a shipped material
 HIDE = """[material]
 name = "Test hide"

@@ -22,6 +22,8 @@ from cnc.bus.messages import (
     decode, encode,
 )
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 DECODE_ERRORS = (msgspec.DecodeError, msgspec.ValidationError, SchemaVersionError)  # what the doors refuse with
 FUZZ = settings(max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 

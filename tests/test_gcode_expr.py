@@ -20,6 +20,8 @@ from gcode.expr import (
 )
 from gcode.params import MAX_PARAMETER, Parameters
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 try:
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st

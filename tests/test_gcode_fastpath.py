@@ -11,6 +11,8 @@ from gcode.dialect import Dialect
 from gcode.errors import GCodeError
 from gcode.interp import Interpreter
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 DIALECT = Dialect(axes="xyz", default_tolerance_mm=0.05)
 
 

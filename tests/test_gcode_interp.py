@@ -12,6 +12,8 @@ from gcode.dialect import Dialect
 from gcode.errors import GCodeError
 from gcode.interp import interpret
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 XY = Dialect(axes="xy", tool_diameters_mm={1: 2.0, 2: 0.5})
 XYZ = Dialect(axes="xyz")
 

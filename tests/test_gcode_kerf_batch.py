@@ -14,6 +14,8 @@ from gcode.errors import GCodeError
 from gcode.interp import Interpreter
 from tests.test_gcode_fastpath import NEST_DIALECT, _nest, _same
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 
 def _both(text: str, counts: dict | None = None):
     """The program interpreted per move (no fast path, no batches) and as the interpreter runs it;

@@ -12,6 +12,8 @@ from bench.nests import cam_nest
 from gcode.dialect import Dialect
 from gcode.interp import Interpreter
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 DIALECT = Dialect(axes="xyz", tool_diameters_mm={1: 0.8}, default_tolerance_mm=0.05)
 N = 300
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -12,6 +13,8 @@ from gcode.canon import DWELL
 from gcode.dialect import Dialect
 from gcode.errors import GCodeError
 from gcode.interp import interpret
+
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
 DIALECT = Dialect(axes="xyz", tool_diameters_mm={1: 1.0, 2: 0.4}, max_blocks=20_000)
 SETTINGS = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])  # max_blocks and pytest-timeout bound each example

@@ -14,6 +14,8 @@ from cnc.logic.signals import SignalReader
 
 from .conftest import MACHINE_FILE
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 # The transport procedure of the shipped machine: the signals that complete each step.
 TRANSPORT_STEPS = [
     ("Emergency stop released", ["din.estop_ok"]),

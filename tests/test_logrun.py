@@ -8,6 +8,8 @@ import pytest
 from cnc.bus.messages import LogSetting
 from cnc.logger.logrun import LogRun, LogSettingError
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 DT = 0.001
 KNOWN = ["ramp", "x.following_error", "jet"]
 

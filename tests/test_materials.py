@@ -24,6 +24,8 @@ from gcode.interp import Interpreter
 
 from .conftest import REPO
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 STEEL = """# a chart for the tests: test data, not a shipped material
 [material]
 name = "Test steel"

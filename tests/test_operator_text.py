@@ -13,6 +13,8 @@ from cnc.config import load_machine
 from hmi.commands import describe
 from tests.test_fuzz_commands import VALID
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 REPR = re.compile(r"[A-Z][a-z]+[A-Z]\w*|\w+=|\(\)")  # CamelCase class names, field=value, empty brackets
 
 

@@ -20,6 +20,8 @@ from cnc.planner.sections import Section, iter_steps
 from .conftest import machine_config
 from .test_planner_motion import _xyz_machine, run, speed, within_limits, within_tolerance
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 # a straight, a half circle of R10 and a straight back, at 500 mm/s under G64 P0.005 (the paper's
 # test contour's kind of corner): the curvature steps by 1/10 at both ends of the arc
 U_TURN = "G21 G90 G64 P0.005\nG0 X100 Y100\nF30000\nG1 X200 Y100\nG3 X200 Y120 I0 J10\nG1 X100 Y120\nM2\n"

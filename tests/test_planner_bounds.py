@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 sys.path.append(str(Path(__file__).resolve().parent.parent / "bench"))  # linuxcnc_compare imports its neighbours by name
 
 import linuxcnc_compare as lc  # noqa: E402

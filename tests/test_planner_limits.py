@@ -15,6 +15,8 @@ from cnc.planner.path import Element
 
 from .conftest import machine_config
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 
 def element(kind, start, end, center=None, cw=False, feed=math.inf):
     return Element(kind, start, end, center, cw, 0, feed, 0.05, False, 0, 0, 0, 1)

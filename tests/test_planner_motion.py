@@ -25,6 +25,8 @@ from cnc.planner.sections import move_steps
 from .conftest import REPO, machine_config
 from .planner_programs import random_program
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 DT = 0.001
 LIMITS = {"velocity": 500.0, "acceleration": 5000.0, "jerk": 200000.0}
 JET = int(SetpointFlag.JET_ON)

@@ -24,6 +24,8 @@ from cnc.planner.runner import ProgramRunner, RunState
 from .conftest import machine_config
 from .test_planner_motion import DT, JET, LIMITS, _operator_at_random, run, speed, within_limits, within_tolerance
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 SQUARE = "G21 G90 G64 P{p}\nG1 X{x0} Y{y0} F{f}\nG1 X{x1}\nG1 Y{y1}\nG1 X{x0}\nG1 Y{y0}\nM2\n"
 
 

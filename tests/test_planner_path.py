@@ -13,6 +13,8 @@ from gcode.interp import interpret
 
 from cnc.planner.path import blend_corners, deviation, elements_from_program
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 XY = Dialect(axes="xyz", default_tolerance_mm=0.05)
 
 

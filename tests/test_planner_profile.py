@@ -9,6 +9,8 @@ import pytest
 
 from cnc.planner.profile import PLATEAU_SLACK, Pieces, Zones, plan
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 A, PLATEAU = 5000.0, 0.027
 
 

@@ -25,6 +25,8 @@ from gcode.interp import Interpreter
 from .conftest import machine_config
 from .test_cut_model import machine as hide_machine
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 
 @pytest.fixture(scope="module")
 def config():

@@ -4,8 +4,12 @@ rises above a pressure that is still on its way."""
 
 from __future__ import annotations
 
+import pytest
+
 from cnc.config import PumpConfig
 from cnc.logic.pressure import PlcView, PressureWatch
+
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
 PUMP = PumpConfig(cut_pressure_bar=3800.0, pierce_pressure_bar=1200.0, tolerance_bar=150.0, ramp_timeout_s=20.0,
                   drop_bar=600.0)

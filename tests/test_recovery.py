@@ -22,6 +22,8 @@ from gcode.interp import Interpreter
 
 from .conftest import machine_config
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 CONFIG = machine_config()
 NEST = """(three parts: kerf compensated squares with a rounded corner, a full circle, a pierce dwell each)
 G21 G90 G64 P0.05 F1200 T1 M6

@@ -36,6 +36,8 @@ from cnc.safety import fault_alarm
 from .conftest import SAFETY_MATRIX, machine_config
 from .tickrig import Rig
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 # a short pierce: the cells are about the cut, not the wait before it
 QUICK_PIERCE = {"jet.on_delay_s": 0.0, "jet.pierce_dwell_s": 0.01}
 CONFIG = machine_config(**{"sim.axes.x.start_position_mm": 100.0, "sim.axes.y.start_position_mm": 100.0, **QUICK_PIERCE})

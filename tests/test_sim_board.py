@@ -12,6 +12,8 @@ from cnc.config import ConfigError, MachineConfig, load_machine, loads_machine
 from cnc.hw.board import AxisIn, BoardInputs, DigitalIn, DigitalOut
 from cnc.hw.sim_board import SimBoard
 
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
+
 DT_S = 0.001
 X, Y = 0, 1
 

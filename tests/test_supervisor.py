@@ -14,6 +14,7 @@ import pytest
 from cnc.runtime.rt import VIRTUAL_NICE
 from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
 
+from . import lanes
 from .conftest import MACHINE_FILE, REPO, enable_and_hold, free_port, machine_config
 
 SHM = Path("/dev/shm")
@@ -72,7 +73,8 @@ def test_waterjet_up_stops_in_order_on_signal_and_leaves_no_shared_memory(sig, t
         if proc.poll() is None:
             proc.kill()
     assert not created & _ours(), f"left in /dev/shm: {created & _ours()}"
-    assert set(os.listdir(SHM)) <= everything, "nothing else either (Zenoh's own segments: its shared memory is off)"
+    now = {n for n in os.listdir(SHM) if not lanes.other_lanes_segment(n)}  # the computes lane's come and go meanwhile
+    assert now <= everything, "nothing else either (Zenoh's own segments: its shared memory is off)"
     assert "stopping" in proc.stderr.read()
     assert (tmp_path / "waterjet" / "waterjet" / "history.sqlite").exists(), "the control logic kept its history"
 

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
+
 from cnc.data.dataserver import unique_name
 from cnc.data.trace import TraceRing
+
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
 
 def write(ring: TraceRing, tick: int) -> None:

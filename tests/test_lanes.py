@@ -1,0 +1,58 @@
+"""`make test`'s computes lane (tests/lanes.py): idle priority, its own shared-memory prefix, no
+wall-clock limits of Hypothesis's, and a clear refusal of a test there that would wait on
+something other than its own computation."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from .conftest import REPO
+
+PROBE = """
+import json, os, threading, subprocess
+from tests import lanes
+from cnc.data.dataserver import unique_name
+os.environ[lanes.LANE_ENV] = lanes.MARK
+lanes.enter_computes_lane()
+lanes.refuse_waiting()
+from hypothesis import HealthCheck, settings
+found = {"policy_idle": os.sched_getscheduler(0) == os.SCHED_IDLE, "nice": os.getpriority(os.PRIO_PROCESS, 0),
+         "segment": unique_name("waterjet", "data"), "refused": {},
+         "hypothesis_untimed": settings.default.deadline is None
+                               and HealthCheck.too_slow in settings.default.suppress_health_check}
+for what, act in (("thread", lambda: threading.Thread(target=print).start()),
+                  ("program", lambda: subprocess.run(["true"])),
+                  ("zenoh", lambda: __import__("zenoh").open(None))):
+    try:
+        act()
+    except lanes.LaneError as exc:
+        found["refused"][what] = str(exc)
+print(json.dumps(found))
+"""
+
+
+def test_the_computes_lane_runs_idle_with_its_own_segments_and_refuses_what_would_wait():
+    done = subprocess.run([sys.executable, "-c", PROBE], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    found = json.loads(done.stdout.splitlines()[-1])
+    assert found["policy_idle"] or found["nice"] == 19, "only a CPU nobody else wants"
+    assert found["segment"].startswith("wjcomp_waterjet_"), "neither lane counts the other's segments"
+    assert found["hypothesis_untimed"], "no wall-clock deadline for an example that waited for a CPU"
+    refused = found["refused"]
+    assert set(refused) == {"thread", "program", "zenoh"}, refused
+    assert "started a thread" in refused["thread"] and "marked `computes`" in refused["thread"]
+    assert "started a program" in refused["program"] and "take the mark off" in refused["program"]
+    assert "opened a Zenoh session" in refused["zenoh"]
+
+
+def test_each_lane_counts_only_its_own_segments(monkeypatch):
+    from . import lanes
+
+    monkeypatch.delenv(lanes.LANE_ENV, raising=False)
+    assert lanes.other_lanes_segment("wjcomp_waterjet_0a1b2c3d_data")
+    assert not lanes.other_lanes_segment("wjcnc_waterjet_0a1b2c3d_data")
+    monkeypatch.setenv(lanes.LANE_ENV, lanes.MARK)
+    assert not lanes.other_lanes_segment("wjcomp_waterjet_0a1b2c3d_data")
+    assert lanes.other_lanes_segment("wjcnc_waterjet_0a1b2c3d_data")
