@@ -48,9 +48,11 @@ class SignalReader:
         self.config = config
         self.readers = {name: area.reader(name) for name in ("hw", "servo", "motion", "plc")}
         self.inputs = config.plc.inputs()
-        self.bool_input = [v.type == "bool" for v in self.inputs]
         self.all_homed = (1 << len(config.axis_names)) - 1
         self.has_pressure = any(v.id == "pump_pressure" for v in self.inputs)
+        # each PLC input's signal name and kind, made once: `signals` runs every scan
+        self._plc_signals = [(f"plc.{v.id}", v.type == "bool") for v in self.inputs]
+        self._din_signals = [(f"din.{k}", bit) for k, bit in _DIN.items()]
 
     def known(self) -> set[str]:
         """Every signal name a condition may use."""
@@ -71,12 +73,11 @@ class SignalReader:
 
     def signals(self, snap: Snapshot, state: str, mode: str) -> dict[str, object]:
         din = snap.hw["digital_in"]
-        out: dict[str, object] = {f"din.{k}": bool(din & bit) for k, bit in _DIN.items()}
+        out: dict[str, object] = {name: bool(din & bit) for name, bit in self._din_signals}
         link_ok = snap.link_ok
-        values = snap.plc["inputs"]
-        for k, v in enumerate(self.inputs):
-            if link_ok:  # a lost link leaves the PLC's signals unknown: they read false, never stale
-                out[f"plc.{v.id}"] = bool(values[k]) if self.bool_input[k] else float(values[k])
+        if link_ok:  # a lost link leaves the PLC's signals unknown: they read false, never stale
+            for (name, is_bool), value in zip(self._plc_signals, snap.plc["inputs"]):
+                out[name] = bool(value) if is_bool else float(value)
         servo_state = snap.servo["state"]
         out.update(
             plc_link=link_ok,
