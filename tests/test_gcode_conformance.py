@@ -186,6 +186,7 @@ def _show(proc: subprocess.CompletedProcess) -> str:
     return f"\n--- stdout ---\n{proc.stdout[-4000:]}\n--- stderr ---\n{proc.stderr[-4000:]}"
 
 
+@pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 @pytest.mark.parametrize("program", PROGRAMS, ids=_ids(PROGRAMS))
 def test_program_matches_linuxcnc(program: Path, tmp_path: Path) -> None:
     out = tmp_path / f"{program.stem}.jsonl"
@@ -197,6 +198,7 @@ def test_program_matches_linuxcnc(program: Path, tmp_path: Path) -> None:
     assert problem is None, f"{program.name} differs from LinuxCNC:\n{problem}"
 
 
+@pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 @pytest.mark.parametrize("program", ERROR_PROGRAMS, ids=_ids(ERROR_PROGRAMS))
 def test_error_program_rejected_on_linuxcnc_line(program: Path, tmp_path: Path) -> None:
     want = regen.parse_error_file(regen.expected_path(program).read_text())
@@ -216,6 +218,7 @@ def test_error_program_rejected_on_linuxcnc_line(program: Path, tmp_path: Path) 
 # the suite itself (no interpreter needed)
 
 
+@pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 def test_suite_is_complete() -> None:
     assert len(PROGRAMS) >= 45 and len(ERROR_PROGRAMS) >= 12
     for program in PROGRAMS + ERROR_PROGRAMS:
@@ -225,6 +228,7 @@ def test_suite_is_complete() -> None:
     assert not committed - programs, f"expected files without a program: {sorted(map(str, committed - programs))}"
 
 
+@pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 @pytest.mark.parametrize("program", ERROR_PROGRAMS, ids=_ids(ERROR_PROGRAMS))
 def test_error_expectation_is_consistent(program: Path) -> None:
     want = regen.parse_error_file(regen.expected_path(program).read_text())
@@ -233,6 +237,7 @@ def test_error_expectation_is_consistent(program: Path) -> None:
     assert lines[want["line"] - 1].rstrip() == want["text"].rstrip()
 
 
+@pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 def test_compare_accepts_identical_and_rounding() -> None:
     for program in PROGRAMS:
         expected = load_jsonl(regen.expected_path(program))
@@ -248,6 +253,7 @@ def test_compare_accepts_identical_and_rounding() -> None:
         assert compare_segments(nudged, expected) is None, program.name
 
 
+@pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 def test_compare_reports_first_difference() -> None:
     expected = load_jsonl(regen.expected_path(SUITE / "programs" / "arc_p_turns.ngc"))
     arc = next(i for i, r in enumerate(expected) if r["kind"] == "arc")

@@ -151,6 +151,7 @@ def test_fifty_observers_get_every_status_and_event_of_a_cycle_while_a_million_l
         assert o.positions > 0
 
 
+@pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 def test_the_preview_model_holds_every_segment_of_a_million_line_program(machine):
     """The path the gateway serves for a 1M-line program (its interpreter's result, as `program?path=1`
     sends it), encoded and decoded as on the bus, is held whole by the operator screen's model."""

@@ -133,3 +133,10 @@ def test_a_timed_run_ends_by_itself_and_the_runs_outlive_a_killed_logger(plc_con
     assert after == before, "kept on disk, read back by the new logger"
     again = ask(session, keys.log("start"), Reply, LogStart([LogSetting("fifo_fill", duration_s=0.01)]))
     assert again.ok and int(again.reason.split()[2]) == run + 1, "numbering goes on"
+
+
+def test_importing_the_plot_module_does_not_import_matplotlib():
+    """The logger and `waterjet log` import the run plots; matplotlib only when a plot is drawn
+    (a fresh interpreter: this one has it already)."""
+    code = "import sys, cnc.logger.plots; sys.exit('matplotlib' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], cwd=REPO, timeout=120).returncode == 0

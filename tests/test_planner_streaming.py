@@ -57,6 +57,7 @@ def run_streamed(program, config, burst: int = 200, first: int | None = None):
     return source, runner, made, ahead
 
 
+@pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 def test_a_long_nest_streams_its_steps_in_a_bounded_window_and_runs_its_planned_time(config):
     program = interpret(cam_nest(40), config)
     steps = program_steps(program, config)

@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import struct
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from cnc.logger.plots import DPI, FIGSIZE_IN, min_max_envelope, plot_run
 
-from .conftest import REPO
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
 CYCLE_S = 1e-3
 EXPECTED_PX = (round(FIGSIZE_IN[0] * DPI), round(FIGSIZE_IN[1] * DPI))  # width, height
@@ -123,8 +121,3 @@ def test_a_time_base_that_is_not_one_dimensional_is_refused(tmp_path):
 
     with pytest.raises(ValueError, match=r"t_s.*\(100, 1\)"):
         plot_run(tmp_path / "bad.png", **run)
-
-
-def test_importing_the_plot_module_does_not_import_matplotlib():
-    code = "import sys, cnc.logger.plots; sys.exit('matplotlib' in sys.modules)"
-    assert subprocess.run([sys.executable, "-c", code], cwd=REPO).returncode == 0
