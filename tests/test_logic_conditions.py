@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import enum
 import itertools
-import time
 
 import pytest
 
@@ -154,16 +153,13 @@ def test_describe_known_lists_families_then_plain_names():
     assert describe_known({"plc.b", "plc.a", "din.*", "homed", "mode"}) == "din.*, plc.*, homed, mode"
 
 
-def test_fifty_conditions_evaluate_well_within_a_4_ms_scan():
+def test_fifty_conditions_evaluated_scan_after_scan_give_what_each_says():
+    """Compiled once, evaluated every scan against the scan's signals (their cost within the 4 ms
+    scan is measured with the whole scan by bench/logic_scan.py, not here)."""
     texts = ["din.estop_ok and plc.mains_on", "pump_pressure >= 1000", "state == READY and not plc.pump_fault",
              "(homed or mode == MANUAL) and not (plc.pump_fault or pump_pressure > 4000)", "missing_signal"] * 10
     conds = [compile_condition(t) for t in texts]
     signals = {"din.estop_ok": True, "plc.mains_on": True, "pump_pressure": 1200.0, "state": "READY",
                "plc.pump_fault": False, "homed": True, "mode": Mode.AUTO}
-    scans = 200
-    t0 = time.perf_counter()
-    for _ in range(scans):
-        results = [c.evaluate(signals) for c in conds]
-    per_scan_s = (time.perf_counter() - t0) / scans
-    assert results == [True, True, True, True, False] * 10
-    assert per_scan_s < 1e-3  # a quarter of the scan at most, even on a loaded machine; typically ~30 us
+    for _ in range(200):
+        assert [c.evaluate(signals) for c in conds] == [True, True, True, True, False] * 10
