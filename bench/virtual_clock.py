@@ -10,9 +10,11 @@ with polling off (every hand-off blocks).
 
 For three controllers (no planner, the servo fed directly; motion: planner, no soft-PLC; the
 whole controller with the PLC simulator), the axes holding position, it times `run_ticks(N)`
-from a paused clock.
+from a paused clock. Then, for the whole controller, what a test stepping the paused clock a tick
+at a time pays a step (`run_ticks(1)`, which polls for its tick), against the tick running free
+measured in the same run.
 
-    .venv/bin/python bench/virtual_clock.py [--ticks 5000] [--runs 3] [--json OUT]
+    .venv/bin/python bench/virtual_clock.py [--ticks 5000] [--runs 3] [--steps 1000] [--json OUT]
 """
 
 from __future__ import annotations
@@ -54,10 +56,30 @@ def tick_us(kind: str, processes, ticks: int, history: Path) -> float:
         return (time.perf_counter() - t0) / ticks * 1e6
 
 
+def step_us(steps: int, history: Path) -> tuple[float, float]:
+    """Wall time of one `run_ticks(1)` from a pause, and of a tick within `run_ticks(steps)`."""
+    from cnc.sim.faultinject import FAST_PLANT
+
+    config = load_machine(MACHINE)
+    with Supervisor(config, clock="virtual", history_path=history, plc_sim_times=FAST_PLANT) as sup:
+        sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.OK, 20.0, "the PLC link")
+        sup.enable()
+        sup.wait_until(lambda: sup.servo()["state"] == ServoState.HOLDING, 20.0, "the servo to hold")
+        sup.pause_virtual_clock()
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            sup.run_ticks(1)
+        stepped = (time.perf_counter() - t0) / steps * 1e6
+        t0 = time.perf_counter()
+        sup.run_ticks(steps, timeout_s=600.0)
+        return stepped, (time.perf_counter() - t0) / steps * 1e6
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ticks", type=int, default=5000)
     ap.add_argument("--runs", type=int, default=3, help="runs of each, the median is shown")
+    ap.add_argument("--steps", type=int, default=1000, help="single steps of the paused clock timed")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
     rows = []
@@ -70,12 +92,16 @@ def main() -> int:
                     tick_us(kind, processes, args.ticks, Path(tmp) / f"h{i}.sqlite") for i in range(args.runs))
             supervisor_module.VIRTUAL_SPIN_NS = timers.VIRTUAL_SPIN_NS
             rows.append({"controller": kind, "polling_us": got["polling"], "blocking_us": got["blocking"]})
+        stepped, free = step_us(args.steps, Path(tmp) / "steps.sqlite")
     print(f"virtual clock, axes holding: wall time per tick ({args.ticks} ticks, median of {args.runs} runs)\n")
     print(f"{'controller':24s} {'polling us':>11s} {'blocking us':>12s} {'ratio':>6s}")
     for r in rows:
         print(f"{r['controller']:24s} {r['polling_us']:11.0f} {r['blocking_us']:12.0f} {r['polling_us'] / r['blocking_us']:6.2f}")
+    print(f"\nwhole controller, paused clock stepped {args.steps} times a tick at a time, then {args.steps} ticks at once\n")
+    print(f"{'one step us':>12s} {'a free tick us':>15s} {'ratio':>6s}")
+    print(f"{stepped:12.0f} {free:15.0f} {stepped / free:6.2f}")
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=2))
+        args.json.write_text(json.dumps({"ticks": rows, "step_us": stepped, "free_tick_us": free}, indent=2))
     return 0
 
 
