@@ -35,14 +35,16 @@ demo: $(STAMP) bytecode
 	$(VENV)/bin/waterjet demo
 
 # Two lanes at once (tests/lanes.py): the modules marked `computes` (pure computation) in a second
-# pytest process at idle priority, using the CPU the main lane leaves idle while it waits on its
-# controllers; their report follows the main lane's. Either failing fails the target.
+# pytest process at idle priority (every thread of it: started under chrt --idle, BLAS without
+# worker threads), using the CPU the main lane leaves idle while it waits on its controllers;
+# their report follows the main lane's. Either failing fails the target.
 # And /dev/shm left as the run found it (the tests check their own leftovers; this, after the
 # test processes have ended, also what Python's resource tracker should have removed)
 test: $(STAMP) bytecode
 	@ls -A /dev/shm 2>/dev/null | sort > .shm-before || true
-	@base=$$(mktemp -d); \
-	  WATERJET_TEST_LANE=computes $(PY) -m pytest -m computes -p no:cacheprovider --durations=10 --basetemp=$$base/tmp \
+	@base=$$(mktemp -d); idle=$$(command -v chrt >/dev/null && echo chrt --idle 0); \
+	  WATERJET_TEST_LANE=computes OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
+	    $$idle $(PY) -m pytest -m computes -p no:cacheprovider --durations=10 --basetemp=$$base/tmp \
 	    > $$base/computes.log 2>&1 & lane=$$!; \
 	  trap 'kill $$lane 2>/dev/null; rm -rf $$base' INT TERM; \
 	  echo "$(PY) -m pytest -m 'not computes'   (and the computes lane beside it, reported below)"; \

@@ -60,8 +60,8 @@ SAFETY_MATRIX: list = []
 
 
 def pytest_configure(config) -> None:
-    """`make test`'s computes lane (tests/lanes.py): idle priority, its own segment prefix, and
-    nothing that waits."""
+    """`make test`'s computes lane (tests/lanes.py): idle priority and its own segment prefix
+    (and, once the tests are collected, nothing that waits: `pytest_collection_finish`)."""
     if lanes.in_computes_lane():
         lanes.enter_computes_lane()
 

@@ -44,12 +44,16 @@ def other_lanes_segment(name: str) -> bool:
 
 
 def enter_computes_lane() -> None:
-    """Idle priority for this process (nice 19 where SCHED_IDLE is not available) and the lane's
-    segment prefix."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-    except (AttributeError, OSError):
-        os.nice(19)
+    """Idle priority for every thread of this process (nice 19 where SCHED_IDLE is not available)
+    and the lane's segment prefix. `make test` starts the lane under `chrt --idle` already; this
+    also covers a run started otherwise. Every thread: a policy set for the process applies to its
+    calling thread only, and numpy's BLAS had started a worker thread at import, one that spins
+    for work at normal priority: a PLC link beside it was starved (the demo's, once)."""
+    for tid in (int(t) for t in os.listdir("/proc/self/task")):
+        try:
+            os.sched_setscheduler(tid, os.SCHED_IDLE, os.sched_param(0))
+        except (AttributeError, OSError):
+            os.setpriority(os.PRIO_PROCESS, tid, 19)
     from hypothesis import HealthCheck, settings
 
     from cnc.data import dataserver
