@@ -19,7 +19,7 @@ other's as its own leftovers.
 from __future__ import annotations
 
 import os
-from typing import Any, Callable
+from typing import Any, NoReturn
 
 MARK = "computes"
 #: set by `make test` for the pytest process of the `computes` lane
@@ -84,7 +84,7 @@ def refuse_waiting() -> None:
 
 
 def _refuse(owner: Any, name: str, did: str) -> None:
-    def refused(*_args: Any, **_kwargs: Any) -> Callable[..., Any]:
+    def refused(*_args: Any, **_kwargs: Any) -> NoReturn:
         raise LaneError(
             f"the test {did} ({getattr(owner, '__name__', owner)}.{name}): its module is marked `{MARK}`, which "
             f"`make test` runs at idle priority beside the others, where it may wait seconds for a CPU; "
