@@ -37,7 +37,8 @@ demo: $(STAMP) bytecode
 # Two lanes at once (tests/lanes.py): the modules marked `computes` (pure computation) in a second
 # pytest process at idle priority (every thread of it: started under chrt --idle, BLAS without
 # worker threads), using the CPU the main lane leaves idle while it waits on its controllers;
-# their report follows the main lane's. Either failing fails the target.
+# their report follows the main lane's; the main lane's tests marked `alone` run last, once the
+# computes lane has ended. Either failing fails the target.
 # And /dev/shm left as the run found it (the tests check their own leftovers; this, after the
 # test processes have ended, also what Python's resource tracker should have removed)
 test: $(STAMP) bytecode
@@ -48,7 +49,7 @@ test: $(STAMP) bytecode
 	    > $$base/computes.log 2>&1 & lane=$$!; \
 	  trap 'kill $$lane 2>/dev/null; rm -rf $$base' INT TERM; \
 	  echo "$(PY) -m pytest -m 'not computes'   (and the computes lane beside it, reported below)"; \
-	  $(PY) -m pytest -m "not computes" --durations=25; main=$$?; \
+	  WATERJET_COMPUTES_LANE_PID=$$lane $(PY) -m pytest -m "not computes" --durations=25; main=$$?; \
 	  wait $$lane; computes=$$?; \
 	  echo; echo "==== the computes lane: $(PY) -m pytest -m computes (idle priority, beside the above)"; \
 	  cat $$base/computes.log; rm -rf $$base; \

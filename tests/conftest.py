@@ -71,6 +71,18 @@ def pytest_collection_finish(session) -> None:
         lanes.refuse_waiting()
 
 
+def pytest_collection_modifyitems(config, items) -> None:
+    lanes.last_the_alone(items)
+
+
+@pytest.fixture(autouse=True)
+def _alone_after_the_computes_lane(request):
+    """A test marked `alone` starts once `make test`'s computes lane has ended (tests/lanes.py)."""
+    if request.node.get_closest_marker(lanes.ALONE) is not None:
+        lanes.await_the_computes_lane()
+    yield
+
+
 def pytest_terminal_summary(terminalreporter) -> None:
     if SAFETY_MATRIX:
         terminalreporter.section("safety matrix: every fault in every state (the tick rig: real hardware server, "

@@ -19,11 +19,17 @@ other's as its own leftovers.
 from __future__ import annotations
 
 import os
+import time
 from typing import Any, NoReturn
 
 MARK = "computes"
 #: set by `make test` for the pytest process of the `computes` lane
 LANE_ENV = "WATERJET_TEST_LANE"
+#: a test of the main lane that needs the host to itself (the demo: the shipped PLC link's 100 ms
+#: answers on the virtual clock, which the idle lane beside it cost twice in seven runs)
+ALONE = "alone"
+#: set by `make test` for the main lane: the computes lane's pid, whose end an `alone` test awaits
+LANE_PID_ENV = "WATERJET_COMPUTES_LANE_PID"
 #: the segments of the computes lane: wjcomp_<machine>_<random>_<what> (the controller's: wjcnc_...)
 COMPUTES_SHM_PREFIX = "wjcomp"
 
@@ -90,3 +96,18 @@ def _refuse(owner: Any, name: str, did: str) -> None:
             f"`make test` runs at idle priority beside the others, where it may wait seconds for a CPU; "
             f"a test that waits on anything but its own computation belongs in the main lane: take the mark off")
     setattr(owner, name, refused)
+
+
+def last_the_alone(items: list) -> None:
+    """The main lane's `alone` tests run last, when the computes lane has long ended."""
+    items.sort(key=lambda item: item.get_closest_marker(ALONE) is not None)
+
+
+def await_the_computes_lane() -> None:
+    """Until the computes lane's process has ended (none: at once). It waits on that event only;
+    pytest-timeout bounds it, as every test."""
+    from cnc.interlock import process_gone  # an ended process, or a zombie not yet reaped
+
+    pid = int(os.environ.get(LANE_PID_ENV, "0") or 0)
+    while pid > 0 and not process_gone(pid):
+        time.sleep(0.5)

@@ -6,9 +6,12 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from .conftest import REPO
 
 
+@pytest.mark.alone  # the shipped PLC link's 100 ms answers, on the virtual clock (tests/lanes.py)
 def test_demo_runs_automatic_cycles_handles_a_door_fault_and_exits_0():
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     try:  # about 30 s on an idle host; the limit is for a hang, and says where it hung

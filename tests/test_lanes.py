@@ -60,3 +60,26 @@ def test_each_lane_counts_only_its_own_segments(monkeypatch):
     monkeypatch.setenv(lanes.LANE_ENV, lanes.MARK)
     assert not lanes.other_lanes_segment("wjcomp_waterjet_0a1b2c3d_data")
     assert lanes.other_lanes_segment("wjcnc_waterjet_0a1b2c3d_data")
+
+
+def test_the_alone_tests_run_last_and_once_the_computes_lane_has_ended(monkeypatch):
+    """The demo needs the host to itself: it runs after every other test of the main lane, and
+    starts once the computes lane's process is gone."""
+    from . import lanes
+
+    class Item:
+        def __init__(self, name: str, alone: bool) -> None:
+            self.name, self.alone = name, alone
+
+        def get_closest_marker(self, name: str):
+            return object() if name == lanes.ALONE and self.alone else None
+
+    items = [Item("a", False), Item("demo", True), Item("b", False), Item("c", False)]
+    lanes.last_the_alone(items)
+    assert [i.name for i in items] == ["a", "b", "c", "demo"], "the others keep their order"
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    monkeypatch.setenv(lanes.LANE_PID_ENV, str(gone.pid))
+    lanes.await_the_computes_lane()  # returns: that process has ended
+    monkeypatch.setenv(lanes.LANE_PID_ENV, "")
+    lanes.await_the_computes_lane()  # no lane (plain pytest): at once
