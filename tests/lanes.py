@@ -13,7 +13,8 @@ open Zenoh sessions (something else to wait for, in wall time): each of those ra
 there, naming what it did. (Nor may it time itself: the guide keeps timing for bench/. The lane
 takes Hypothesis's own wall-clock deadline and too-slow health check off.)
 The lane's shared-memory segments carry their own prefix, so that neither lane counts the
-other's as its own leftovers.
+other's as its own leftovers. A test of the main lane marked `alone` (the demo) runs last and
+starts once the computes lane has ended.
 """
 
 from __future__ import annotations

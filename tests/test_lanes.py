@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 from .conftest import REPO
+from .tickrig import dead_pid
 
 PROBE = """
 import json, os, threading, subprocess
@@ -77,9 +78,7 @@ def test_the_alone_tests_run_last_and_once_the_computes_lane_has_ended(monkeypat
     items = [Item("a", False), Item("demo", True), Item("b", False), Item("c", False)]
     lanes.last_the_alone(items)
     assert [i.name for i in items] == ["a", "b", "c", "demo"], "the others keep their order"
-    gone = subprocess.Popen(["true"])
-    gone.wait()
-    monkeypatch.setenv(lanes.LANE_PID_ENV, str(gone.pid))
+    monkeypatch.setenv(lanes.LANE_PID_ENV, str(dead_pid()))
     lanes.await_the_computes_lane()  # returns: that process has ended
     monkeypatch.setenv(lanes.LANE_PID_ENV, "")
     lanes.await_the_computes_lane()  # no lane (plain pytest): at once
