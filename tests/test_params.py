@@ -15,6 +15,7 @@ from cnc.config import ConfigError, load_machine
 from cnc.data.layout import PlannerState
 from cnc.logic.states import MachineState
 from cnc.params import ParamError, find, registry, save, values_of
+from cnc.runtime.supervisor import Supervisor
 
 from .conftest import MACHINE_FILE, NEAR_HOME, MID_TRAVEL, free_port, full_controller, logic, press_button_when_asked, reset_and_home
 from .test_zenoh_interface import PART
@@ -107,6 +108,25 @@ def test_an_engineer_tunes_the_gains_online_while_the_program_runs_and_saves_the
             assert on_disk.axis["x"].kp_1_s == 150.0 and on_disk.axis["y"].following_error_limit_mm == 0.4
             assert on_disk.planner.arc_normal_share == 0.4
             assert {p.name: p.file_value for p in station.params().params}["axis.x.kp_1_s"] == 150.0
+        finally:
+            station.close()
+            session.close()
+
+
+def test_a_change_for_a_process_that_is_not_running_waits_for_its_start_and_a_running_one_applies_it(tmp_path):
+    """Whether the owner runs is read from its heartbeat slot's pid, not asked of Zenoh."""
+    config = load_machine(MACHINE_FILE, {"zenoh.listen": [f"tcp/127.0.0.1:{free_port()}"], **NEAR_HOME})
+    keys = Keys(config.zenoh.key_prefix, config.machine.name)
+    without_planner = ("hardware", "servo", "gateway")
+    with Supervisor(config, clock="virtual", processes=without_planner, history_path=tmp_path / "h.sqlite"):
+        session = open_client([config.zenoh.listen[0]])
+        station = OperatorStation(session, keys, "tuner")
+        try:
+            assert station.take_lock().ok
+            waiting = station.set_param("planner.arc_normal_share", 0.4)
+            assert waiting.ok and "the planner is not running: it applies it when it starts" in waiting.reason, waiting
+            applied = station.set_param("axis.x.kp_1_s", 150.0)
+            assert applied.ok and "applied by the servo at tick" in applied.reason, applied
         finally:
             station.close()
             session.close()

@@ -426,9 +426,12 @@ def test_a_lock_holder_that_stops_answering_is_lost_even_while_its_token_stays(t
             op.pong.undeclare()  # it stops answering; its liveliness token stays
             sup.wait_until(lambda: get(session, keys.lock, LockState).holder == "", 10.0, "the silent holder lost")
             assert get(session, keys.lock, LockState).stations == [], "its token no longer counts"
+            refused = op.take_lock()
+            assert not refused.ok and "does not answer the controller's ping" in refused.reason, refused
             op.pong = session.declare_queryable(keys.ping("panel", "local", str(session.zid())),
                                                 lambda q: q.reply(q.key_expr, b"pong"))
             assert op.take_lock().ok, "answering again, the station takes the lock again"
+            assert get(session, keys.lock, LockState).stations == ["panel"], "and counts among the stations again"
         finally:
             op.close()
             session.close()

@@ -240,6 +240,9 @@ class Door:
     # -- the lock ---------------------------------------------------------------------------
     def _lock(self, request: Request) -> Reply:
         user, station, msg = request.caller.user, request.caller.station, request.message
+        silent = self.lock.silent_token(user, station, request.caller.session) if msg.take else None
+        if silent is not None and self._answers(silent):
+            self.lock.token_answers(silent)  # it stopped answering the ping once; it answers again
         if msg.take and not self.lock.announced(user, station):
             self._tokens_now(user, station)  # a token declared just now: the subscriber has not seen it yet
         if msg.take:
@@ -258,6 +261,14 @@ class Door:
             token = Token.parse(str(reply.ok.key_expr), self.keys.root) if reply.ok is not None else None
             if token is not None:
                 self.lock.token_alive(token)
+        # Zenoh 1.10 at times answers that get with nothing, at once, when a query is in flight on this
+        # session beside the stations' subscriber, which gets the token instead: wait for it there
+        self.lock.wait_announced(user, station, 1.0)
+
+    def _answers(self, token: Token) -> bool:
+        """Whether `token`'s station answers the ping within `[gateway] station_ping_ms`."""
+        key = self.keys.ping(token.station, token.user, token.session)
+        return any(r.ok is not None for r in self.session.get(key, timeout=self.config.gateway.station_ping_ms / 1e3))
 
     def _on_station(self, sample: Any) -> None:
         token = Token.parse(str(sample.key_expr), self.keys.root)
@@ -271,9 +282,10 @@ class Door:
 
     def _ping_holder(self) -> None:
         """Ask the lock holder's station for an answer every `[gateway] station_ping_ms`; none for
-        `station_lost_ms` and it is lost, as when its token goes. A link's lease normally ends the
-        token first, but Zenoh 1.10 does not expire a TLS link whose writes are stuck (a pulled cable
-        while status flows to the station): this catches that, and any station that stopped answering."""
+        `station_lost_ms` and it is lost, as when its token goes, and silent (`OperatorLock.token_silent`)
+        until it answers again. A link's lease normally ends the token first, but Zenoh 1.10 does not
+        expire a TLS link whose writes are stuck (a pulled cable while status flows to the station):
+        this catches that, and any station that stopped answering."""
         period = self.config.gateway.station_ping_ms / 1e3
         lost_after = self.config.gateway.station_lost_ms / 1e3
         holder, answered = None, 0.0
@@ -283,10 +295,9 @@ class Door:
                 holder, answered = self.lock.holder, now
             if holder is None:
                 continue
-            key = self.keys.ping(holder.station, holder.user, holder.session)
-            if any(r.ok is not None for r in self.session.get(key, timeout=period)):
+            if self._answers(holder):
                 answered = time.monotonic()
-            elif time.monotonic() - answered > lost_after and self.lock.token_lost(holder):
+            elif time.monotonic() - answered > lost_after and self.lock.token_silent(holder):
                 log.warning("gateway: station %r has not answered for %.1f s: lost", holder.who, time.monotonic() - answered)
                 self.service.post("realtime", lambda who=holder.who: self._operator_lost(who))
                 self._publish_lock()

@@ -5,7 +5,9 @@ user may query) and a station name, announced by a liveliness token per Zenoh se
 `hmi/<user>/<station>/<session id>`. The lock belongs to one such token: taken by command,
 released by command, or lost when that token disappears (its host, network or program died). A
 second session announcing the same user and station has a token of its own, so it cannot hide
-the holder's loss. Pure state, no Zenoh: the gateway feeds it what it sees.
+the holder's loss. A station whose token Zenoh still shows but which stopped answering the
+gateway's ping (a stuck link) is *silent*: it no longer counts, and counts again once it answers.
+Pure state, no Zenoh: the gateway feeds it what it sees.
 """
 
 from __future__ import annotations
@@ -47,8 +49,13 @@ class OperatorLock:
     holder: Token | None = None
     since_ns: int = 0
     tokens: set[Token] = field(default_factory=set)
+    silent: set[Token] = field(default_factory=set)  # tokens Zenoh shows whose station stopped answering
     seq: int = 0
     _mutex: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _changed: threading.Condition = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._changed = threading.Condition(self._mutex)
 
     @staticmethod
     def check_station(station: str) -> str:
@@ -92,35 +99,80 @@ class OperatorLock:
             return self.holder is not None and (self.holder.user, self.holder.station) == (user, station)
 
     def token_alive(self, token: Token) -> None:
+        """Zenoh shows `token` (a silent one stays silent: only an answer brings it back)."""
         with self._mutex:
             if token not in self.tokens:
                 self.tokens.add(token)
                 self.seq += 1
+                self._changed.notify_all()
 
     def token_lost(self, token: Token) -> bool:
         """`token` went away; True when it held the lock (now released)."""
         with self._mutex:
             self.tokens.discard(token)
+            self.silent.discard(token)
             self.seq += 1
-            if self.holder == token:
-                self.holder, self.since_ns = None, time.time_ns()
-                return True
-            return False
+            return self._release_if_held(token)
+
+    def token_silent(self, token: Token) -> bool:
+        """`token`'s station stopped answering though its token stays: it counts no more (not
+        announced, not among the stations, cannot take the lock) until it answers again. True when it
+        held the lock (now released)."""
+        with self._mutex:
+            if token in self.tokens:
+                self.silent.add(token)
+            self.seq += 1
+            return self._release_if_held(token)
+
+    def token_answers(self, token: Token) -> None:
+        """`token`'s station answered again: it counts as announced once more."""
+        with self._mutex:
+            if token in self.silent:
+                self.silent.discard(token)
+                self.seq += 1
+                self._changed.notify_all()
+
+    def silent_token(self, user: str, station: str, session: str = "") -> Token | None:
+        """The silent token of `user`'s `station` (of `session`, when given), if there is one."""
+        with self._mutex:
+            return next((t for t in self.silent if (t.user, t.station) == (user, station)
+                         and (not session or t.session == session)), None)
 
     def announced(self, user: str, station: str) -> bool:
         with self._mutex:
-            return any((t.user, t.station) == (user, station) for t in self.tokens)
+            return any((t.user, t.station) == (user, station) for t in self.tokens - self.silent)
+
+    def wait_announced(self, user: str, station: str, timeout_s: float) -> bool:
+        """Wait until `user`'s `station` is announced (its token reaching the subscriber), at most
+        `timeout_s`; whether it is."""
+        deadline = time.monotonic() + timeout_s
+        with self._changed:
+            while not any((t.user, t.station) == (user, station) for t in self.tokens - self.silent):
+                left = deadline - time.monotonic()
+                if left <= 0 or not self._changed.wait(left):
+                    return any((t.user, t.station) == (user, station) for t in self.tokens - self.silent)
+            return True
 
     def state(self) -> LockState:
         with self._mutex:
             h = self.holder
-            return LockState(h.station if h else "", self.since_ns, sorted({t.station for t in self.tokens}), self.seq,
-                             holder_user=h.user if h else "")
+            return LockState(h.station if h else "", self.since_ns, sorted({t.station for t in self.tokens - self.silent}),
+                             self.seq, holder_user=h.user if h else "")
+
+    def _release_if_held(self, token: Token) -> bool:
+        if self.holder == token:
+            self.holder, self.since_ns = None, time.time_ns()
+            return True
+        return False
 
     def _token_of(self, user: str, station: str, session: str) -> Token:
-        mine = [t for t in self.tokens if (t.user, t.station) == (user, station)]
+        mine = [t for t in self.tokens - self.silent if (t.user, t.station) == (user, station)]
         if session:
             mine = [t for t in mine if t.session == session]
+        if not mine and any((t.user, t.station) == (user, station) and (not session or t.session == session)
+                            for t in self.silent):
+            raise CommandRefused(f"station {station!r} (user {user!r}) does not answer the controller's ping "
+                                 "(its link may be stuck): it cannot take the lock until it does")
         if not mine:
             raise CommandRefused(f"station {station!r} (user {user!r}) has no liveliness token"
                               + (f" from session {session}" if session else "")

@@ -24,7 +24,8 @@ from ..bus.messages import ParamInfo, ParamList, Reply, SaveParams, SetParam
 from ..bus.service import CommandRefused, CommandService, Request, Route
 from ..config import ConfigError, MachineConfig, cross_check, load_machine
 from ..data.dataserver import SharedArea
-from ..data.layout import PlannerState
+from ..data.layout import PlannerState, Proc
+from ..interlock import process_gone
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +44,7 @@ class ParamDoor:
         if self.out.get("change") == 0:  # first start: the machine file's values (a restarted gateway keeps the block's)
             self._write(params.values_of(config, self.specs), 0)
         self.servo, self.motion = area.reader("servo"), area.reader("motion")
+        self.pids = area.blocks["heartbeat"].array[0]["pid"]
         name_of = self.name_of
         service.serve(  # reads on the public keys; changes and saves on the sender's own keys
             Route("param", keys.param("**"), self._read_one, read=True, lane="param", audit=True,
@@ -144,9 +146,11 @@ class ParamDoor:
         return Reply(True, f"{where}; applied by the {spec.owner}{at}; takes effect at {spec.effect}")
 
     def _alive(self, process: str) -> bool:
-        """The controller process announces itself (its liveliness token)."""
-        replies = self.session.liveliness().get(self.keys.alive(process), timeout=0.5)
-        return any(r.ok is not None for r in replies)
+        """Whether the controller process `process` ("servo", "planner") runs: the pid its heartbeat
+        slot names is alive. (Not a liveliness query: Zenoh 1.10 answers one with nothing, at times,
+        on a session that also has a liveliness subscriber and a query in flight, as the gateway's does.)"""
+        pid = int(self.pids[Proc[process.upper()]])
+        return pid > 0 and not process_gone(pid)
 
     def save(self) -> Reply:
         """Write every parameter whose value differs from the machine file's into the file."""
