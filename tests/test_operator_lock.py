@@ -19,6 +19,7 @@ def test_a_holder_that_stops_answering_loses_the_lock_and_counts_again_once_it_a
     lock.take("local", "panel")
     assert lock.token_silent(PANEL), "it held the lock"
     assert lock.holder is None and lock.state().stations == [] and not lock.announced("local", "panel")
+    assert lock.silent_tokens() == [PANEL]
     with pytest.raises(CommandRefused, match="does not answer the controller's ping"):
         lock.take("local", "panel", "s1")
     lock.token_alive(PANEL)  # Zenoh showing the token again (a duplicate put) does not bring it back

@@ -432,6 +432,13 @@ def test_a_lock_holder_that_stops_answering_is_lost_even_while_its_token_stays(t
                                                 lambda q: q.reply(q.key_expr, b"pong"))
             assert op.take_lock().ok, "answering again, the station takes the lock again"
             assert get(session, keys.lock, LockState).stations == ["panel"], "and counts among the stations again"
+            op.pong.undeclare()  # silent again; this time it answers again without asking for the lock
+            sup.wait_until(lambda: get(session, keys.lock, LockState).holder == "", 10.0, "the silent holder lost again")
+            op.pong = session.declare_queryable(keys.ping("panel", "local", str(session.zid())),
+                                                lambda q: q.reply(q.key_expr, b"pong"))
+            sup.wait_until(lambda: get(session, keys.lock, LockState).stations == ["panel"], 10.0,
+                           "the gateway's ping finding it answering again")
+            assert get(session, keys.lock, LockState).holder == "", "the lock stays free until it is asked for"
         finally:
             op.close()
             session.close()

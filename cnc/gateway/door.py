@@ -283,13 +283,17 @@ class Door:
     def _ping_holder(self) -> None:
         """Ask the lock holder's station for an answer every `[gateway] station_ping_ms`; none for
         `station_lost_ms` and it is lost, as when its token goes, and silent (`OperatorLock.token_silent`)
-        until it answers again. A link's lease normally ends the token first, but Zenoh 1.10 does not
-        expire a TLS link whose writes are stuck (a pulled cable while status flows to the station):
-        this catches that, and any station that stopped answering."""
+        until it answers again (silent stations are asked too, without waiting). A link's lease
+        normally ends the token first, but Zenoh 1.10 does not expire a TLS link whose writes are
+        stuck (a pulled cable while status flows to the station): this catches that, and any
+        station that stopped answering."""
         period = self.config.gateway.station_ping_ms / 1e3
         lost_after = self.config.gateway.station_lost_ms / 1e3
         holder, answered = None, 0.0
         while not self._closing.wait(period):
+            for token in self.lock.silent_tokens():
+                self.session.get(self.keys.ping(token.station, token.user, token.session), self._on_pong(token),
+                                 timeout=period)
             now = time.monotonic()
             if self.lock.holder is not holder:
                 holder, answered = self.lock.holder, now
@@ -301,6 +305,15 @@ class Door:
                 log.warning("gateway: station %r has not answered for %.1f s: lost", holder.who, time.monotonic() - answered)
                 self.service.post("realtime", lambda who=holder.who: self._operator_lost(who))
                 self._publish_lock()
+
+    def _on_pong(self, token: Token) -> Callable[[Any], None]:
+        """A silent station's answer to the ping: it counts again."""
+        def answered(reply: Any) -> None:
+            if reply.ok is not None and token in self.lock.silent_tokens():
+                self.lock.token_answers(token)
+                log.info("gateway: station %r answers again", token.who)
+                self._publish_lock()
+        return answered
 
     def _operator_lost(self, station: str) -> None:
         """The lock holder's station is gone: a cut holds (or goes on, `[gateway] on_operator_lost`);

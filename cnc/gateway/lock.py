@@ -138,6 +138,10 @@ class OperatorLock:
             return next((t for t in self.silent if (t.user, t.station) == (user, station)
                          and (not session or t.session == session)), None)
 
+    def silent_tokens(self) -> list[Token]:
+        with self._mutex:
+            return list(self.silent)
+
     def announced(self, user: str, station: str) -> bool:
         with self._mutex:
             return any((t.user, t.station) == (user, station) for t in self.tokens - self.silent)
