@@ -241,8 +241,10 @@ class Door:
     def _lock(self, request: Request) -> Reply:
         user, station, msg = request.caller.user, request.caller.station, request.message
         silent = self.lock.silent_token(user, station, request.caller.session) if msg.take else None
-        if silent is not None and self._answers(silent):
-            self.lock.token_answers(silent)  # it stopped answering the ping once; it answers again
+        # it stopped answering the ping once; it has just sent this, so it is given the time a holder
+        # is given before it is lost to answer again
+        if silent is not None and self._answers(silent, self.config.gateway.station_lost_ms / 1e3):
+            self.lock.token_answers(silent)
         if msg.take and not self.lock.announced(user, station):
             self._tokens_now(user, station)  # a token declared just now: the subscriber has not seen it yet
         if msg.take:
@@ -265,10 +267,10 @@ class Door:
         # session beside the stations' subscriber, which gets the token instead: wait for it there
         self.lock.wait_announced(user, station, 1.0)
 
-    def _answers(self, token: Token) -> bool:
-        """Whether `token`'s station answers the ping within `[gateway] station_ping_ms`."""
+    def _answers(self, token: Token, timeout_s: float) -> bool:
+        """Whether `token`'s station answers the ping within `timeout_s`."""
         key = self.keys.ping(token.station, token.user, token.session)
-        return any(r.ok is not None for r in self.session.get(key, timeout=self.config.gateway.station_ping_ms / 1e3))
+        return any(r.ok is not None for r in self.session.get(key, timeout=timeout_s))
 
     def _on_station(self, sample: Any) -> None:
         token = Token.parse(str(sample.key_expr), self.keys.root)
@@ -299,7 +301,7 @@ class Door:
                 holder, answered = self.lock.holder, now
             if holder is None:
                 continue
-            if self._answers(holder):
+            if self._answers(holder, period):
                 answered = time.monotonic()
             elif time.monotonic() - answered > lost_after and self.lock.token_silent(holder):
                 log.warning("gateway: station %r has not answered for %.1f s: lost", holder.who, time.monotonic() - answered)
