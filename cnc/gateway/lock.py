@@ -124,19 +124,20 @@ class OperatorLock:
             self.seq += 1
             return self._release_if_held(token)
 
-    def token_answers(self, token: Token) -> None:
-        """`token`'s station answered again: it counts as announced once more."""
+    def token_answers(self, token: Token) -> bool:
+        """`token`'s station answered again: it counts as announced once more. True when it was silent."""
         with self._mutex:
-            if token in self.silent:
-                self.silent.discard(token)
-                self.seq += 1
-                self._changed.notify_all()
+            if token not in self.silent:
+                return False
+            self.silent.discard(token)
+            self.seq += 1
+            self._changed.notify_all()
+            return True
 
     def silent_token(self, user: str, station: str, session: str = "") -> Token | None:
         """The silent token of `user`'s `station` (of `session`, when given), if there is one."""
         with self._mutex:
-            return next((t for t in self.silent if (t.user, t.station) == (user, station)
-                         and (not session or t.session == session)), None)
+            return self._silent_of(user, station, session)
 
     def silent_tokens(self) -> list[Token]:
         with self._mutex:
@@ -144,24 +145,26 @@ class OperatorLock:
 
     def announced(self, user: str, station: str) -> bool:
         with self._mutex:
-            return any((t.user, t.station) == (user, station) for t in self.tokens - self.silent)
+            return self._announced(user, station)
 
     def wait_announced(self, user: str, station: str, timeout_s: float) -> bool:
         """Wait until `user`'s `station` is announced (its token reaching the subscriber), at most
         `timeout_s`; whether it is."""
-        deadline = time.monotonic() + timeout_s
         with self._changed:
-            while not any((t.user, t.station) == (user, station) for t in self.tokens - self.silent):
-                left = deadline - time.monotonic()
-                if left <= 0 or not self._changed.wait(left):
-                    return any((t.user, t.station) == (user, station) for t in self.tokens - self.silent)
-            return True
+            return self._changed.wait_for(lambda: self._announced(user, station), timeout_s)
 
     def state(self) -> LockState:
         with self._mutex:
             h = self.holder
             return LockState(h.station if h else "", self.since_ns, sorted({t.station for t in self.tokens - self.silent}),
                              self.seq, holder_user=h.user if h else "")
+
+    def _announced(self, user: str, station: str) -> bool:
+        return any((t.user, t.station) == (user, station) for t in self.tokens - self.silent)
+
+    def _silent_of(self, user: str, station: str, session: str) -> Token | None:
+        return next((t for t in self.silent if (t.user, t.station) == (user, station)
+                     and (not session or t.session == session)), None)
 
     def _release_if_held(self, token: Token) -> bool:
         if self.holder == token:
@@ -173,8 +176,7 @@ class OperatorLock:
         mine = [t for t in self.tokens - self.silent if (t.user, t.station) == (user, station)]
         if session:
             mine = [t for t in mine if t.session == session]
-        if not mine and any((t.user, t.station) == (user, station) and (not session or t.session == session)
-                            for t in self.silent):
+        if not mine and self._silent_of(user, station, session) is not None:
             raise CommandRefused(f"station {station!r} (user {user!r}) does not answer the controller's ping "
                                  "(its link may be stuck): it cannot take the lock until it does")
         if not mine:
