@@ -263,8 +263,9 @@ class Door:
             token = Token.parse(str(reply.ok.key_expr), self.keys.root) if reply.ok is not None else None
             if token is not None:
                 self.lock.token_alive(token)
-        # Zenoh 1.10 at times answers that get with nothing, at once, when a query is in flight on this
-        # session beside the stations' subscriber, which gets the token instead: wait for it there
+        # Zenoh 1.10 at times answers that get with nothing, at once, on a session with a liveliness
+        # subscriber with history (the stations'), which gets the token instead; other queries in
+        # flight make it likelier (bench/zenoh_liveliness_get.py): wait for it there
         self.lock.wait_announced(user, station, 1.0)
 
     def _answers(self, token: Token, timeout_s: float) -> bool:

@@ -147,8 +147,8 @@ class ParamDoor:
 
     def _alive(self, process: str) -> bool:
         """Whether the controller process `process` ("servo", "planner") runs: the pid its heartbeat
-        slot names is alive. (Not a liveliness query: Zenoh 1.10 answers one with nothing, at times,
-        on a session that also has a liveliness subscriber and a query in flight, as the gateway's does.)"""
+        slot names is alive. (Not a liveliness query: Zenoh 1.10 answers one with nothing, at times, on
+        a session with a liveliness subscriber with history, as the gateway's; bench/zenoh_liveliness_get.py.)"""
         pid = int(self.pids[Proc[process.upper()]])
         return pid > 0 and not process_gone(pid)
 
