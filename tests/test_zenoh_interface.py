@@ -81,6 +81,13 @@ def test_only_the_station_holding_the_lock_commands_and_observers_are_refused(co
     alice.close()
     bob.close()
     sup.wait_until(lambda: get(session, keys.lock, LockState).holder == "", 10.0, "the lock released with bob's token")
+    carol = OperatorStation(session, keys, "carol")
+    sup.wait_until(lambda: get(session, keys.lock, LockState).stations == ["carol"], 5.0, "carol seen")
+    carol.token.undeclare()  # a station that does not announce itself
+    sup.wait_until(lambda: get(session, keys.lock, LockState).stations == [], 5.0, "carol's token gone")
+    refused = carol.take_lock()
+    assert not refused.ok and "has no liveliness token" in refused.reason and "declare it" in refused.reason, refused
+    carol.pong.undeclare()
 
 
 @pytest.mark.quick_runaway
