@@ -312,7 +312,7 @@ class Door:
     def _on_pong(self, token: Token) -> Callable[[Any], None]:
         """A silent station's answer to the ping: it counts again."""
         def answered(reply: Any) -> None:
-            if reply.ok is not None and self.lock.token_answers(token):
+            if reply.ok is not None and not self._closing.is_set() and self.lock.token_answers(token):
                 log.info("gateway: station %r answers again", token.who)
                 self._publish_lock()
         return answered
