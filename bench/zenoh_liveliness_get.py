@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import importlib.metadata
 import json
-import socket
 import sys
 import threading
 import time
@@ -31,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import zenoh  # noqa: E402
 
 from cnc.bus.session import zenoh_config  # noqa: E402
+from cnc.sim.demo import free_port  # noqa: E402
 
 TOKEN = "bench/hmi/local/panel/s1"
 PING = "bench/ping/local/panel/s1"  # nobody answers it: a silent station's ping, ended at once by the router
@@ -43,12 +43,6 @@ VARIANTS = (
     ("subscriber and queries in flight", True, True, False),
     ("both, queries serialised", True, True, True),
 )
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def run(queries: int, subscriber: bool, beside: bool, serialised: bool) -> dict:
