@@ -66,6 +66,21 @@ def test_the_smoothing_follows_the_tolerance_and_an_exact_path_has_none():
     assert smoothing_for(cfg, 0.05, False, False, False).n_path == 25, "straight sections get the whole jerk"
 
 
+def test_a_jerk_reserve_of_a_few_thousandths_costs_a_hair_of_acceleration_not_a_sample_of_ramp():
+    """The path average is a whole number of samples, a / (J dt) rounded up: a reserve that puts
+    it a hair over a whole number gives up under 1 % of the acceleration instead of ramping a
+    sample longer at a twentieth less jerk. The jerk never exceeds the reserved one."""
+    cfg = machine_config()
+    dt = cfg.timing.period_s
+    full = smoothing_for(cfg, 0.05, False, False, False, top_speed_mm_s=80.0)
+    reserved = smoothing_for(cfg, 0.05, False, False, False, top_speed_mm_s=80.0, jerk_reserve=4e-4)
+    assert reserved.n_path == full.n_path == 20, "sqrt(80 mm/s x 2e5 mm/s^3) / 2e5 mm/s^3 = 20 ms"
+    assert 0.99 * full.accel_cap < reserved.accel_cap < full.accel_cap
+    assert reserved.accel_cap / (reserved.n_path * dt) <= 2e5 * (1.0 - 4e-4) * (1.0 + 1e-12)
+    much = smoothing_for(cfg, 0.05, False, False, False, top_speed_mm_s=80.0, jerk_reserve=0.03)
+    assert much.n_path == 21, "3 % less jerk: a sample more, at the acceleration its top speed needs"
+
+
 def test_a_blended_section_leaves_the_smoothing_half_the_tolerance():
     cfg = machine_config()
     assert smoothing_for(cfg, 0.05, True, False, True).deviation_mm == pytest.approx(0.025)

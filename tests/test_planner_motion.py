@@ -254,10 +254,11 @@ def test_a_cut_at_a_waterjet_feed_ramps_in_the_jerk_limited_least_time_and_stops
     what braking at A would need."""
     v = feed_mm_min / 60.0
     a_top, j = LIMITS["acceleration"], LIMITS["jerk"]
-    text = f"G21 G90\nG0 X100 Y100\nG1 X200 F{feed_mm_min}\nM2\n"
+    # the dwell: the cut starts from rest by itself (no corner overlap adds the rapid's arrival to it)
+    text = f"G21 G90\nG0 X100 Y100\nG4 P0.1\nG1 X200 F{feed_mm_min}\nM2\n"
     _, _, records, _ = run(text)
     within_limits(records)
-    on_cut = records[records["line"] == 3]
+    on_cut = records[records["line"] == 4]
     moving = np.flatnonzero(speed(on_cut) > 1e-9)
     cut_s = (moving[-1] - moving[0] + 1) * DT
     a = math.sqrt(2.0 * v * j)
@@ -266,8 +267,8 @@ def test_a_cut_at_a_waterjet_feed_ramps_in_the_jerk_limited_least_time_and_stops
     assert extra_s < v / a_top + a_top / j - 3 * DT, "shorter than at the machine's acceleration"
     _, _, fast, _ = run(text, actions={300: lambda r: r.set_override(2.0)})
     within_limits(fast)
-    assert speed(fast)[fast["line"] == 3].max() == pytest.approx(2.0 * v, abs=1e-6)
-    hold_at = int(np.flatnonzero(records["line"] == 3)[0]) + int(50.0 / v / DT)  # half way: at the feed
+    assert speed(fast)[fast["line"] == 4].max() == pytest.approx(2.0 * v, abs=1e-6)
+    hold_at = int(np.flatnonzero(records["line"] == 4)[0]) + int(50.0 / v / DT)  # half way: at the feed
     _, _, held, _ = run(text, chunk=1, actions={hold_at: lambda r: r.hold(), 10**9: lambda r: r.resume()})
     within_limits(held)
     sp = speed(held)

@@ -57,6 +57,7 @@ GEOMETRY_JERK_SHARE = 0.5  # share of the jerk kept for curvature and kinks when
 GEOMETRY_JERK_SHARES = (0.3, 0.5, 0.7)  # the shares `sections.py` tries, keeping the fastest
 KINK_SHARE = 0.25  # of the geometry budgets (jerk, deviation), when a section has kinks
 KINK_ACCEL_SHARE = 0.02  # of the acceleration, when a section has kinks
+RAMP_ACCEL_GIVEN = 0.01  # share of its acceleration a section gives up to ramp in a sample less (`smoothing_for`)
 KINK_BISECTIONS = 8  # steps finding the fastest speed a kink's cap holds at
 MAX_SMOOTHING_SAMPLES = 64
 CURVE_SPEED_SHARE = 0.85  # a curve runs at this share of the speed its jerk budget allows when not speeding up
@@ -130,7 +131,13 @@ def smoothing_for(
     accel_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if has_kinks else a_min
     if 0.0 < top_speed_mm_s < math.inf:
         accel_cap = min(accel_cap, math.sqrt(top_speed_mm_s * jerk_path))
-    n_path = max(1, math.ceil(accel_cap / (jerk_path * dt) - 1e-9))
+    ramp = accel_cap / (jerk_path * dt)  # samples of the path average at this acceleration and jerk
+    n_path = max(1, math.ceil(ramp - 1e-9))
+    if n_path > 1 and (n_path - 1) >= ramp * (1.0 - RAMP_ACCEL_GIVEN):
+        # just over a whole number of samples (a jerk reserve of a few thousandths does that): a
+        # hair less acceleration, not a sample more of ramp at a twentieth less jerk
+        n_path -= 1
+        accel_cap = n_path * jerk_path * dt
     deviation = tolerance_mm * (1.0 - BLEND_SHARE) if blended else tolerance_mm
     return Smoothing(dt, n_path, n_axis, accel_cap, accel_cap / (n_path * dt), deviation if n_axis > 1 else 0.0, share,
                      jerk_reserve)

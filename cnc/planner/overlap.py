@@ -15,7 +15,9 @@ for which
 - every axis keeps its velocity, acceleration and jerk limits (backward differences of the summed
   positions and of the samples either side of them, as the drives see them), and
 - every summed sample lies within P of the elements of the two sections near the corner (the
-  programmed ones: a section ends and starts there without a blend).
+  programmed ones: a section ends and starts there without a blend; where the planner moved the
+  corner outward, `sections._move_stop_corners`, the elements as programmed, so that the sum may
+  use the band on both sides of the programmed corner).
 
 The check is made on positions computed from the profile's pieces (`SectionStream.positions`), not
 on streamed samples, so the runner and the program's timing (`steps.ProgramTiming`) make the same
@@ -145,5 +147,5 @@ def _near_corner(a: Section, a_from_mm: float, b: Section, b_to_mm: float) -> li
     ends = a.path.s0[1:]
     tail = [e for e, s1 in zip(a.elements, ends) if s1 >= a_from_mm - 1e-9]
     head = [e for e, s0 in zip(b.elements, b.path.s0[:-1]) if s0 <= b_to_mm + 1e-9]
-    return tail + head
+    return [e.programmed or e for e in tail + head]  # a corner moved outward is measured against the programmed one
 

@@ -17,7 +17,9 @@ inside of the turn, within P / 2 of the corner, trimming at most half of either 
 A corner is an exact stop (no blend) under G61, where the jet or the outputs switch (they
 switch exactly at the segment boundary), around dwells, at a reversal, between a rapid and a
 feed move, where the height changes, and where the planner finds stopping faster than
-crawling through the blend (`sections.py`). `deviation` measures how far a path strays from
+crawling through the blend (`sections.py`). Where such a stop may be overlapped (`overlap.py`),
+the planner moves the corner outward within P (`sections._move_stop_corners`): the element keeps
+the one programmed (`Element.programmed`). `deviation` measures how far a path strays from
 the programmed one, so tests check the bound rather than trust the formula.
 """
 
@@ -55,6 +57,8 @@ class Element:
     line: int
     dwell_s: float = 0.0
     blend: bool = False  # a corner blend inserted by the planner
+    programmed: "Element | None" = None  # where the planner moved an end within P (`sections.py`
+    # `_move_stop_corners`): the element as programmed, which tolerances are measured against
     # what the planner asks of an element again and again (its sections, blends and limits each
     # look at it), worked out once: elements never change once made
     _length: float = field(default=-1.0, init=False, repr=False, compare=False)

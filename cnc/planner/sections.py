@@ -40,6 +40,8 @@ REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and t
 # then never meet in one third difference (the jerk the drives see)
 JERK_RESERVE = 0.03  # share of the axes' jerk a straight move leaves unused at a corner overlap (`_jerk_reserves`)
 JERK_RESERVE_SHARED = 0.25  # ... where one of the two moves takes at most this share of the axis they share
+CORNER_MOVE_SHARE = 0.5  # of a corner's tolerance P, how far a corner overlap may find it moved outward
+CORNER_MOVE_SHORTEST = 4.0  # ... only where both lines are at least this many times as long as the move
 
 MEMO_RUNS = 1024  # runs a program's timing remembers (`RunMemo`): a nest of up to this many different parts
 MEMO_DECIMALS = 6  # a remembered run's coordinates, relative to its start, rounded to this many decimals of a mm
@@ -149,16 +151,21 @@ class KnownRun:
     length_mm: float
 
 
-def run_key(run: list[Element], cut: "CutPlan | None" = None) -> tuple | None:
+def run_key(run: list[Element], cut: "CutPlan | None" = None, config: MachineConfig | None = None) -> tuple | None:
     """What a run's sections and their ticks depend on, wherever it is: per element its kind, its
     points relative to the run's first (rounded to `MEMO_DECIMALS`), direction and turns, feed,
     tolerance, outputs and the cutting model's quality there. None for a run never remembered: one
-    with an element so short that its direction is rounding."""
+    with an element so short that its direction is rounding, or (given the machine `config`) one
+    with a point within its tolerance of a travel end, where a corner may be left where it is that
+    elsewhere would be moved (`_move_stop_corners`)."""
     ox, oy, oz = run[0].start
     d = MEMO_DECIMALS
     key = []
     for e in run:
         if e.length_mm < MEMO_SHORTEST_MM:
+            return None
+        if config is not None and not all(_inside_travel(config, axis, q, e.tolerance_mm)
+                                          for p in (e.start, e.end) for axis, q in zip("xy", p)):
             return None
         (sx, sy, sz), (ex, ey, ez), c = e.start, e.end, e.center
         key.append((
@@ -225,7 +232,7 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
         """The run's sections; `then_pause`: what comes next is a pause or the end."""
         nonlocal offset, run, made_any, where_last, after_pause
         if run:
-            key = run_key(run, cut) if memo is not None and after_pause and then_pause else None
+            key = run_key(run, cut, config) if memo is not None and after_pause and then_pause else None
             known = memo.get(key) if key is not None else None
             if known is not None:
                 ticks, length_mm = known
@@ -462,11 +469,63 @@ def _split(path: list[Element], config: MachineConfig, offset: float, notes: dic
         if i == len(motion) or _stops_between(motion[i - 1], motion[i]):
             groups.append(motion[start:i])
             start = i
+    _move_stop_corners(groups, config)
     out: list[Section] = []
     for elements, reserve in zip(groups, _jerk_reserves(groups, config)):
         out.append(_section(elements, config, offset, notes, choose_jerk, cut, reserve))
         offset += out[-1].length_mm
     return out
+
+
+def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> None:
+    """Move each corner between two sections that a corner overlap may join (`overlap.py`) outward,
+    by `CORNER_MOVE_SHARE` of its tolerance P, where a straight section alone ends or starts there.
+
+    An overlap passes the corner on its inside: the two motions added cut it, by as much as the
+    tolerance allows. With the corner moved outward by d, the sum may cut the moved corner by up
+    to P + d and still keep within P of the programmed one, so the overlap may be longer and the
+    head passes faster (a trajectory that turns within the band of 2 P around the legs, as the
+    fastest jerk-limited one does: docs/benchmarks.md, "Where the corners lose"). Only a line
+    that is a section by itself (a lead-in, a lead-out, a leg of a polyline stopped at at both
+    ends) is tilted to the moved corner; a line in a longer section is only lengthened along its
+    own direction (its other end may be blended, and a tilt would kink it there): between two such
+    lines the corner moves along the bisector, outward; after a lone line into a longer section
+    back along the next section's first line; before one, on along the last line. Arcs are not
+    moved, nor corners whose moved point leaves the travel. Each moved element keeps the one
+    programmed (`Element.programmed`), against which the overlap measures its tolerance."""
+    if config.planner.corner_overlap_ms <= 0.0 or CORNER_MOVE_SHARE <= 0.0:
+        return
+    for i in range(len(groups) - 1):
+        a, b = groups[i][-1], groups[i + 1][0]
+        alone_a, alone_b = len(groups[i]) == 1, len(groups[i + 1]) == 1
+        if a.kind == ARC or b.kind == ARC or not (alone_a or alone_b) or not overlap_may_apply(a, b):
+            continue
+        u, w = a.direction_at_end(), b.direction_at_start()
+        if u[0] * w[0] + u[1] * w[1] < -1e-9:  # a turn of more than 90 degrees: its overlap is held by
+            continue  # the jerk two motions add, not by P, and the longer legs would only cost time
+        if alone_a and alone_b:
+            d = (u[0] - w[0], u[1] - w[1])
+            norm = math.hypot(*d)
+            if norm < 1e-3:  # straight on (no corner) or a reversal: nowhere outward
+                continue
+            d = (d[0] / norm, d[1] / norm)
+        else:
+            d = (-w[0], -w[1]) if alone_a else u
+        move = CORNER_MOVE_SHARE * min(a.tolerance_mm, b.tolerance_mm)
+        if any(e.length_mm < CORNER_MOVE_SHORTEST * move for e in (a, b)):
+            continue
+        corner = a.end
+        moved = (corner[0] + move * d[0], corner[1] + move * d[1], corner[2])
+        if not all(_inside_travel(config, axis, q) for axis, q in zip("xy", moved)):
+            continue
+        groups[i][-1] = dataclasses.replace(a, end=moved, programmed=a.programmed or a)
+        groups[i + 1][0] = dataclasses.replace(b, start=moved, programmed=b.programmed or b)
+
+
+def _inside_travel(config: MachineConfig, axis: str, position: float, margin: float = 0.0) -> bool:
+    """Whether `position` on `axis` lies within the machine's travel, at least `margin` from its ends."""
+    limits = config.axis.get(axis)
+    return limits is None or limits.travel_min_mm + margin <= position <= limits.travel_max_mm - margin
 
 
 def overlap_may_apply(last: Element, first: Element) -> bool:
@@ -514,7 +573,29 @@ def _jerk_reserves(groups: list[list[Element]], config: MachineConfig) -> list[f
             for k in (i, i + 1):
                 if straight[k]:
                     reserves[k] = JERK_RESERVE
+        if a.programmed is not None or b.programmed is not None:  # a moved corner tilts a line off its axis
+            for k, need in zip((i, i + 1), _jerk_shares_needed(u_a, u_b)):
+                if need <= JERK_RESERVE_SHARED:  # more: the overlap's check keeps the sum within the limits
+                    reserves[k] = max(reserves[k], need)
     return reserves
+
+
+def _jerk_shares_needed(u_a: tuple[float, float], u_b: tuple[float, float]) -> tuple[float, float]:
+    """The shares of their jerk two moves meeting at a corner, along u_a and u_b there, leave unused
+    so that no axis sees more than its limit where their ramps are added in an overlap, whichever of
+    them meet (each move's path jerk takes its largest axis to the limit). On an axis where the two
+    add up to more than the limit, the move with the larger part of it gives the excess up: a line
+    tilted by a moved corner (`_move_stop_corners`) asks a few thousandths of the move along that
+    axis, not all of its own small part."""
+    top_a, top_b = max(map(abs, u_a)), max(map(abs, u_b))
+    need = [0.0, 0.0]
+    for p, q in zip(u_a, u_b):
+        mine, theirs = abs(p) / top_a, abs(q) / top_b
+        excess = mine + theirs - 1.0
+        if excess > 0.0 and mine and theirs:
+            k = 0 if mine >= theirs else 1
+            need[k] = max(need[k], excess / max(mine, theirs) * (1.0 + 1e-3) + 1e-6)
+    return need[0], need[1]
 
 
 def _stops_between(a: Element, b: Element) -> bool:
