@@ -237,6 +237,11 @@ class PlannerConfig:
         "this much before the last one comes to rest, the two added within the axis limits and P; a hold or override "
         "change in an overlap acts when it ends (0: stop at every such corner)", 0.0, 200.0,
     )
+    corner_move_share: float = opt(
+        0.5, "", "share of P by which such a corner is moved outward first, where a straight move alone meets it at "
+        "up to 90 degrees, so that the overlap uses the tolerance on both sides of the corner and passes faster "
+        "(0: corners only cut on their inside)", 0.0, 0.9,
+    )
     divisor: int = opt(5, "ticks", "the planner runs every Nth base tick", 1, 100)
     jog_velocity_mm_s: float = opt(50.0, "mm/s", "default jog speed", 0.01, 10000.0)
     jog_deadman_ms: float = opt(

@@ -20,7 +20,6 @@ from gcode.interp import interpret
 from cnc.config import ConfigError
 from cnc.machine_dialect import dialect_for
 from cnc.planner.runner import ProgramRunner, RunState
-from cnc.planner.sections import CORNER_MOVE_SHARE
 
 from .conftest import machine_config
 from .test_planner_motion import DT, JET, LIMITS, _operator_at_random, run, speed, within_limits, within_tolerance
@@ -136,7 +135,7 @@ def test_a_control_in_an_overlap_acts_when_it_ends_and_every_limit_holds(control
         assert v[-1] == 0.0 and not records["flags"][-1] & JET
         assert runner.state in {"hold": (RunState.HELD,), "stop": (RunState.ABORTED,), "override 0": (RunState.RUNNING,)}[control]
         end = records["position"][-1]
-        moved = CORNER_MOVE_SHARE * 0.05 + 1e-9  # the planner moves a corner it may overlap outward, within P
+        moved = config.planner.corner_move_share * 0.05 + 1e-9  # a corner it may overlap is moved outward, within P
         assert abs(end[1]) <= moved or abs(end[0] - 100.0) <= moved, "at rest on the square's side"
         travelled = float(np.hypot(*np.diff(records["position"][shared:], axis=0).T).sum())
         peak, a, j = float(v[shared:].max()), LIMITS["acceleration"], LIMITS["jerk"]
@@ -171,22 +170,19 @@ def _outside_square(records, x0: float, y0: float, size: float) -> float:
 
 
 @pytest.mark.parametrize("feed,p", [(12000.0, 0.05), (2400.0, 0.05), (30000.0, 0.05)])
-def test_a_corner_moved_outward_within_p_is_passed_faster_and_sooner(monkeypatch, feed, p):
+def test_a_corner_moved_outward_within_p_is_passed_faster_and_sooner(feed, p):
     """An overlap cuts a corner on its inside. Moved outward by half of P first
     (`sections._move_stop_corners`), the corner may be cut deeper and still within P of the
     programmed one: the head uses the band on both sides of the corner, passes it faster and the
     square is cut sooner, every axis within its limits, every record within P of the program, the
-    planned time the one run."""
-    from cnc.planner import sections
-
+    planned time the one run; `[planner] corner_move_share = 0` leaves the corners where they are."""
     text = SQUARE.format(p=p, f=feed, x0=200.0, y0=200.0, x1=300.0, y1=300.0)
     corners = [(300.0, 200.0), (300.0, 300.0), (200.0, 300.0)]
     program, _, records, planned = run(text, chunk=29)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all()
     assert len(records) == planned
-    monkeypatch.setattr(sections, "CORNER_MOVE_SHARE", 0.0)
-    _, _, unmoved, planned_unmoved = run(text, chunk=29)
+    _, _, unmoved, planned_unmoved = run(text, machine_config(**{"planner.corner_move_share": 0.0}), chunk=29)
     assert len(unmoved) == planned_unmoved
     assert len(records) < len(unmoved), "sooner"
     assert min(corner_speeds(records, corners)) > max(corner_speeds(unmoved, corners)), "faster at every corner"
@@ -238,6 +234,10 @@ def test_the_overlap_is_a_machine_file_key_validated_by_name():
     with pytest.raises(ConfigError, match=r"corner_overlap_ms"):
         machine_config(**{"planner.corner_overlap_ms": "soon"})
     assert machine_config().planner.corner_overlap_ms == 40.0
+    for bad in (-0.1, 1.0, "half"):
+        with pytest.raises(ConfigError, match=r"corner_move_share"):
+            machine_config(**{"planner.corner_move_share": bad})
+    assert machine_config().planner.corner_move_share == 0.5
 
 
 def _random_polyline(seed: int) -> tuple[str, int]:

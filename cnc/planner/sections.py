@@ -40,8 +40,8 @@ REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and t
 # then never meet in one third difference (the jerk the drives see)
 JERK_RESERVE = 0.03  # share of the axes' jerk a straight move leaves unused at a corner overlap (`_jerk_reserves`)
 JERK_RESERVE_SHARED = 0.25  # ... where one of the two moves takes at most this share of the axis they share
-CORNER_MOVE_SHARE = 0.5  # of a corner's tolerance P, how far a corner overlap may find it moved outward
-CORNER_MOVE_SHORTEST = 4.0  # ... only where both lines are at least this many times as long as the move
+CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
+# this many times as long as the move
 
 MEMO_RUNS = 1024  # runs a program's timing remembers (`RunMemo`): a nest of up to this many different parts
 MEMO_DECIMALS = 6  # a remembered run's coordinates, relative to its start, rounded to this many decimals of a mm
@@ -479,7 +479,7 @@ def _split(path: list[Element], config: MachineConfig, offset: float, notes: dic
 
 def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> None:
     """Move each corner between two sections that a corner overlap may join (`overlap.py`) outward,
-    by `CORNER_MOVE_SHARE` of its tolerance P, where a straight section alone ends or starts there.
+    by `[planner] corner_move_share` of its tolerance P, where a straight section alone ends or starts there.
 
     An overlap passes the corner on its inside: the two motions added cut it, by as much as the
     tolerance allows. With the corner moved outward by d, the sum may cut the moved corner by up
@@ -493,7 +493,8 @@ def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> No
     back along the next section's first line; before one, on along the last line. Arcs are not
     moved, nor corners whose moved point leaves the travel. Each moved element keeps the one
     programmed (`Element.programmed`), against which the overlap measures its tolerance."""
-    if config.planner.corner_overlap_ms <= 0.0 or CORNER_MOVE_SHARE <= 0.0:
+    share = config.planner.corner_move_share
+    if config.planner.corner_overlap_ms <= 0.0 or share <= 0.0:
         return
     for i in range(len(groups) - 1):
         a, b = groups[i][-1], groups[i + 1][0]
@@ -511,7 +512,7 @@ def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> No
             d = (d[0] / norm, d[1] / norm)
         else:
             d = (-w[0], -w[1]) if alone_a else u
-        move = CORNER_MOVE_SHARE * min(a.tolerance_mm, b.tolerance_mm)
+        move = share * min(a.tolerance_mm, b.tolerance_mm)
         if any(e.length_mm < CORNER_MOVE_SHORTEST * move for e in (a, b)):
             continue
         corner = a.end
