@@ -71,18 +71,24 @@ def _cut(feed_mm_s: float) -> Callable[[Rig], None]:
 
 
 CORNER = "G21 G90 G64 P0.05\nM3\nG1 X400 F30000\nG1 X100 Y400\nM5\nM2\n"  # a 135 degree turn: X moves on
+# a 45 degree turn: the planner moves the corner outward by P / 2 first (`sections._move_stop_corners`);
+# X moves on (at a right angle a seized X would have nothing left to follow)
+MOVED_CORNER = "G21 G90 G64 P0.05\nM3\nG1 X400 F30000\nG1 X700 Y400\nM5\nM2\n"
 
 
-def _corner_overlap(rig: Rig) -> None:
-    """Cutting through a corner the planner overlaps (`cnc/planner/overlap.py`): the second move has
-    begun while the first still arrives, the head off both within P; the fault comes in the middle
-    of it (no step after: the overlap lasts tens of ticks)."""
-    rig.set_command(arm=int(StopCause.BARRIER), pressure_floor_bar=FLOOR_BAR)
-    rig.run_program(CORNER)
-    def in_overlap() -> bool:  # still arriving in X (the first move) while the second has left in Y
-        (x0, _), (x1, y1) = rig.positions[-2][:2], rig.positions[-1][:2]
-        return x1 > 399.0 and x1 > x0 + 1e-6 and y1 > 100.0 + 1e-3 and rig.jet[-1]
-    rig.run_until(in_overlap, 5000, "the head cutting the corner's overlap")
+def _corner_overlap(program: str) -> Callable[[Rig], None]:
+    def enter(rig: Rig) -> None:
+        """Cutting through a corner the planner overlaps (`cnc/planner/overlap.py`): the second move
+        has begun while the first still arrives, the head off both within P; the fault comes in the
+        middle of it (no step after: the overlap lasts tens of ticks)."""
+        rig.set_command(arm=int(StopCause.BARRIER), pressure_floor_bar=FLOOR_BAR)
+        rig.run_program(program)
+
+        def in_overlap() -> bool:  # still arriving in X (the first move) while the second has left in Y
+            (x0, y0), (x1, y1) = rig.positions[-2][:2], rig.positions[-1][:2]
+            return x1 > 399.0 and x1 > x0 + 1e-6 and y1 > y0 + 1e-6 and y1 > 99.0 and rig.jet[-1]
+        rig.run_until(in_overlap, 5000, "the head cutting the corner's overlap")
+    return enter
 
 
 def _mdi_cut(rig: Rig) -> None:
@@ -129,7 +135,8 @@ STATES = [
     State("cutting 50 mm/s", CONFIG, _cut(50.0), True, cutting=True),
     State("cutting 500 mm/s", CONFIG, _cut(500.0), True, cutting=True),
     State("MDI cutting 500 mm/s", CONFIG, _mdi_cut, True, cutting=True, in_cycle=False),
-    State("in a corner's overlap at F30000", CONFIG, _corner_overlap, True, cutting=True),
+    State("in a corner's overlap at F30000", CONFIG, _corner_overlap(CORNER), True, cutting=True),
+    State("in a moved corner's overlap at F30000", CONFIG, _corner_overlap(MOVED_CORNER), True, cutting=True),
     State("held", CONFIG, _held, False),
     State("jet test", CONFIG, _jet_test, False),
     State("jogging", CONFIG, _jogging, True),
