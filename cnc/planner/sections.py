@@ -559,7 +559,11 @@ def _jerk_reserves(groups: list[list[Element]], config: MachineConfig) -> list[f
     of `bench/linuxcnc_compare.py` runs 0.6 s (0.3 %) sooner; no other comparison program changes.
     Curved sections never reserve: their share of the jerk is chosen by the time it takes
     (`_fastest_limits`). The corners weighed are those between the sections of one piece of a run
-    (`iter_steps`); one where a long run is cut into pieces gets no reserve."""
+    (`iter_steps`); one where a long run is cut into pieces gets no reserve. Where a line runs a
+    hair off its axis because a corner was moved (`_move_stop_corners`), the share the other move
+    adds on that axis is left unused by whichever of the two moves most along it
+    (`_jerk_shares_needed`), a few ten-thousandths, so that the exact right angle it was keeps its
+    overlap."""
     reserves = [0.0] * len(groups)
     if config.planner.corner_overlap_ms <= 0.0:
         return reserves
@@ -574,7 +578,8 @@ def _jerk_reserves(groups: list[list[Element]], config: MachineConfig) -> list[f
             for k in (i, i + 1):
                 if straight[k]:
                     reserves[k] = JERK_RESERVE
-        if a.programmed is not None or b.programmed is not None:  # a moved corner tilts a line off its axis
+        # a line a moved corner tilted (at this end or its other) runs a hair off its axis
+        if a.programmed is not None or b.programmed is not None:
             for k, need in zip((i, i + 1), _jerk_shares_needed(u_a, u_b)):
                 if need <= JERK_RESERVE_SHARED:  # more: the overlap's check keeps the sum within the limits
                     reserves[k] = max(reserves[k], need)
