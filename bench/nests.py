@@ -76,6 +76,67 @@ def production_nest(parts: int, shapes: int = 12, seed: int = 7, free: bool = Fa
     return "\n".join(out) + "\n"
 
 
+def turned_nest(parts: int, shapes: int = 12, seed: int = 7) -> str:
+    """`production_nest`'s parts, each copy turned by a quarter, a half or three quarters of a turn
+    or mirrored (across X, Y or a diagonal) about its pierce point, as a nesting program turns parts
+    to fit and pairs left and right ones; a mirrored copy is compensated on the other side (G41 for
+    G42) so that its kerf lies where the mirrored part's does. Copies of one shape in one orientation
+    are placed as in `production_nest`; the orientations repeat every eight copies of a shape."""
+    lines = production_nest(parts, shapes, seed).splitlines()
+    out, part = [], -1
+    pivot = turn = None
+    for ln in lines:
+        if ln.startswith("G0 X") and part + 1 < parts:
+            part += 1
+            words = _words(ln)
+            ox, oy = 100.0 + (part % 14) * 100.0, 100.0 + ((part // 14) % 10) * 100.0  # room to turn
+            shift = (ox - words["X"], oy - words["Y"])
+            pivot = (words["X"], words["Y"])
+            turn = _TURNS[(part // shapes) % len(_TURNS)]
+            out.append(f"G0 X{ox:.3f} Y{oy:.3f}")
+            continue
+        if pivot is None or not ln.startswith(("G1", "G2", "G3", "G41", "G42", "G40")):
+            out.append(ln)
+            continue
+        out.append(_turned(ln, pivot, shift, turn))
+    return "\n".join(out) + "\n"
+
+
+# (swap X and Y, sign of X, sign of Y): the identity, mirrors and quarter turns about the pivot
+_TURNS = ((False, 1, 1), (True, -1, 1), (False, -1, -1), (True, 1, -1),
+          (False, -1, 1), (False, 1, -1), (True, 1, 1), (True, -1, -1))
+
+
+def _words(line: str) -> dict[str, float]:
+    return {w[0]: float(w[1:]) for w in line.split() if w[0] in "XYIJR"}
+
+
+def _turned(line: str, pivot: tuple[float, float], shift: tuple[float, float], turn: tuple[bool, int, int]) -> str:
+    """One motion line of a part turned about `pivot` (its pierce point), then moved by `shift`."""
+    swap, fx, fy = turn
+    mirrored = (fx * fy < 0) != swap
+    words = _words(line)
+    codes = [w for w in line.split() if w[0] not in "XYIJR"]
+    if mirrored:
+        flip = {"G2": "G3", "G3": "G2", "G41": "G42", "G42": "G41"}
+        codes = [flip.get(c, c) for c in codes]
+
+    def vec(x: float, y: float) -> tuple[float, float]:
+        if swap:
+            x, y = y, x
+        return fx * x, fy * y
+    out = list(codes)
+    if "X" in words:
+        x, y = vec(words["X"] - pivot[0], words["Y"] - pivot[1])
+        out += [f"X{pivot[0] + shift[0] + x:.3f}", f"Y{pivot[1] + shift[1] + y:.3f}"]
+    if "I" in words:
+        i, j = vec(words["I"], words["J"])
+        out += [f"I{i:.3f}", f"J{j:.3f}"]
+    if "R" in words:
+        out.append(f"R{words['R']:.3f}")
+    return " ".join(out)
+
+
 def _subroutine() -> list[str]:
     """O100: a round part of radius #3 at (#1, #2), lead-in with G41, 24 chords and two arcs."""
     body = ["O100 SUB", "G41 D1 G1 X[#1 + #3] Y#2 F2400"]

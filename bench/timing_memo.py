@@ -9,7 +9,9 @@ pieces cut at pierces, one process each):
 
 - `production_nest`: N copies of 12 shapes on a grid (`bench/nests.py`),
 - the same placed freely (each part moved off its grid place by up to 4 mm, its coordinates written
-  to 3 decimals: copies that differ by that rounding, which the memo does not take for copies), and
+  to 3 decimals: copies that differ by that rounding, which the memo does not take for copies),
+- the same turned and mirrored (`turned_nest`: each shape's copies in eight orientations, as a
+  nesting program turns parts to fit and pairs left and right ones), and
 - `cam_nest`: N parts all different (the memo finds nothing to reuse but the rapids),
 
 each against the same timing without the memo (every run made), the cycle times compared to the
@@ -30,7 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.nests import cam_nest, production_nest  # noqa: E402
+from bench.nests import cam_nest, production_nest, turned_nest  # noqa: E402
 from cnc.config import load_machine  # noqa: E402
 from cnc.machine_dialect import dialect_for  # noqa: E402
 from cnc.planner.overlap import CornerOverlap  # noqa: E402
@@ -89,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     workers = timing_workers()
     rows = [measure(f"production_nest({args.parts})", production_nest(args.parts), config, workers),
             measure("  placed freely", production_nest(args.parts, free=True), config, workers),
+            measure("  turned and mirrored", turned_nest(args.parts), config, workers),
             measure(f"cam_nest({args.parts})", cam_nest(args.parts), config, workers)]
     print(render(rows))
     if args.json:

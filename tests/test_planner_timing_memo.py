@@ -10,14 +10,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bench.nests import production_nest
+from bench.nests import production_nest, turned_nest
 from cnc.machine_dialect import dialect_for
 from cnc.planner import sections as sections_module
 from cnc.planner.overlap import CornerOverlap
 from cnc.planner.path import Element
 from cnc.planner.quality import cut_plan_for
 from cnc.planner.runner import ProgramRunner
-from cnc.planner.sections import KnownRun, RunMemo, iter_steps, run_key
+from cnc.planner.sections import KnownRun, RunMemo, iter_steps, run_key, run_keys
 from cnc.planner.steps import ProgramTiming, StepSource
 from gcode.canon import LINE
 from gcode.interp import Interpreter
@@ -82,6 +82,35 @@ def test_a_nest_of_repeated_parts_is_timed_once_per_shape_and_to_the_tick(config
     assert memo.hits >= 55
     assert streamed_ticks(program, config) == remembered.total_ticks, "what the run streams"
     assert ProgramTiming.of(program, config).total_ticks == remembered.total_ticks, "`waterjet check`'s timing"
+
+
+def test_copies_turned_and_mirrored_are_timed_once_per_shape_and_to_the_tick(config, monkeypatch):
+    """A nesting program turns parts to fit and pairs left and right ones: each shape's copies come
+    in eight orientations (quarter turns, mirrors across X, Y and the diagonals, compensated on the
+    other side when mirrored). X and Y have the same limits here, so each orientation is timed as
+    the first copy was, and to the tick of timing every copy."""
+    program = interpret(turned_nest(96, shapes=6), config)
+    plain = timed(program, config)
+    made = counting_runs(monkeypatch)
+    memo = RunMemo()
+    remembered = timed(program, config, memo=memo)
+    assert list(remembered.step_ticks) == list(plain.step_ticks), "every step's ticks as timed one by one"
+    assert len([n for n in made if n > 1]) == 6, "each shape made once, whichever way it is turned"
+    assert streamed_ticks(program, config) == remembered.total_ticks, "what the run streams"
+
+
+def test_on_a_machine_whose_x_and_y_differ_only_mirrors_and_half_turns_are_taken_for_each_other(monkeypatch):
+    """With Y slower than X, a part turned by a quarter runs its long sides on the other axis: its
+    own time. Mirrored in X or Y, or turned by a half, each axis keeps what it moved: the same."""
+    config = machine_config(**{"axis.y.max_accel_mm_s2": 3000.0})
+    program = interpret(turned_nest(96, shapes=6), config)
+    plain = timed(program, config)
+    made = counting_runs(monkeypatch)
+    remembered = timed(program, config, memo=RunMemo())
+    assert list(remembered.step_ticks) == list(plain.step_ticks)
+    assert len([n for n in made if n > 1]) == 12, "each shape made twice: along its sides and across them"
+    run = [e for e in iter_steps(program, config)][3].elements  # the first part's contour
+    assert len(run_keys(run, None, config)) == 4 and len(run_keys(run, None, machine_config())) == 8
 
 
 def test_the_same_part_at_another_quality_or_feed_is_timed_again(tmp_path, monkeypatch):
@@ -165,7 +194,8 @@ def test_only_runs_between_pauses_without_tiny_elements_are_remembered_and_the_m
     small = RunMemo(size=2)
     made = counting_runs(monkeypatch)
     assert list(timed(program, config, memo=small).step_ticks) == list(plain.step_ticks)
-    assert len(small.runs) == 2 and len([n for n in made if n > 1]) == 30, "three shapes in turn through two places"
+    assert len(small.kept) == 2 and len([n for n in made if n > 1]) == 30, "three shapes in turn through two places"
+    assert len(small.runs) == 2 * 8, "each kept under its key in the eight orientations of a machine with X and Y alike"
     memo = RunMemo()
     timed(program, config, memo=memo)
     assert any(isinstance(s, KnownRun) for s in iter_steps(program, config, memo=memo)), "known runs come whole"

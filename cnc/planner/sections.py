@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Iterator
 
@@ -111,13 +112,16 @@ class RunMemo:
     tolerances each time, only moved, and so the same sections, profile and servo periods. The
     timing (`steps.ProgramTiming`) makes such a run's sections once: `iter_steps` keys each run
     between two pauses by its elements relative to its first point (`run_key`), and where the key is
-    known yields the ticks already timed (`KnownRun`) instead of making the sections again. Only runs
+    known yields the ticks already timed (`KnownRun`) instead of making the sections again; a run
+    is kept under its key in each orientation that times it alike (`run_keys`), so a copy turned or
+    mirrored is known too. Only runs
     between pauses are kept: no corner overlap joins them to their neighbours, so their ticks are
     theirs alone. Holds at most `MEMO_RUNS` runs, the oldest dropped first."""
 
     def __init__(self, size: int = MEMO_RUNS) -> None:
         self.size = size
         self.runs: dict[tuple, tuple[tuple[int, ...], float]] = {}
+        self.kept: deque[tuple[tuple, ...]] = deque()  # each run's keys, the oldest first
         self.hits = 0
         self.misses = 0
 
@@ -129,17 +133,22 @@ class RunMemo:
             self.hits += 1
         return known
 
-    def put(self, key: tuple, ticks: tuple[int, ...], length_mm: float) -> None:
-        if len(self.runs) >= self.size:
-            del self.runs[next(iter(self.runs))]
-        self.runs[key] = (ticks, length_mm)
+    def put(self, keys: tuple[tuple, ...], ticks: tuple[int, ...], length_mm: float) -> None:
+        """Remember a run's ticks under its key in each orientation that times it alike (`run_keys`)."""
+        if len(self.kept) >= self.size:
+            for key in self.kept.popleft():
+                self.runs.pop(key, None)
+        entry = (ticks, length_mm)
+        for key in keys:
+            self.runs[key] = entry
+        self.kept.append(keys)
 
 
 @dataclass
 class RunStart:
     """Marks the sections that follow, up to the next pause, as a run the memo keeps once timed."""
 
-    key: tuple
+    keys: tuple[tuple, ...]  # its key in each orientation that times it alike (`run_keys`)
     memo: RunMemo
 
 
@@ -151,6 +160,14 @@ class KnownRun:
     length_mm: float
 
 
+# The signed permutations of X and Y a part may be turned or mirrored by without changing its
+# timing: (swap, sx, sy): (x, y) -> (sx * x, sy * y), after taking y for x and x for y if `swap`.
+# A mirror (one sign change, or a swap with none or two) runs its arcs the other way round.
+_SIGNS = ((1, 1), (-1, 1), (1, -1), (-1, -1))
+TURNS_SIGNED = tuple((False, sx, sy) for sx, sy in _SIGNS)  # any machine: each axis keeps its limits
+TURNS_SWAPPED = TURNS_SIGNED + tuple((True, sx, sy) for sx, sy in _SIGNS)  # X and Y alike
+
+
 def run_key(run: list[Element], cut: "CutPlan | None" = None, config: MachineConfig | None = None) -> tuple | None:
     """What a run's sections and their ticks depend on, wherever it is: per element its kind, its
     points relative to the run's first (rounded to `MEMO_DECIMALS`), direction and turns, feed,
@@ -158,9 +175,29 @@ def run_key(run: list[Element], cut: "CutPlan | None" = None, config: MachineCon
     with an element so short that its direction is rounding, or (given the machine `config`) one
     with a point within its tolerance of a travel end, where a corner may be left where it is that
     elsewhere would be moved (`_move_stop_corners`)."""
+    parts = _run_parts(run, cut, config)
+    return None if parts is None else _turned_key(run, *parts, TURNS_SIGNED[0])
+
+
+def run_keys(run: list[Element], cut: "CutPlan | None" = None, config: MachineConfig | None = None) -> tuple | None:
+    """The run's key (`run_key`) in every orientation that times it alike, its own first. The
+    planner's limits are per axis, so a run mirrored in X or Y or turned by half a turn is timed
+    alike; on a machine whose X and Y have the same limits (`config`), so is one turned by a quarter
+    or mirrored across a diagonal (a nest's left and right parts, parts turned to fit)."""
+    parts = _run_parts(run, cut, config)
+    return None if parts is None else _keys_of(run, parts, config)
+
+
+def _keys_of(run: list[Element], parts: tuple[list, list], config: MachineConfig | None) -> tuple[tuple, ...]:
+    turns = TURNS_SWAPPED if config is not None and _xy_alike(config) else TURNS_SIGNED
+    return tuple(_turned_key(run, *parts, turn) for turn in turns)
+
+
+def _run_parts(run: list[Element], cut: "CutPlan | None", config: MachineConfig | None) -> tuple[list, list] | None:
+    """Per element its points relative to the run's first, rounded, and the rest of its key."""
     ox, oy, oz = run[0].start
     d = MEMO_DECIMALS
-    key = []
+    points, rest = [], []
     for e in run:
         if e.length_mm < MEMO_SHORTEST_MM:
             return None
@@ -168,13 +205,31 @@ def run_key(run: list[Element], cut: "CutPlan | None" = None, config: MachineCon
                                           for p in (e.start, e.end) for axis, q in zip("xy", p)):
             return None
         (sx, sy, sz), (ex, ey, ez), c = e.start, e.end, e.center
-        key.append((
-            e.kind, round(sx - ox, d), round(sy - oy, d), round(sz - oz, d), round(ex - ox, d), round(ey - oy, d),
-            round(ez - oz, d), None if c is None else (round(c[0] - ox, d), round(c[1] - oy, d)), e.cw, e.turns,
-            e.feed_mm_s, e.tolerance_mm, e.jet, e.aux, e.outputs, e.blend,
-            cut.quality_of(e.segment) if cut is not None else 0,
-        ))
+        # rounded once: a sign change or a swap of rounded values is the rounding of the turned ones
+        points.append((round(sx - ox, d), round(sy - oy, d), round(ex - ox, d), round(ey - oy, d),
+                       None if c is None else (round(c[0] - ox, d), round(c[1] - oy, d))))
+        rest.append((round(sz - oz, d), round(ez - oz, d), e.turns, e.feed_mm_s, e.tolerance_mm, e.jet, e.aux,
+                     e.outputs, e.blend, cut.quality_of(e.segment) if cut is not None else 0))
+    return points, rest
+
+
+def _turned_key(run: list[Element], points: list, rest: list, turn: tuple[bool, int, int]) -> tuple:
+    swap, fx, fy = turn
+    mirrored = (fx * fy < 0) != swap
+    key = []
+    for e, (sx, sy, ex, ey, c), more in zip(run, points, rest):
+        if swap:
+            sx, sy, ex, ey, c = sy, sx, ey, ex, None if c is None else (c[1], c[0])
+        key.append((e.kind, fx * sx, fy * sy, fx * ex, fy * ey, None if c is None else (fx * c[0], fy * c[1]),
+                    e.cw != mirrored if e.kind == ARC else e.cw, *more))
     return tuple(key)
+
+
+def _xy_alike(config: MachineConfig) -> bool:
+    """Whether X and Y have the same limits, so that swapping them changes no plan."""
+    x, y = config.axis.get("x"), config.axis.get("y")
+    return x is not None and y is not None and all(
+        getattr(x, k) == getattr(y, k) for k in ("max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3"))
 
 
 def output_flags(jet: bool, aux: int, outputs: int) -> int:
@@ -232,7 +287,8 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
         """The run's sections; `then_pause`: what comes next is a pause or the end."""
         nonlocal offset, run, made_any, where_last, after_pause
         if run:
-            key = run_key(run, cut, config) if memo is not None and after_pause and then_pause else None
+            parts = _run_parts(run, cut, config) if memo is not None and after_pause and then_pause else None
+            key = _turned_key(run, *parts, TURNS_SIGNED[0]) if parts is not None else None
             known = memo.get(key) if key is not None else None
             if known is not None:
                 ticks, length_mm = known
@@ -242,7 +298,7 @@ def iter_steps(program: Program, config: MachineConfig, cut: "CutPlan | None" = 
                     yield KnownRun(ticks, length_mm)
             else:
                 if key is not None:
-                    yield RunStart(key, memo)
+                    yield RunStart(_keys_of(run, parts, config), memo)
                 for section in _sections_of(run, config, offset, notes, cut):
                     offset += section.length_mm
                     made_any, where_last, after_pause = True, section.end, False

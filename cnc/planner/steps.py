@@ -148,7 +148,7 @@ class ProgramTiming:
 
             def keep() -> None:
                 """The run announced ends here, at a pause or the program's end: its ticks are its own."""
-                run.memo.put(run.key, tuple(ticks[run_from:]), total_mm - run_mm)
+                run.memo.put(run.keys, tuple(ticks[run_from:]), total_mm - run_mm)
 
             for step in steps:
                 if not isinstance(step, Section):
