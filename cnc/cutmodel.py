@@ -34,8 +34,10 @@ speed. A material without `lag_mm` or `corner_mm` gets its straight speeds only,
 the material file, which cites where its own come from.
 
 A blended corner is an arc of the planner's (`planner/path.py`) and is capped as one; a corner
-the planner stops at needs no cap; the small kinks it runs through (below 0.01 rad) are capped as
-corners on both neighbours (`planner/quality.py`).
+the planner stops at needs no cap, but one it passes in a corner overlap (`planner/overlap.py`: the
+next move starts while the last one still arrives) is turned at speed, and the overlap keeps the
+corner's cap on every sample it sums (`planner/sections.py` `_overlap_cap`); the small kinks it runs
+through (below 0.01 rad) are capped as corners on both neighbours (`planner/quality.py`).
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from cnc.materials import MaterialError, parse_material, record_calibration, ren
 from cnc.planner.geometry import PathArrays
 from cnc.planner.path import Element
 from cnc.planner.quality import CutPlan, CutPlanError, cut_plan_for
-from cnc.planner.sections import Section, iter_steps
+from cnc.planner.sections import Section, iter_steps, pierce_dwell_s
 from cnc.planner.steps import ProgramTiming
 from cnc.planner.stream import SectionStream
 from gcode.canon import ARC, LINE
@@ -354,3 +354,53 @@ def test_waterjet_check_reports_the_job_and_both_cycle_times_and_refuses_what_th
     assert main(["check", str(nest), "--machine", machine_file, "--material", "hide", "--thickness", "5",
                  "--quality", "1"]) == 1
     assert "thickness 5 mm is outside its chart (2 to 4 mm)" in capsys.readouterr().err
+
+
+def _overlap_speeds(program, config, plan) -> tuple[np.ndarray, np.ndarray]:
+    """Each record's path speed as the runner streams the program under its cutting job, and whether
+    it is a corner overlap's (the sum of two moves: `ProgramRunner.overlap_left`)."""
+    from cnc.planner.runner import ProgramRunner
+
+    runner = ProgramRunner(None, config, steps=iter_steps(program, config, plan), pierce_s=pierce_dwell_s(config, plan))
+    positions, summed = [], []
+    while not runner.finished:
+        in_overlap = runner.overlap_left > 0
+        records, _ = runner.take(1)
+        positions += list(records["position"][:, :2])
+        summed += [in_overlap] * len(records)
+    xy = np.asarray(positions)
+    speed = np.concatenate(([0.0], np.hypot(*np.diff(xy, axis=0).T))) / config.timing.period_s
+    return speed, np.asarray(summed, dtype=bool)
+
+
+def test_a_corner_passed_in_an_overlap_keeps_the_model_s_cap_for_its_turn(tmp_path, monkeypatch):
+    """Stopped at, a corner needs no cap: the bottom of the jet catches up while the head stands.
+    Passed in a corner overlap, the head turns at speed: under a cutting job every summed sample
+    keeps the model's cap of the turn (`sections._overlap_cap`), which at the finest quality is
+    below what the overlap would otherwise pass at."""
+    from cnc.planner import sections
+
+    config = machine(tmp_path)
+    text = ("(MATERIAL, hide, THICKNESS=2, QUALITY=5)\nG21 G90 G64 P0.05\nG0 X100 Y100\nM3\nG4 P0.1\n"
+            "G1 X103 Y100 F6000\nG1 X103 Y140\nG1 X143 Y140\nM5\nM2\n")
+    program = interpret(text, config)
+    plan, _ = cut_plan_for(program, None, config, "corner.ngc")
+    cap = float(plan.model.turn_cap(5, math.pi / 2.0))
+    speed, summed = _overlap_speeds(program, config, plan)
+    assert summed.any(), "the corner is still overlapped"
+    assert speed[summed].max() <= cap * (1.0 + 1e-6)
+    straight = float(plan.model.speed_mm_s[5])
+    with monkeypatch.context() as m:
+        m.setattr(sections, "_overlap_cap", lambda a, b, cut: math.inf)
+        uncapped, summed_uncapped = _overlap_speeds(program, config, plan)
+    assert uncapped[summed_uncapped].max() > cap, "without the cap the overlap would turn faster than the model allows"
+    assert uncapped[summed_uncapped].max() > straight, "... and pass a hair over the quality's speed"
+
+    # a chart without trail-back: no corner cap, yet the sum never passes over the quality's speed
+    no_lag = "\n".join(ln for ln in HIDE.splitlines() if not ln.startswith(("lag_mm", "corner_mm")))
+    (tmp_path / "materials" / "hide.toml").write_text(no_lag)
+    program = interpret(text, config)
+    plan, _ = cut_plan_for(program, None, config, "corner.ngc")
+    assert not plan.model.corners_modelled
+    speed, summed = _overlap_speeds(program, config, plan)
+    assert summed.any() and speed[summed].max() <= straight * (1.0 + 1e-6)

@@ -14,6 +14,8 @@ for which
 
 - every axis keeps its velocity, acceleration and jerk limits (backward differences of the summed
   positions and of the samples either side of them, as the drives see them), and
+- under a cutting job (`quality.py`), every summed sample keeps the cutting model's cap of the
+  corner (`sections._overlap_cap`: the head turns at speed, so the jet lags as at a corner), and
 - every summed sample lies within P of the elements of the two sections near the corner (the
   programmed ones: a section ends and starts there without a blend; where the planner moved the
   corner outward, `sections._move_stop_corners`, the elements as programmed, so that the sum may
@@ -33,6 +35,7 @@ braking to rest at the corner anyway, as hard as a hold would brake it.)
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,7 +98,10 @@ class CornerOverlap:
             return 0
         tolerance = min(e.tolerance_mm for e in near)
         summed = _candidates(tail - corner, head - corner, most)  # (most, width, 3), row k - 1: overlap k
-        kept = np.flatnonzero(self._within_limits(summed)) + 1
+        fits = self._within_limits(summed)
+        if math.isfinite(a.section.end_cap_mm_s):
+            fits &= _within_speed(summed, a.section.end_cap_mm_s, self.dt)
+        kept = np.flatnonzero(fits) + 1
         if not len(kept):
             return 0
         # within P: the longest overlap the limits allow first (the common answer), then the others at once
@@ -114,6 +120,18 @@ class CornerOverlap:
         return ((np.abs(v) <= self.velocity * margin).all(axis=(1, 2))
                 & (np.abs(acc) <= self.accel * margin).all(axis=(1, 2))
                 & (np.abs(jerk) <= self.jerk * margin).all(axis=(1, 2)))
+
+
+def _within_speed(summed: np.ndarray, cap_mm_s: float, dt: float) -> np.ndarray:
+    """Per candidate (rows of `_candidates`, overlap k = row + 1): the path speed of every summed
+    sample (the overlap's, where the head turns) within `cap_mm_s`, the cutting model's cap of the
+    corner (`sections._overlap_cap`)."""
+    most = summed.shape[1] - 2 * CONTEXT - 1
+    block = summed[:, CONTEXT:most + CONTEXT + 1, :2]  # a sample before the columns any overlap sums, then those
+    speed = np.hypot(*np.moveaxis(np.diff(block, axis=1), 2, 0)) / dt  # (most, most): into each summed column
+    ks = np.arange(1, most + 1)
+    summed_here = np.arange(most)[None, :] >= (most - ks)[:, None]
+    return (np.where(summed_here, speed, 0.0) <= cap_mm_s * (1.0 + LIMIT_MARGIN)).all(axis=1)
 
 
 def _within_p(summed: np.ndarray, ks: np.ndarray, corner: np.ndarray, near: list[Element], tolerance: float) -> np.ndarray:

@@ -63,6 +63,9 @@ class Section:
     segment: np.ndarray  # per element: program segment index
     line: np.ndarray  # per element: source line
     messages: list[tuple[float, str, int]] = field(default_factory=list)  # (arc length, text, line)
+    # the cutting model's cap on the speed through the corner at its end where a corner overlap
+    # passes it instead of stopping (`overlap.py`): its jet-lag cap for the turn (inf: none)
+    end_cap_mm_s: float = math.inf
     zone_cache: dict = field(default_factory=dict)  # its zones per setting of the controls (`zones`)
 
     def zones(self, holding: bool, override: float, rapid_override: float) -> Zones:
@@ -530,7 +533,29 @@ def _split(path: list[Element], config: MachineConfig, offset: float, notes: dic
     for elements, reserve in zip(groups, _jerk_reserves(groups, config)):
         out.append(_section(elements, config, offset, notes, choose_jerk, cut, reserve))
         offset += out[-1].length_mm
+    if cut is not None:
+        for a, b in zip(out[:-1], out[1:]):
+            a.end_cap_mm_s = _overlap_cap(a.elements[-1], b.elements[0], cut)
     return out
+
+
+def _overlap_cap(a: Element, b: Element, cut) -> float:  # noqa: ANN001 - a CutPlan
+    """The cutting model's cap on passing the corner a -> b in an overlap: the jet-lag cap of its turn
+    at the finer quality of the two, and never above that quality's straight speed (the sum of the
+    two moves may otherwise pass a hair over it, where one still arrives as the other has left); inf
+    where either is not cut under the model. Stopped at, a corner needs none: the bottom of the jet
+    catches up while the head stands; passed in an overlap, the head turns at speed, as at a corner
+    of that angle."""
+    if not overlap_may_apply(a, b):
+        return math.inf
+    qa, qb = (cut.quality_of(e.segment) if e.jet and e.kind in (LINE, ARC) else 0 for e in (a, b))
+    if not (qa and qb):
+        return math.inf
+    pa, pb = a.programmed or a, b.programmed or b
+    u, w = pa.direction_at_end(), pb.direction_at_start()
+    turn = math.atan2(abs(u[0] * w[1] - u[1] * w[0]), u[0] * w[0] + u[1] * w[1])
+    finer = max(qa, qb)
+    return min(float(cut.model.turn_cap(finer, turn)), float(cut.model.speed_mm_s[finer]))
 
 
 def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> None:
