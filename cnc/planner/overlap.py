@@ -14,8 +14,9 @@ for which
 
 - every axis keeps its velocity, acceleration and jerk limits (backward differences of the summed
   positions and of the samples either side of them, as the drives see them), and
-- under a cutting job (`quality.py`), every summed sample keeps the cutting model's cap of the
-  corner (`sections._overlap_cap`: the head turns at speed, so the jet lags as at a corner), and
+- every summed sample keeps the faster of the two moves' feeds (under the override), and under a
+  cutting job (`quality.py`) the cutting model's cap of the corner (`sections._overlap_cap`: the
+  head turns at speed, so the jet lags as at a corner), and
 - every summed sample lies within P of the elements of the two sections near the corner (the
   programmed ones: a section ends and starts there without a blend; where the planner moved the
   corner outward, `sections._move_stop_corners`, the elements as programmed, so that the sum may
@@ -99,8 +100,9 @@ class CornerOverlap:
         tolerance = min(e.tolerance_mm for e in near)
         summed = _candidates(tail - corner, head - corner, most)  # (most, width, 3), row k - 1: overlap k
         fits = self._within_limits(summed)
-        if math.isfinite(a.section.end_cap_mm_s):
-            fits &= _within_speed(summed, a.section.end_cap_mm_s, self.dt)
+        cap = _speed_cap(a, b)
+        if math.isfinite(cap):
+            fits &= _within_speed(summed, cap, self.dt)
         kept = np.flatnonzero(fits) + 1
         if not len(kept):
             return 0
@@ -120,6 +122,18 @@ class CornerOverlap:
         return ((np.abs(v) <= self.velocity * margin).all(axis=(1, 2))
                 & (np.abs(acc) <= self.accel * margin).all(axis=(1, 2))
                 & (np.abs(jerk) <= self.jerk * margin).all(axis=(1, 2)))
+
+
+def _speed_cap(a: SectionStream, b: SectionStream) -> float:
+    """The fastest the head may pass the corner a -> b in an overlap: the faster of the two moves'
+    feeds under their override (the sum of one still arriving and the other already at its feed
+    would otherwise pass over it, by a per cent at a slow feed), and under a cutting job the model's
+    cap of the corner (`sections._overlap_cap`). inf next to a rapid: its own speed rules there."""
+    la, lb = a.section.limits, b.section.limits
+    if la.rapid[-1] or lb.rapid[0]:
+        return a.section.end_cap_mm_s
+    feed = max(float(la.v_feed[-1]) * a.override, float(lb.v_feed[0]) * b.override)
+    return min(feed, a.section.end_cap_mm_s)
 
 
 def _within_speed(summed: np.ndarray, cap_mm_s: float, dt: float) -> np.ndarray:
