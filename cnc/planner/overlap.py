@@ -138,8 +138,7 @@ def _speed_cap(a: SectionStream, b: SectionStream) -> float:
 
 def _within_speed(summed: np.ndarray, cap_mm_s: float, dt: float) -> np.ndarray:
     """Per candidate (rows of `_candidates`, overlap k = row + 1): the path speed of every summed
-    sample (the overlap's, where the head turns) within `cap_mm_s`, the cutting model's cap of the
-    corner (`sections._overlap_cap`)."""
+    sample (the overlap's, where the head turns) within `cap_mm_s` (`_speed_cap`)."""
     most = summed.shape[1] - 2 * CONTEXT - 1
     block = summed[:, CONTEXT:most + CONTEXT + 1, :2]  # a sample before the columns any overlap sums, then those
     speed = np.hypot(*np.moveaxis(np.diff(block, axis=1), 2, 0)) / dt  # (most, most): into each summed column

@@ -560,7 +560,8 @@ def _overlap_cap(a: Element, b: Element, cut) -> float:  # noqa: ANN001 - a CutP
 
 def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> None:
     """Move each corner between two sections that a corner overlap may join (`overlap.py`) outward,
-    by `[planner] corner_move_share` of its tolerance P, where a straight section alone ends or starts there.
+    by `[planner] corner_move_share` of its tolerance P, where a straight section alone ends or
+    starts there.
 
     An overlap passes the corner on its inside: the two motions added cut it, by as much as the
     tolerance allows. With the corner moved outward by d, the sum may cut the moved corner by up
@@ -588,7 +589,7 @@ def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> No
         if alone_a and alone_b:
             d = (u[0] - w[0], u[1] - w[1])
             norm = math.hypot(*d)
-            if norm < 1e-3:  # straight on (no corner) or a reversal: nowhere outward
+            if norm < 1e-3:  # straight on: no corner to move
                 continue
             d = (d[0] / norm, d[1] / norm)
         else:
