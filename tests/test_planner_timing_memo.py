@@ -69,13 +69,20 @@ def streamed_ticks(program, config) -> int:
     return made
 
 
-def test_a_nest_of_repeated_parts_is_timed_once_per_shape_and_to_the_tick(config, monkeypatch):
-    program = interpret(production_nest(60, shapes=5), config)
+def timed_with_memo(program, config, monkeypatch) -> tuple[ProgramTiming, ProgramTiming, list[int], RunMemo]:
+    """The program timed run by run, then with a memo: both timings, the sizes of the runs the memo
+    made, the memo; every step's ticks the same."""
     plain = timed(program, config)
     made = counting_runs(monkeypatch)
     memo = RunMemo()
     remembered = timed(program, config, memo=memo)
     assert list(remembered.step_ticks) == list(plain.step_ticks), "every step's ticks as timed one by one"
+    return plain, remembered, made, memo
+
+
+def test_a_nest_of_repeated_parts_is_timed_once_per_shape_and_to_the_tick(config, monkeypatch):
+    program = interpret(production_nest(60, shapes=5), config)
+    plain, remembered, made, memo = timed_with_memo(program, config, monkeypatch)
     assert remembered.total_mm == pytest.approx(plain.total_mm, rel=1e-12)
     contours = [n for n in made if n > 1]
     assert len(contours) == 5, f"each shape's run of lead-in, contour and lead-out made once, not {len(contours)} times"
@@ -90,11 +97,7 @@ def test_copies_turned_and_mirrored_are_timed_once_per_shape_and_to_the_tick(con
     other side when mirrored). X and Y have the same limits here, so each orientation is timed as
     the first copy was, and to the tick of timing every copy."""
     program = interpret(turned_nest(96, shapes=6), config)
-    plain = timed(program, config)
-    made = counting_runs(monkeypatch)
-    memo = RunMemo()
-    remembered = timed(program, config, memo=memo)
-    assert list(remembered.step_ticks) == list(plain.step_ticks), "every step's ticks as timed one by one"
+    _, remembered, made, _ = timed_with_memo(program, config, monkeypatch)
     assert len([n for n in made if n > 1]) == 6, "each shape made once, whichever way it is turned"
     assert streamed_ticks(program, config) == remembered.total_ticks, "what the run streams"
 
@@ -104,10 +107,7 @@ def test_on_a_machine_whose_x_and_y_differ_only_mirrors_and_half_turns_are_taken
     own time. Mirrored in X or Y, or turned by a half, each axis keeps what it moved: the same."""
     config = machine_config(**{"axis.y.max_accel_mm_s2": 3000.0})
     program = interpret(turned_nest(96, shapes=6), config)
-    plain = timed(program, config)
-    made = counting_runs(monkeypatch)
-    remembered = timed(program, config, memo=RunMemo())
-    assert list(remembered.step_ticks) == list(plain.step_ticks)
+    _, _, made, _ = timed_with_memo(program, config, monkeypatch)
     assert len([n for n in made if n > 1]) == 12, "each shape made twice: along its sides and across them"
     run = [e for e in iter_steps(program, config)][3].elements  # the first part's contour
     assert len(run_keys(run, None, config)) == 4 and len(run_keys(run, None, machine_config())) == 8
