@@ -553,9 +553,8 @@ def _overlap_cap(a: Element, b: Element, cut) -> float:  # noqa: ANN001 - a CutP
         return math.inf
     pa, pb = a.programmed or a, b.programmed or b
     u, w = pa.direction_at_end(), pb.direction_at_start()
-    turn = math.atan2(abs(u[0] * w[1] - u[1] * w[0]), u[0] * w[0] + u[1] * w[1])
     finer = max(qa, qb)
-    return min(float(cut.model.turn_cap(finer, turn)), float(cut.model.speed_mm_s[finer]))
+    return min(float(cut.model.turn_cap(finer, abs(_turn_rad(u, w)))), float(cut.model.speed_mm_s[finer]))
 
 
 def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> None:
@@ -692,9 +691,14 @@ def _stops_between(a: Element, b: Element) -> bool:
     a helix; the corner blends and kink caps work in XY, so a Z rate stepped at speed would be a
     step of the Z velocity), or where the jet or the outputs switch."""
     u, w = a.direction_at_end(), b.direction_at_start()
-    turn = math.atan2(u[0] * w[1] - u[1] * w[0], u[0] * w[0] + u[1] * w[1])
+    turn = _turn_rad(u, w)
     z_turn = (a.start[2] != a.end[2]) != (b.start[2] != b.end[2]) or abs(_z_rate(a) - _z_rate(b)) > Z_RATE_STEP
     return abs(turn) > KINK_MAX_RAD or z_turn or (a.jet, a.aux) != (b.jet, b.aux)
+
+
+def _turn_rad(u: tuple[float, float], w: tuple[float, float]) -> float:
+    """The signed turn in XY from direction u to direction w (counter-clockwise positive)."""
+    return math.atan2(u[0] * w[1] - u[1] * w[0], u[0] * w[0] + u[1] * w[1])
 
 
 def _z_rate(e: Element) -> float:
