@@ -178,5 +178,8 @@ def _near_corner(a: Section, a_from_mm: float, b: Section, b_to_mm: float) -> li
     ends = a.path.s0[1:]
     tail = [e for e, s1 in zip(a.elements, ends) if s1 >= a_from_mm - 1e-9]
     head = [e for e, s0 in zip(b.elements, b.path.s0[:-1]) if s0 <= b_to_mm + 1e-9]
-    return [e.programmed or e for e in tail + head]  # a corner moved outward is measured against the programmed one
+    near: list[Element] = []
+    for e in tail + head:  # a corner moved outward or folded is measured against the programmed elements
+        near += [p for p in e.programmed or (e,) if not any(p is q for q in near)]
+    return near
 

@@ -57,8 +57,9 @@ class Element:
     line: int
     dwell_s: float = 0.0
     blend: bool = False  # a corner blend inserted by the planner
-    programmed: "Element | None" = None  # where the planner moved an end within P (`sections.py`
-    # `_move_stop_corners`): the element as programmed, which tolerances are measured against
+    programmed: "tuple[Element, ...] | None" = None  # where the planner moved an end within P
+    # (`sections.py` `_move_stop_corners`, `_fold_small_arcs`): the elements as programmed, in path
+    # order, which tolerances are measured against (a folded arc on both lines next to it)
     # what the planner asks of an element again and again (its sections, blends and limits each
     # look at it), worked out once: elements never change once made
     _length: float = field(default=-1.0, init=False, repr=False, compare=False)

@@ -30,7 +30,7 @@ from .limits import (
     section_zones, smoothing_for,
 )
 from .profile import Zones, rough_duration_s
-from .path import Element, blend_corners, blends, iter_elements
+from .path import Element, blend_corners, blends, distance_to, iter_elements, sample
 
 if TYPE_CHECKING:
     from .quality import CutPlan
@@ -41,6 +41,9 @@ REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and t
 # then never meet in one third difference (the jerk the drives see)
 JERK_RESERVE = 0.03  # share of the axes' jerk a straight move leaves unused at a corner overlap (`_jerk_reserves`)
 JERK_RESERVE_SHARED = 0.25  # ... where one of the two moves takes at most this share of the axis they share
+FOLD_CANDIDATES = 8  # points tried for a folded corner (`_fold_small_arcs`), between the arc and where its lines meet
+FOLD_STRAY_SHARE = 0.85  # a folded corner's lines keep within this share of P of the programmed path where
+# sampled (`_fold_strays`: between samples they may stray P / 8 more)
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
 
@@ -528,6 +531,7 @@ def _split(path: list[Element], config: MachineConfig, offset: float, notes: dic
         if i == len(motion) or _stops_between(motion[i - 1], motion[i]):
             groups.append(motion[start:i])
             start = i
+    groups = _fold_small_arcs(groups, config)
     _move_stop_corners(groups, config)
     out: list[Section] = []
     for elements, reserve in zip(groups, _jerk_reserves(groups, config)):
@@ -551,8 +555,7 @@ def _overlap_cap(a: Element, b: Element, cut) -> float:  # noqa: ANN001 - a CutP
     qa, qb = (cut.quality_of(e.segment) if e.jet and e.kind in (LINE, ARC) else 0 for e in (a, b))
     if not (qa and qb):
         return math.inf
-    pa, pb = a.programmed or a, b.programmed or b
-    u, w = pa.direction_at_end(), pb.direction_at_start()
+    u, w = programmed_of(a)[0].direction_at_end(), programmed_of(b)[-1].direction_at_start()
     finer = max(qa, qb)
     return min(float(cut.model.turn_cap(finer, abs(_turn_rad(u, w)))), float(cut.model.speed_mm_s[finer]))
 
@@ -582,6 +585,8 @@ def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> No
         alone_a, alone_b = len(groups[i]) == 1, len(groups[i + 1]) == 1
         if a.kind == ARC or b.kind == ARC or not (alone_a or alone_b) or not overlap_may_apply(a, b):
             continue
+        if a.end != programmed_of(a)[0].end:  # a small arc folded into this corner (`_fold_small_arcs`)
+            continue
         u, w = a.direction_at_end(), b.direction_at_start()
         if u[0] * w[0] + u[1] * w[1] < -1e-9:  # a turn of more than 90 degrees: its overlap is held by
             continue  # the jerk two motions add, not by P, and the longer legs would only cost time
@@ -600,8 +605,144 @@ def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> No
         moved = (corner[0] + move * d[0], corner[1] + move * d[1], corner[2])
         if not all(_inside_travel(config, axis, q) for axis, q in zip("xy", moved)):
             continue
-        groups[i][-1] = dataclasses.replace(a, end=moved, programmed=a.programmed or a)
-        groups[i + 1][0] = dataclasses.replace(b, start=moved, programmed=b.programmed or b)
+        groups[i][-1] = dataclasses.replace(a, end=moved, programmed=programmed_of(a))
+        groups[i + 1][0] = dataclasses.replace(b, start=moved, programmed=programmed_of(b))
+
+
+def programmed_of(e: Element) -> tuple[Element, ...]:
+    """The programmed elements `e` stands for, in path order: itself, or where the planner moved a
+    corner within P (`_move_stop_corners`, `_fold_small_arcs`) the elements as programmed."""
+    return e.programmed or (e,)
+
+
+def _fold_small_arcs(groups: list[list[Element]], config: MachineConfig) -> list[list[Element]]:
+    """Fold a small arc that starts a section after a stop into the corner it rounds.
+
+    Kerf compensation enters a part with a lead-in ending at the compensated point, a kink of a
+    few degrees, and an arc of the kerf's radius around the contour's first point: a corner of
+    the part rounded by a quarter of a millimetre. The planner stops at the kink and crawls
+    through the arc at its centripetal jerk (about 10 mm/s at r = 0.125 mm). Within G64 P the
+    three elements are one corner: where the arc holds the head below its feed anyway, the line
+    before it is led to a point M and the line after it starts there. M lies between the arc and
+    where the two lines meet, on the lines where they must keep their direction (a line in a
+    longer section is only lengthened, a line that is a section by itself may be tilted), where
+    the lines stray least from the programmed ones and the arc; never over P. The corner at M
+    is a stop that a corner overlap (`overlap.py`) may pass, measured against the programmed
+    elements (`Element.programmed` holds the arc on both sides). Nothing is folded where
+    overlaps are off or corners are not to be moved (`[planner] corner_move_share` 0)."""
+    if config.planner.corner_overlap_ms <= 0.0 or config.planner.corner_move_share <= 0.0 or len(groups) < 2:
+        return groups
+    gs = [list(g) for g in groups]
+    for j in range(1, len(gs)):
+        i = j - 1
+        while i >= 0 and not gs[i]:
+            i -= 1
+        if i < 0 or not gs[j] or gs[j][0].kind != ARC:
+            continue
+        c = gs[j][0]
+        if len(gs[j]) > 1:
+            b_at, tilt_b = (j, 1), len(gs[j]) == 2
+        elif j + 1 < len(gs) and gs[j + 1]:
+            b_at, tilt_b = (j + 1, 0), len(gs[j + 1]) == 1
+        else:
+            continue
+        b = gs[b_at[0]][b_at[1]]
+        folded = _folded_corner(gs[i][-1], c, b, len(gs[i]) == 1, tilt_b, config)
+        if folded is None:
+            continue
+        gs[i][-1] = folded[0]
+        gs[b_at[0]][b_at[1]] = folded[1]
+        del gs[j][0]
+    return [g for g in gs if g]
+
+
+def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: bool,
+                   config: MachineConfig) -> tuple[Element, Element] | None:
+    """Lines a and b meeting at one point M instead of through the small arc c between them
+    (`_fold_small_arcs`), or None where the arc is not small, the lines would stray over P or the
+    three cannot be one corner."""
+    if a.kind != LINE or c.kind != ARC or b.kind != LINE or c.turns or a.end != c.start or c.end != b.start:
+        return None
+    if not (overlap_may_apply(a, c) and overlap_may_apply(c, b)) or a.programmed is not None or b.programmed is not None:
+        return None
+    cx, cy = c.center
+    r = math.hypot(c.start[0] - cx, c.start[1] - cy)
+    if _arc_speed_mm_s(r, config) >= c.feed_mm_s:  # the arc does not slow the head: a curve, not a corner
+        return None
+    u, w = a.direction_at_end(), b.direction_at_start()
+    cross = u[0] * w[1] - u[1] * w[0]
+    if abs(cross) < 1e-6 or abs(_turn_rad(u, w)) > math.pi / 2 + 0.1:
+        return None  # parallel lines, or a turn the overlap would not pass at speed
+    side = math.copysign(1.0, cross)
+    if min(_turn_rad(u, c.direction_at_start()) * side, c.sweep_rad * side, _turn_rad(c.direction_at_end(), w) * side) \
+            < -KINK_MAX_RAD:
+        return None  # an S (tangent joins count either way: their turn is rounding): no corner
+    # Q, where the two lines meet: a.end + s u = b.start - t w
+    dx, dy = b.start[0] - a.end[0], b.start[1] - a.end[1]
+    s_q, t_q = (dx * w[1] - dy * w[0]) / cross, (u[0] * dy - u[1] * dx) / cross
+    if s_q < -1e-9 or t_q < -1e-9:
+        return None
+    tolerance = min(e.tolerance_mm for e in (a, c, b))
+    q = (a.end[0] + s_q * u[0], a.end[1] + s_q * u[1])
+    if tilt_a and tilt_b:  # anywhere between the arc and Q, on the ray from the arc's centre through Q
+        k = math.hypot(q[0] - cx, q[1] - cy)
+        points = [(cx + (q[0] - cx) * f, cy + (q[1] - cy) * f) for f in np.linspace(r / k, 1.0, FOLD_CANDIDATES + 1)[1:]]
+    elif tilt_a:  # on b's line, from its start back to Q
+        points = [(b.start[0] - t * w[0], b.start[1] - t * w[1]) for t in np.linspace(0.0, t_q, FOLD_CANDIDATES + 1)[1:]]
+    elif tilt_b:  # on a's line, from its end on to Q
+        points = [(a.end[0] + t * u[0], a.end[1] + t * u[1]) for t in np.linspace(0.0, s_q, FOLD_CANDIDATES + 1)[1:]]
+    else:
+        points = [q]
+    points = np.array(points)
+    inside = np.minimum(np.hypot(*(points - a.start[:2]).T), np.hypot(*(points - b.end[:2]).T)) > tolerance
+    for k, axis in enumerate("xy"):
+        limits = config.axis.get(axis)
+        if limits is not None:
+            inside &= (points[:, k] >= limits.travel_min_mm) & (points[:, k] <= limits.travel_max_mm)
+    points = points[inside]
+    if not len(points):
+        return None
+    strays = _fold_strays(points, a, c, b, r + max(s_q, t_q), tolerance)
+    best = int(np.argmin(strays))
+    if strays[best] > tolerance * FOLD_STRAY_SHARE:
+        return None
+    moved = (float(points[best, 0]), float(points[best, 1]), a.end[2])
+    return (dataclasses.replace(a, end=moved, programmed=(a, c)),
+            dataclasses.replace(b, start=moved, programmed=(c, b)))
+
+
+def _fold_strays(points: np.ndarray, a: Element, c: Element, b: Element, size: float, tolerance: float) -> np.ndarray:
+    """For each candidate corner M (rows of `points`) of a folded corner (`_folded_corner`): how far
+    the lines a.start -> M -> b.end stray from the programmed a, c and b at most.
+
+    Sampled every P / 4 within reach of M (`size`: the arc's radius and how far the lines run on
+    to meet), where the nearest programmed element may change: between samples the distance can
+    be at most P / 8 more, inside the margin `FOLD_STRAY_SHARE` leaves. Farther along, a line's
+    distance to the programmed line whose far end it keeps is convex and 0 at that end, so it is
+    largest where the samples stop: that distance is taken too."""
+    reach = size + tolerance + math.dist(c.start[:2], c.end[:2])
+    step = tolerance / 4.0
+    steps = np.arange(0.0, reach + step, step)
+    pieces, beyond = [], []
+    for far, kept in ((a.start, a), (b.end, b)):
+        toward = np.asarray(far[:2]) - points
+        length = np.hypot(*toward.T)
+        unit = toward / length[:, None]
+        t = np.minimum(steps[None, :], length[:, None])  # (candidates, samples) along each line from M
+        pieces.append(points[:, None, :] + t[:, :, None] * unit[:, None, :])
+        beyond.append(distance_to(pieces[-1][:, -1, :], [kept]))
+    samples = np.concatenate(pieces, axis=1)
+    near = distance_to(samples.reshape(-1, 2), [a, c, b]).reshape(len(points), -1).max(axis=1)
+    return np.maximum.reduce([near, *beyond])
+
+
+def _arc_speed_mm_s(radius_mm: float, config: MachineConfig) -> float:
+    """The most an arc of this radius lets the head run with the axes' whole acceleration and jerk
+    (centripetal a = v^2 / r, its jerk v^3 / r^2): a bound above what the planner gives it."""
+    axes = [config.axis[a] for a in "xy" if a in config.axis]
+    accel = min(x.max_accel_mm_s2 for x in axes)
+    jerk = min(x.max_jerk_mm_s3 for x in axes)
+    return min(math.sqrt(accel * radius_mm), (jerk * radius_mm * radius_mm) ** (1.0 / 3.0))
 
 
 def _inside_travel(config: MachineConfig, axis: str, position: float, margin: float = 0.0) -> bool:
