@@ -221,7 +221,19 @@ def nest_bench() -> Bench:
     return Bench(f"nest {len(lines)} lines F2400", "\n".join(lines) + "\n")
 
 
-def benches() -> list[Bench]:
+def kerf_nest_bench() -> Bench:
+    """The same parts with their kerf compensated by the controller (G41/G42 D1, G40 on the
+    lead-out; LinuxCNC's tool table holds the same diameter), no jet: how the paper's CAM writes
+    them. Not in the main table (its runs are those of earlier sessions): `--only kerf`."""
+    text = nesting_program(NEST_LINES)
+    lines = [ln for ln in text.splitlines() if not NEST_DROPPED.match(ln)]
+    return Bench(f"kerf nest {len(lines)} lines F2400", "\n".join(lines) + "\n")
+
+
+def benches(kerf: bool = False) -> list[Bench]:
+    """The comparison's programs; `kerf`: the nest compensated by the controller instead."""
+    if kerf:
+        return [kerf_nest_bench()]
     fig10 = Bench("fig10 contour F30000", FIG10_FILE.read_text(), quick=True)
     return [fig10, *corner_benches(), chord_circle_bench(), lissajous_bench(), nest_bench()]
 
@@ -523,7 +535,7 @@ def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
         max_velocity_mm_s={ax: config.axis[ax].max_velocity_mm_s for ax in AXES},
         max_accel_mm_s2={ax: config.axis[ax].max_accel_mm_s2 for ax in AXES},
         travel_mm={ax: (config.axis[ax].travel_min_mm, config.axis[ax].travel_max_mm) for ax in AXES},
-        period_s=dt, home_mm=dict(zip(AXES, start)))
+        period_s=dt, home_mm=dict(zip(AXES, start)), tools_mm=dict(dialect_for(config).tool_diameters_mm))
     wall = time.monotonic() - wall
     xy = res["xy_mm"]
     path = ProgrammedPath(program.segments)
@@ -664,7 +676,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="run a few programs only")
     ap.add_argument("--json", type=Path, metavar="OUT", help="write every figure here")
-    ap.add_argument("--only", metavar="PREFIX", default="", help="run only the programs whose name starts so")
+    ap.add_argument("--only", metavar="PREFIX", default="",
+                    help="run only the programs whose name starts so ('kerf': the nest compensated by the controller)")
     ap.add_argument("--bounds", action="store_true",
                     help="print only each program's feed and jerk-limited bounds (`feed_bound_s`, `jerk_bound_s`) and exit")
     args = ap.parse_args(argv)
@@ -681,7 +694,8 @@ def main(argv: list[str] | None = None) -> int:
     available, reason = linuxcnc_sim.available()
     rows: list[Comparison] = []
     with tempfile.TemporaryDirectory(prefix="linuxcnc_compare-") as tmp:
-        for bench in (b for b in benches() if (b.quick or not args.quick) and b.name.startswith(args.only)):
+        chosen = benches(kerf=args.only.startswith("kerf"))
+        for bench in (b for b in chosen if (b.quick or not args.quick) and b.name.startswith(args.only)):
             try:
                 rows.append(compare(bench, config, Path(tmp), available))
             except linuxcnc_sim.LinuxCNCUnavailable as exc:

@@ -301,14 +301,14 @@ setp sampler.0.enable 0
 
 def _write_config(work: Path, program: Path, vel: dict[str, float], acc: dict[str, float],
                   travel: dict[str, tuple[float, float]], home: dict[str, float],
-                  period_ns: int, timeout_s: float) -> None:
+                  period_ns: int, timeout_s: float, tools: dict[int, float]) -> None:
     display = work / "display.py"
     display.write_text(DISPLAY_SCRIPT)
     display.chmod(0o755)
     (work / "sim.ini").write_text(_ini_text(vel, acc, travel, home, period_ns, display))
     (work / "sim.hal").write_text(_hal_text(period_ns))
     (work / "sim.var").write_text("")
-    (work / "sim.tbl").write_text("")
+    (work / "sim.tbl").write_text("".join(f"T{n} P{n} D{d:.10g}\n" for n, d in sorted(tools.items())))
     job = {"program": str(program), "samples": str(work / "samples.txt"),
            "status": str(work / "status.json"), "timeout_s": timeout_s, "joints": len(AXES)}
     (work / "job.json").write_text(json.dumps(job))
@@ -594,12 +594,13 @@ def _check_args(max_velocity_mm_s: dict[str, float], max_accel_mm_s2: dict[str, 
 def run_linuxcnc(program: str | Path, *, max_velocity_mm_s: dict[str, float],
                  max_accel_mm_s2: dict[str, float], travel_mm: dict[str, tuple[float, float]],
                  period_s: float = 0.001, timeout_s: float = 600,
-                 home_mm: dict[str, float] | None = None) -> dict[str, Any]:
+                 home_mm: dict[str, float] | None = None, tools_mm: dict[int, float] | None = None) -> dict[str, Any]:
     """Run `program` on LinuxCNC's planner with these XY limits and sample the commanded path.
 
     Keys of the limit dicts are "x" and "y"; units mm, mm/s, mm/s^2. The machine starts at
-    `home_mm` (default: 0 clamped into the travel). `timeout_s` bounds the program's run;
-    start-up and shutdown get STARTUP_ALLOWANCE_S on top.
+    `home_mm` (default: 0 clamped into the travel). `tools_mm`: the tool table, tool number to
+    diameter (G41/G42 D<number> compensates half of it; ours: the nozzles' kerf widths).
+    `timeout_s` bounds the program's run; start-up and shutdown get STARTUP_ALLOWANCE_S on top.
 
     Returns cycle_time_s (float), t_s (n,), xy_mm (n, 2) from the last sample at rest before
     the first move to the last sample of motion (t_s[-1] == cycle_time_s), version and how
@@ -627,7 +628,7 @@ def run_linuxcnc(program: str | Path, *, max_velocity_mm_s: dict[str, float],
         work.chmod(0o755)
         run_id = uuid.uuid4().hex
         _write_config(work, program, max_velocity_mm_s, max_accel_mm_s2, travel_mm, home,
-                      period_ns, timeout_s)
+                      period_ns, timeout_s, tools_mm or {})
         env = _run_env(work, run_id)
         limit_s = timeout_s + STARTUP_ALLOWANCE_S
         started, code, log = time.time(), None, ""
