@@ -42,8 +42,10 @@ REST_SAMPLES = 3  # a section ends with this many samples at rest: its end and t
 JERK_RESERVE = 0.03  # share of the axes' jerk a straight move leaves unused at a corner overlap (`_jerk_reserves`)
 JERK_RESERVE_SHARED = 0.25  # ... where one of the two moves takes at most this share of the axis they share
 FOLD_CANDIDATES = 8  # points tried for a folded corner (`_fold_small_arcs`), between the arc and where its lines meet
-FOLD_STRAY_SHARE = 0.85  # a folded corner's lines keep within this share of P of the programmed path where
-# sampled (`_fold_strays`: between samples they may stray P / 8 more)
+FOLD_SAMPLE_SHARE = 0.25  # a folded corner's lines are sampled every this share of P (`_fold_strays`) ...
+FOLD_STRAY_SHARE = 0.85  # ... and keep within this share of P of the programmed path where sampled (between
+# samples they may stray half a step more) where the corner is a stop (`_fold_small_arcs`) ...
+FOLD_TURN_SHARE = 0.25  # ... and within this share where it may be blended (`_fold_small_turns`)
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
 
@@ -386,6 +388,7 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
     """Sections of a run of elements between hard stops, each corner blended or stopped at,
     whichever is faster."""
     corners: dict = {}  # each corner's blend, made once for both passes
+    run = _fold_small_turns(run, config)
     first = _split(blend_corners(run, memo=corners), config, offset, notes, choose_jerk=False, cut=cut)
     stops, kept = _corners_to_stop(first, config)
     if stops:
@@ -555,7 +558,7 @@ def _overlap_cap(a: Element, b: Element, cut) -> float:  # noqa: ANN001 - a CutP
     qa, qb = (cut.quality_of(e.segment) if e.jet and e.kind in (LINE, ARC) else 0 for e in (a, b))
     if not (qa and qb):
         return math.inf
-    u, w = programmed_of(a)[0].direction_at_end(), programmed_of(b)[-1].direction_at_start()
+    u, w = own_line(a).direction_at_end(), own_line(b).direction_at_start()
     finer = max(qa, qb)
     return min(float(cut.model.turn_cap(finer, abs(_turn_rad(u, w)))), float(cut.model.speed_mm_s[finer]))
 
@@ -585,7 +588,7 @@ def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> No
         alone_a, alone_b = len(groups[i]) == 1, len(groups[i + 1]) == 1
         if a.kind == ARC or b.kind == ARC or not (alone_a or alone_b) or not overlap_may_apply(a, b):
             continue
-        if a.end != programmed_of(a)[0].end:  # a small arc folded into this corner (`_fold_small_arcs`)
+        if a.end != own_line(a).end or b.start != own_line(b).start:  # a small arc folded into this corner
             continue
         u, w = a.direction_at_end(), b.direction_at_start()
         if u[0] * w[0] + u[1] * w[1] < -1e-9:  # a turn of more than 90 degrees: its overlap is held by
@@ -611,8 +614,14 @@ def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> No
 
 def programmed_of(e: Element) -> tuple[Element, ...]:
     """The programmed elements `e` stands for, in path order: itself, or where the planner moved a
-    corner within P (`_move_stop_corners`, `_fold_small_arcs`) the elements as programmed."""
+    corner within P (`_move_stop_corners`, `_fold_small_arcs`, `_fold_small_turns`) the elements
+    as programmed."""
     return e.programmed or (e,)
+
+
+def own_line(e: Element) -> Element:
+    """The programmed element `e` is made from (without the arcs folded into its ends)."""
+    return next((p for p in programmed_of(e) if p.kind != ARC), e) if e.kind == LINE else e
 
 
 def _fold_small_arcs(groups: list[list[Element]], config: MachineConfig) -> list[list[Element]]:
@@ -656,15 +665,51 @@ def _fold_small_arcs(groups: list[list[Element]], config: MachineConfig) -> list
     return [g for g in gs if g]
 
 
-def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: bool,
-                   config: MachineConfig) -> tuple[Element, Element] | None:
+def _fold_small_turns(run: list[Element], config: MachineConfig) -> list[Element]:
+    """Fold each small arc between two lines of a run into the corner where the lines meet, where
+    that corner lies within `FOLD_TURN_SHARE` of P of the arc, before corners are blended.
+
+    Kerf compensation rounds every outside corner of a contour with an arc of the kerf's radius,
+    also the few degrees between two chords of a curve: the head, held to that radius's
+    centripetal jerk (about 10 mm/s at r = 0.125 mm), would crawl through each, a chord circle
+    compensated on the outside 2.5 times as long as the same circle compensated by CAM. The corner
+    of two lines a few degrees apart lies a fraction of a micrometre off such an arc: folded, it
+    is blended or overlapped as the CAM's corner would be, within P of the programmed path (the
+    folded lines give up what they stray from their tolerance; `Element.programmed` keeps the arc).
+    Sharper corners, whose meeting point lies farther off the arc, are left to `_fold_small_arcs`
+    once they are stops. Nothing is folded where corners are not to be moved
+    (`[planner] corner_move_share` 0)."""
+    if config.planner.corner_move_share <= 0.0 or len(run) < 3:
+        return run
+    out: list[Element] = []
+    k = 0
+    while k < len(run):
+        c = run[k]
+        if c.kind == ARC and out and out[-1].kind == LINE and k + 1 < len(run) and run[k + 1].kind == LINE:
+            folded = _folded_corner(out[-1], c, run[k + 1], False, False, config, FOLD_TURN_SHARE, to_blend=True)
+            if folded is not None:
+                out[-1] = folded[0]
+                out.append(folded[1])
+                k += 2
+                continue
+        out.append(c)
+        k += 1
+    return out
+
+
+def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: bool, config: MachineConfig,
+                   share: float = FOLD_STRAY_SHARE, to_blend: bool = False) -> tuple[Element, Element] | None:
     """Lines a and b meeting at one point M instead of through the small arc c between them
-    (`_fold_small_arcs`), or None where the arc is not small, the lines would stray over P or the
-    three cannot be one corner."""
+    (`_fold_small_arcs`, `_fold_small_turns`), or None where the arc is not small, the lines would
+    stray over `share` of P from the programmed path or the three cannot be one corner. A line
+    may already be folded at its other end (its programmed elements are kept, in path order).
+    `to_blend`: the corner may be blended, and the blend and the smoothing measure P from the
+    lines as made, so their tolerance gives up what they stray (at most, between samples too)."""
     if a.kind != LINE or c.kind != ARC or b.kind != LINE or c.turns or a.end != c.start or c.end != b.start:
         return None
-    if not (overlap_may_apply(a, c) and overlap_may_apply(c, b)) or a.programmed is not None or b.programmed is not None:
-        return None
+    if not (overlap_may_apply(a, c) and overlap_may_apply(c, b)) or a.end != own_line(a).end or \
+            b.start != own_line(b).start:
+        return None  # a line moved at this end already
     cx, cy = c.center
     r = math.hypot(c.start[0] - cx, c.start[1] - cy)
     if _arc_speed_mm_s(r, config) >= c.feed_mm_s:  # the arc does not slow the head: a curve, not a corner
@@ -704,36 +749,49 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
         return None
     strays = _fold_strays(points, a, c, b, r + max(s_q, t_q), tolerance)
     best = int(np.argmin(strays))
-    if strays[best] > tolerance * FOLD_STRAY_SHARE:
+    if strays[best] > tolerance * share:
         return None
     moved = (float(points[best, 0]), float(points[best, 1]), a.end[2])
-    return (dataclasses.replace(a, end=moved, programmed=(a, c)),
-            dataclasses.replace(b, start=moved, programmed=(c, b)))
+    given_up = float(strays[best]) + FOLD_SAMPLE_SHARE * tolerance / 2.0 if to_blend else 0.0
+    return (dataclasses.replace(a, end=moved, programmed=(*programmed_of(a), c), tolerance_mm=a.tolerance_mm - given_up),
+            dataclasses.replace(b, start=moved, programmed=(c, *programmed_of(b)), tolerance_mm=b.tolerance_mm - given_up))
 
 
 def _fold_strays(points: np.ndarray, a: Element, c: Element, b: Element, size: float, tolerance: float) -> np.ndarray:
     """For each candidate corner M (rows of `points`) of a folded corner (`_folded_corner`): how far
-    the lines a.start -> M -> b.end stray from the programmed a, c and b at most.
+    the lines a.start -> M -> b.end stray from the programmed elements (a's, c and b's) at most.
 
     Sampled every P / 4 within reach of M (`size`: the arc's radius and how far the lines run on
     to meet), where the nearest programmed element may change: between samples the distance can
     be at most P / 8 more, inside the margin `FOLD_STRAY_SHARE` leaves. Farther along, a line's
-    distance to the programmed line whose far end it keeps is convex and 0 at that end, so it is
-    largest where the samples stop: that distance is taken too."""
+    distance to its own programmed line is convex, so it is largest at an end of that stretch:
+    where the samples stop or at the line's far end (on its programmed line, or at a corner
+    folded there, already checked)."""
+    programmed = _unique([*programmed_of(a), c, *programmed_of(b)])
     reach = size + tolerance + math.dist(c.start[:2], c.end[:2])
-    step = tolerance / 4.0
+    step = tolerance * FOLD_SAMPLE_SHARE
     steps = np.arange(0.0, reach + step, step)
     pieces, beyond = [], []
-    for far, kept in ((a.start, a), (b.end, b)):
+    for far, line in ((a.start, own_line(a)), (b.end, own_line(b))):
         toward = np.asarray(far[:2]) - points
         length = np.hypot(*toward.T)
         unit = toward / length[:, None]
         t = np.minimum(steps[None, :], length[:, None])  # (candidates, samples) along each line from M
         pieces.append(points[:, None, :] + t[:, :, None] * unit[:, None, :])
-        beyond.append(distance_to(pieces[-1][:, -1, :], [kept]))
+        beyond.append(np.maximum(distance_to(pieces[-1][:, -1, :], [line]),
+                                 float(distance_to(np.array([far[:2]]), [line])[0])))
     samples = np.concatenate(pieces, axis=1)
-    near = distance_to(samples.reshape(-1, 2), [a, c, b]).reshape(len(points), -1).max(axis=1)
+    near = distance_to(samples.reshape(-1, 2), programmed).reshape(len(points), -1).max(axis=1)
     return np.maximum.reduce([near, *beyond])
+
+
+def _unique(elements: list[Element]) -> list[Element]:
+    """The elements, each once (the same object may stand for both sides of a folded corner)."""
+    out: list[Element] = []
+    for e in elements:
+        if not any(e is o for o in out):
+            out.append(e)
+    return out
 
 
 def _arc_speed_mm_s(radius_mm: float, config: MachineConfig) -> float:
