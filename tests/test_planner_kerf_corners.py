@@ -224,3 +224,26 @@ def test_a_curve_in_chords_compensated_on_its_outside_runs_as_fast_as_on_its_ins
     _, _, crawled, planned_kept = run(_chord_circle("G41"), machine_config(**{"planner.corner_move_share": 0.0}), chunk=61)
     assert len(crawled) == planned_kept
     assert len(crawled) > 2.0 * len(records), "kept, the arcs were crawled through"
+
+
+@pytest.mark.parametrize("turn_deg,faster_than_kept_s", [(30.0, 0.8), (45.0, 0.5), (60.0, 0.3)])
+def test_a_polygon_compensated_on_its_outside_passes_its_corners_in_overlaps(turn_deg, faster_than_kept_s):
+    """Compensated on the outside, every corner of a polygon is an arc of the kerf's radius; where
+    the two edges' corner lies within P of it (turns up to about 70 degrees at P 0.05 with this
+    kerf), it is folded into that corner, and the edges, sections of their own between two such
+    corners, pass each in an overlap as on the inside: sooner than crawling through the arcs,
+    every axis within its limits, every record within P of the path as programmed."""
+    n = int(round(360.0 / turn_deg))
+    points = [(300.0 + 20.0 * math.cos(math.radians(-turn_deg * k)), 300.0 + 20.0 * math.sin(math.radians(-turn_deg * k)))
+              for k in range(n + 1)]
+    x0, y0 = points[0]
+    text = "\n".join(["G21 G90 G17 G64 P0.05", f"G0 X{x0 + 3.0:.4f} Y{y0 - 3.0:.4f}", f"G41 D1 G1 X{x0:.4f} Y{y0:.4f} F2400",
+                      *[f"G1 X{x:.4f} Y{y:.4f}" for x, y in points[1:]], f"G40 G1 X{x0 + 3.0:.4f} Y{y0 + 3.0:.4f}", "M2"]) + "\n"
+    program, _, records, planned = run(text, chunk=41)
+    assert _kerf_arcs(program) >= n - 1, "one at every corner but the last, where G40 ends it"
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    assert not _has_kerf_arc(_sections(text, machine_config())), "every corner folded"
+    _, _, kept, _ = run(text, machine_config(**{"planner.corner_move_share": 0.0}), chunk=41)
+    assert (len(kept) - len(records)) * 1e-3 >= faster_than_kept_s

@@ -211,7 +211,7 @@ def _blend_radius(a: Element, b: Element) -> tuple[float, float]:
     """(radius, turn) of the blend at the corner a->b, radius 0 when the corner must be an exact stop."""
     if a.kind not in (LINE, RAPID) or b.kind not in (LINE, RAPID) or (a.kind == RAPID) != (b.kind == RAPID):
         return 0.0, 0.0
-    tol = min(a.tolerance_mm, b.tolerance_mm) * BLEND_SHARE
+    tol = min(a.tolerance_mm, b.tolerance_mm) * BLEND_SHARE - _corner_off_path(a, b)
     if tol <= 0.0 or (a.jet, a.aux, a.outputs) != (b.jet, b.aux, b.outputs):
         return 0.0, 0.0
     if a.start[2] != a.end[2] or b.start[2] != b.end[2]:
@@ -223,6 +223,15 @@ def _blend_radius(a: Element, b: Element) -> tuple[float, float]:
     by_tolerance = tol / (1.0 - math.cos(phi / 2.0))
     by_length = 0.5 * min(a.length_mm, b.length_mm) / math.tan(phi / 2.0)
     return min(by_tolerance, by_length), phi
+
+
+def _corner_off_path(a: Element, b: Element) -> float:
+    """How far the corner a -> b lies off the programmed path: 0, but where the planner folded a
+    small arc into it (`sections._fold_small_turns`): a blend there keeps the rest of its share of
+    P, so that blend and smoothing still keep within P of the arc and the lines as programmed."""
+    if a.programmed is None or b.programmed is None:
+        return 0.0
+    return float(distance_to(np.array([a.end[:2]]), [*a.programmed, *b.programmed])[0])
 
 
 def _fillet(a: Element, b: Element) -> tuple[tuple, tuple, tuple[float, float], bool] | None:
@@ -239,7 +248,7 @@ def _fillet(a: Element, b: Element) -> tuple[tuple, tuple, tuple[float, float], 
         return None
     if (a.kind == ARC and a.turns) or (b.kind == ARC and b.turns):
         return None
-    tol = min(a.tolerance_mm, b.tolerance_mm) * BLEND_SHARE
+    tol = min(a.tolerance_mm, b.tolerance_mm) * BLEND_SHARE - _corner_off_path(a, b)
     if tol <= 0.0 or (a.jet, a.aux, a.outputs) != (b.jet, b.aux, b.outputs):
         return None
     if a.start[2] != a.end[2] or b.start[2] != b.end[2]:

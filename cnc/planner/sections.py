@@ -45,7 +45,7 @@ FOLD_CANDIDATES = 8  # points tried for a folded corner (`_fold_small_arcs`), be
 FOLD_SAMPLE_SHARE = 0.25  # a folded corner's lines are sampled every this share of P (`_fold_strays`) ...
 FOLD_STRAY_SHARE = 0.85  # ... and keep within this share of P of the programmed path where sampled (between
 # samples they may stray half a step more) where the corner is a stop (`_fold_small_arcs`) ...
-FOLD_TURN_SHARE = 0.25  # ... and within this share where it may be blended (`_fold_small_turns`)
+FOLD_TURN_SHARE = 0.85  # ... and within this share where it may be blended (`_fold_small_turns`)
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
 
@@ -671,13 +671,16 @@ def _fold_small_turns(run: list[Element], config: MachineConfig) -> list[Element
 
     Kerf compensation rounds every outside corner of a contour with an arc of the kerf's radius,
     also the few degrees between two chords of a curve: the head, held to that radius's
-    centripetal jerk (about 10 mm/s at r = 0.125 mm), would crawl through each, a chord circle
-    compensated on the outside 2.5 times as long as the same circle compensated by CAM. The corner
-    of two lines a few degrees apart lies a fraction of a micrometre off such an arc: folded, it
-    is blended or overlapped as the CAM's corner would be, within P of the programmed path (the
-    folded lines give up what they stray from their tolerance; `Element.programmed` keeps the arc).
-    Sharper corners, whose meeting point lies farther off the arc, are left to `_fold_small_arcs`
-    once they are stops. Nothing is folded where corners are not to be moved
+    centripetal jerk (about 10 mm/s at r = 0.125 mm), would crawl through each; a chord circle
+    compensated on the outside took 2.5 times as long as compensated on the inside, a polygon's
+    every corner 50-80 ms more. Folded, the corner is blended or stopped at and overlapped, as
+    the CAM's own corner would be, whichever is faster: a blend there keeps only the rest of its
+    share of P (`path._corner_off_path`), an overlap measures P against the programmed elements
+    (`Element.programmed` keeps the arc), and where the corner is a kink passed unblended the
+    lines give up what they stray from their tolerance. The lines are only lengthened, so a right
+    angle under a 0.25 mm kerf, whose corner lies 0.052 mm off its arc, stays an arc at P 0.05;
+    one that starts a section after a stop may still be folded by tilting a lone line
+    (`_fold_small_arcs`). Nothing is folded where corners are not to be moved
     (`[planner] corner_move_share` 0)."""
     if config.planner.corner_move_share <= 0.0 or len(run) < 3:
         return run
@@ -703,8 +706,10 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
     (`_fold_small_arcs`, `_fold_small_turns`), or None where the arc is not small, the lines would
     stray over `share` of P from the programmed path or the three cannot be one corner. A line
     may already be folded at its other end (its programmed elements are kept, in path order).
-    `to_blend`: the corner may be blended, and the blend and the smoothing measure P from the
-    lines as made, so their tolerance gives up what they stray (at most, between samples too)."""
+    `to_blend`: the corner may be blended (the blend keeps the rest of its share of P,
+    `path._corner_off_path`); where it is a kink, passed unblended and smoothed within all of P
+    from the lines as made, their tolerance gives up what they stray (at most, between samples
+    too)."""
     if a.kind != LINE or c.kind != ARC or b.kind != LINE or c.turns or a.end != c.start or c.end != b.start:
         return None
     if not (overlap_may_apply(a, c) and overlap_may_apply(c, b)) or a.end != own_line(a).end or \
@@ -747,42 +752,53 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
     points = points[inside]
     if not len(points):
         return None
-    strays = _fold_strays(points, a, c, b, r + max(s_q, t_q), tolerance)
+    strays = _fold_strays(points, a, c, b, (tilt_a, tilt_b), r + max(s_q, t_q), tolerance)
     best = int(np.argmin(strays))
     if strays[best] > tolerance * share:
         return None
     moved = (float(points[best, 0]), float(points[best, 1]), a.end[2])
-    given_up = float(strays[best]) + FOLD_SAMPLE_SHARE * tolerance / 2.0 if to_blend else 0.0
+    # a kink is passed unblended, its smoothing taking all of P: the lines give up what they stray
+    kink = to_blend and abs(_turn_rad(u, w)) <= KINK_MAX_RAD
+    given_up = float(strays[best]) + FOLD_SAMPLE_SHARE * tolerance / 2.0 if kink else 0.0
     return (dataclasses.replace(a, end=moved, programmed=(*programmed_of(a), c), tolerance_mm=a.tolerance_mm - given_up),
             dataclasses.replace(b, start=moved, programmed=(c, *programmed_of(b)), tolerance_mm=b.tolerance_mm - given_up))
 
 
-def _fold_strays(points: np.ndarray, a: Element, c: Element, b: Element, size: float, tolerance: float) -> np.ndarray:
+def _fold_strays(points: np.ndarray, a: Element, c: Element, b: Element, tilted: tuple[bool, bool], size: float,
+                 tolerance: float) -> np.ndarray:
     """For each candidate corner M (rows of `points`) of a folded corner (`_folded_corner`): how far
     the lines a.start -> M -> b.end stray from the programmed elements (a's, c and b's) at most.
 
-    Sampled every P / 4 within reach of M (`size`: the arc's radius and how far the lines run on
-    to meet), where the nearest programmed element may change: between samples the distance can
-    be at most P / 8 more, inside the margin `FOLD_STRAY_SHARE` leaves. Farther along, a line's
-    distance to its own programmed line is convex, so it is largest at an end of that stretch:
-    where the samples stop or at the line's far end (on its programmed line, or at a corner
-    folded there, already checked)."""
+    Sampled every P / 4: between samples the distance can be at most P / 8 more, inside the
+    margin `FOLD_STRAY_SHARE` leaves. A line only lengthened (`tilted` False) is as before but
+    for the stretch from its end to M: that is sampled. A tilted line is sampled within reach of M
+    (`size`: the arc's radius and how far the lines run on to meet), where the nearest programmed
+    element may change; farther along, its distance to its own programmed line, whose far end it
+    keeps, is convex and 0 there, so it is largest where the samples stop: that is taken too. A
+    tilted line whose far end was moved as well is sampled whole."""
     programmed = _unique([*programmed_of(a), c, *programmed_of(b)])
-    reach = size + tolerance + math.dist(c.start[:2], c.end[:2])
     step = tolerance * FOLD_SAMPLE_SHARE
-    steps = np.arange(0.0, reach + step, step)
+    reach = size + tolerance + math.dist(c.start[:2], c.end[:2])
     pieces, beyond = [], []
-    for far, line in ((a.start, own_line(a)), (b.end, own_line(b))):
-        toward = np.asarray(far[:2]) - points
+    for end, far, line, tilt in ((a.end, a.start, own_line(a), tilted[0]), (b.start, b.end, own_line(b), tilted[1])):
+        if not tilt:  # from the line's end on to M
+            start = np.broadcast_to(np.asarray(end[:2]), points.shape)
+            span = float(np.hypot(*(points - start).T).max())
+        else:  # from M back along the line
+            start = points
+            far_kept = far in (line.start, line.end)
+            span = reach if far_kept else float(np.hypot(*(np.asarray(far[:2]) - points).T).max())
+        target = points if not tilt else np.asarray(far[:2])
+        toward = target - start
         length = np.hypot(*toward.T)
-        unit = toward / length[:, None]
-        t = np.minimum(steps[None, :], length[:, None])  # (candidates, samples) along each line from M
-        pieces.append(points[:, None, :] + t[:, :, None] * unit[:, None, :])
-        beyond.append(np.maximum(distance_to(pieces[-1][:, -1, :], [line]),
-                                 float(distance_to(np.array([far[:2]]), [line])[0])))
+        unit = np.divide(toward, length[:, None], out=np.zeros_like(toward), where=length[:, None] > 0.0)
+        t = np.minimum(np.arange(0.0, span + step, step)[None, :], length[:, None])
+        pieces.append(start[:, None, :] + t[:, :, None] * unit[:, None, :])
+        if tilt and far_kept:
+            beyond.append(distance_to(pieces[-1][:, -1, :], [line]))
     samples = np.concatenate(pieces, axis=1)
     near = distance_to(samples.reshape(-1, 2), programmed).reshape(len(points), -1).max(axis=1)
-    return np.maximum.reduce([near, *beyond])
+    return np.maximum.reduce([near, *beyond]) if beyond else near
 
 
 def _unique(elements: list[Element]) -> list[Element]:
