@@ -19,8 +19,9 @@ for which
   head turns at speed, so the jet lags as at a corner), and
 - every summed sample lies within P of the elements of the two sections near the corner (the
   programmed ones: a section ends and starts there without a blend; where the planner moved the
-  corner outward, `sections._move_stop_corners`, the elements as programmed, so that the sum may
-  use the band on both sides of the programmed corner).
+  corner outward, `sections._move_stop_corners`, or folded a small arc into it,
+  `sections._fold_small_arcs` and `_fold_small_turns`, the elements as programmed, so that the sum
+  may use the band on both sides of the programmed corner, or of the arc).
 
 The check is made on positions computed from the profile's pieces (`SectionStream.positions`), not
 on streamed samples, so the runner and the program's timing (`steps.ProgramTiming`) make the same

@@ -19,7 +19,10 @@ switch exactly at the segment boundary), around dwells, at a reversal, between a
 feed move, where the height changes, and where the planner finds stopping faster than
 crawling through the blend (`sections.py`). Where such a stop may be overlapped (`overlap.py`),
 the planner moves the corner outward within P (`sections._move_stop_corners`): the element keeps
-the one programmed (`Element.programmed`). `deviation` measures how far a path strays from
+the one programmed (`Element.programmed`). A small arc of the kerf's radius between two lines
+(kerf compensation's outside corners) may be folded into the corner the lines make
+(`sections._fold_small_turns`, `_fold_small_arcs`): the lines keep the arc among their programmed
+elements, and a blend of that corner keeps within P of it (`_corner_off_path`). `deviation` measures how far a path strays from
 the programmed one, so tests check the bound rather than trust the formula.
 """
 
