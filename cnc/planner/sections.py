@@ -30,7 +30,7 @@ from .limits import (
     section_zones, smoothing_for,
 )
 from .profile import Zones, rough_duration_s
-from .path import Element, blend_corners, blends, distance_to, iter_elements, sample
+from .path import Element, blend_corners, blends, distance_to, iter_elements
 
 if TYPE_CHECKING:
     from .quality import CutPlan
@@ -735,8 +735,8 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
     tolerance = min(e.tolerance_mm for e in (a, c, b))
     q = (a.end[0] + s_q * u[0], a.end[1] + s_q * u[1])
     if tilt_a and tilt_b:  # anywhere between the arc and Q, on the ray from the arc's centre through Q
-        k = math.hypot(q[0] - cx, q[1] - cy)
-        points = [(cx + (q[0] - cx) * f, cy + (q[1] - cy) * f) for f in np.linspace(r / k, 1.0, FOLD_CANDIDATES + 1)[1:]]
+        reach_q = math.hypot(q[0] - cx, q[1] - cy)
+        points = [(cx + (q[0] - cx) * f, cy + (q[1] - cy) * f) for f in np.linspace(r / reach_q, 1.0, FOLD_CANDIDATES + 1)[1:]]
     elif tilt_a:  # on b's line, from its start back to Q
         points = [(b.start[0] - t * w[0], b.start[1] - t * w[1]) for t in np.linspace(0.0, t_q, FOLD_CANDIDATES + 1)[1:]]
     elif tilt_b:  # on a's line, from its end on to Q
@@ -744,11 +744,11 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
     else:
         points = [q]
     points = np.array(points)
-    inside = np.minimum(np.hypot(*(points - a.start[:2]).T), np.hypot(*(points - b.end[:2]).T)) > tolerance
-    for k, axis in enumerate("xy"):
+    inside = np.minimum(np.hypot(*(points - a.start[:2]).T), np.hypot(*(points - b.end[:2]).T)) > tolerance  # lines longer than P
+    for col, axis in enumerate("xy"):
         limits = config.axis.get(axis)
         if limits is not None:
-            inside &= (points[:, k] >= limits.travel_min_mm) & (points[:, k] <= limits.travel_max_mm)
+            inside &= (points[:, col] >= limits.travel_min_mm) & (points[:, col] <= limits.travel_max_mm)
     points = points[inside]
     if not len(points):
         return None
