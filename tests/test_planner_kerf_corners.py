@@ -226,13 +226,14 @@ def test_a_curve_in_chords_compensated_on_its_outside_runs_as_fast_as_on_its_ins
     assert len(crawled) > 2.0 * len(records), "kept, the arcs were crawled through"
 
 
-@pytest.mark.parametrize("turn_deg,faster_than_kept_s", [(30.0, 0.8), (45.0, 0.5), (60.0, 0.3)])
+@pytest.mark.parametrize("turn_deg,faster_than_kept_s", [(30.0, 0.8), (45.0, 0.5), (60.0, 0.3), (90.0, 0.2)])
 def test_a_polygon_compensated_on_its_outside_passes_its_corners_in_overlaps(turn_deg, faster_than_kept_s):
-    """Compensated on the outside, every corner of a polygon is an arc of the kerf's radius; where
-    the two edges' corner lies within P of it (turns up to about 70 degrees at P 0.05 with this
-    kerf), it is folded into that corner, and the edges, sections of their own between two such
-    corners, pass each in an overlap as on the inside: sooner than crawling through the arcs,
-    every axis within its limits, every record within P of the path as programmed."""
+    """Compensated on the outside, every corner of a polygon is an arc of the kerf's radius; it is
+    folded into one corner, where the two edges meet (turns up to about 70 degrees at P 0.05 with
+    this kerf) or, at a right angle, between the arc and there, an edge tilted a hair about its
+    far end; the edges, sections of their own between two such corners, pass each in an overlap
+    as on the inside: sooner than crawling through the arcs, every axis within its limits, every
+    record within P of the path as programmed."""
     n = int(round(360.0 / turn_deg))
     points = [(300.0 + 20.0 * math.cos(math.radians(-turn_deg * k)), 300.0 + 20.0 * math.sin(math.radians(-turn_deg * k)))
               for k in range(n + 1)]

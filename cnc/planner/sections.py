@@ -46,6 +46,7 @@ FOLD_SAMPLE_SHARE = 0.25  # a folded corner's lines are sampled every this share
 FOLD_STRAY_SHARE = 0.85  # ... and keep within this share of P of the programmed path where sampled (between
 # samples they may stray half a step more) where the corner is a stop (`_fold_small_arcs`) ...
 FOLD_TURN_SHARE = 0.85  # ... and within this share where it may be blended (`_fold_small_turns`)
+FOLD_TILT_MAX_RAD = KINK_MAX_RAD / 4.0  # a line of a run tilted to a folded corner turns at most this much
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
 
@@ -677,11 +678,12 @@ def _fold_small_turns(run: list[Element], config: MachineConfig) -> list[Element
     the CAM's own corner would be, whichever is faster: a blend there keeps only the rest of its
     share of P (`path._corner_off_path`), an overlap measures P against the programmed elements
     (`Element.programmed` keeps the arc), and where the corner is a kink passed unblended the
-    lines give up what they stray from their tolerance. The lines are only lengthened, so a right
-    angle under a 0.25 mm kerf, whose corner lies 0.052 mm off its arc, stays an arc at P 0.05;
-    one that starts a section after a stop may still be folded by tilting a lone line
-    (`_fold_small_arcs`). Nothing is folded where corners are not to be moved
-    (`[planner] corner_move_share` 0)."""
+    lines give up what they stray from their tolerance. The lines are lengthened to their corner
+    where it lies that near; where it does not (a right angle under a 0.25 mm kerf: 0.052 mm off
+    its arc), a line whose far end is still where programmed may be tilted about it, by at most
+    `FOLD_TILT_MAX_RAD` (a hair's kink at that end), to a corner between the arc and that point,
+    where the lines stray least; a line is tilted at one end only, so no edge is shifted whole.
+    Nothing is folded where corners are not to be moved (`[planner] corner_move_share` 0)."""
     if config.planner.corner_move_share <= 0.0 or len(run) < 3:
         return run
     out: list[Element] = []
@@ -689,7 +691,12 @@ def _fold_small_turns(run: list[Element], config: MachineConfig) -> list[Element
     while k < len(run):
         c = run[k]
         if c.kind == ARC and out and out[-1].kind == LINE and k + 1 < len(run) and run[k + 1].kind == LINE:
-            folded = _folded_corner(out[-1], c, run[k + 1], False, False, config, FOLD_TURN_SHARE, to_blend=True)
+            a, b = out[-1], run[k + 1]
+            folded = _folded_corner(a, c, b, False, False, config, FOLD_TURN_SHARE, to_blend=True)
+            if folded is None:  # tilted a hair about a far end still where programmed
+                tilt = (a.start == own_line(a).start, b.end == own_line(b).end)
+                if any(tilt):
+                    folded = _folded_corner(a, c, b, *tilt, config, FOLD_TURN_SHARE, to_blend=True)
             if folded is not None:
                 out[-1] = folded[0]
                 out.append(folded[1])
@@ -749,6 +756,12 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
         limits = config.axis.get(axis)
         if limits is not None:
             inside &= (points[:, col] >= limits.travel_min_mm) & (points[:, col] <= limits.travel_max_mm)
+    if to_blend:  # a tilt kinks a line's far end, where it may meet the next element tangent: a hair only
+        for tilt, far, d, sense in ((tilt_a, a.start, u, 1.0), (tilt_b, b.end, w, -1.0)):
+            if tilt:  # the line as made, in its direction of travel, against the line's own
+                v = sense * (points - np.asarray(far[:2]))
+                inside &= np.abs(np.arctan2(v[:, 0] * d[1] - v[:, 1] * d[0], v[:, 0] * d[0] + v[:, 1] * d[1])) \
+                    <= FOLD_TILT_MAX_RAD
     points = points[inside]
     if not len(points):
         return None
