@@ -74,6 +74,9 @@ CORNER = "G21 G90 G64 P0.05\nM3\nG1 X400 F30000\nG1 X100 Y400\nM5\nM2\n"  # a 13
 # a 45 degree turn: the planner moves the corner outward by P / 2 first (`sections._move_stop_corners`);
 # X moves on (at a right angle a seized X would have nothing left to follow)
 MOVED_CORNER = "G21 G90 G64 P0.05\nM3\nG1 X400 F30000\nG1 X700 Y400\nM5\nM2\n"
+# the same turn compensated on its outside (G42, turning left): the kerf arc at the corner is folded
+# into the corner of the two lines (`sections._fold_small_turns`), which the overlap passes
+KERF_CORNER = "G21 G90 G64 P0.05\nM3\nG42 D1 G1 X300 F30000\nG1 X400\nG1 X700 Y400\nG40 G1 X700 Y420\nM5\nM2\n"
 
 
 def _corner_overlap(program: str) -> Callable[[Rig], None]:
@@ -137,6 +140,7 @@ STATES = [
     State("MDI cutting 500 mm/s", CONFIG, _mdi_cut, True, cutting=True, in_cycle=False),
     State("in a corner's overlap at F30000", CONFIG, _corner_overlap(CORNER), True, cutting=True),
     State("in a moved corner's overlap at F30000", CONFIG, _corner_overlap(MOVED_CORNER), True, cutting=True),
+    State("in a folded kerf corner's overlap at F30000", CONFIG, _corner_overlap(KERF_CORNER), True, cutting=True),
     State("held", CONFIG, _held, False),
     State("jet test", CONFIG, _jet_test, False),
     State("jogging", CONFIG, _jogging, True),
