@@ -166,7 +166,7 @@ def _random_compensated_parts(seed: int) -> tuple[str, int]:
         lead = rng.uniform(1.0, 4.0)
         lines += [f"G0 X{x - lead * math.cos(heading):.4f} Y{y - lead * math.sin(heading):.4f}", "M3", "G4 P0.1",
                   f"{side} D1 G1 X{x:.4f} Y{y:.4f} F{feed}"]
-        direction = heading + rng.choice([-1.0, 1.0]) * rng.uniform(math.radians(30.0), math.radians(100.0))
+        direction = heading + rng.choice([-1.0, 1.0]) * rng.uniform(math.radians(30.0), math.radians(150.0))
         curve = rng.random() < 0.5  # a curve in chords (turns of a few degrees, one way) or a polygon
         bend = rng.choice([-1.0, 1.0])
         for _ in range(rng.randint(8, 30) if curve else rng.randint(3, 7)):
@@ -174,7 +174,7 @@ def _random_compensated_parts(seed: int) -> tuple[str, int]:
             x, y = x + length * math.cos(direction), y + length * math.sin(direction)
             lines.append(f"G1 X{x:.4f} Y{y:.4f}")
             direction += bend * rng.uniform(math.radians(2.0), math.radians(15.0)) if curve else \
-                rng.choice([-1.0, 1.0]) * rng.uniform(math.radians(20.0), math.radians(110.0))
+                rng.choice([-1.0, 1.0]) * rng.uniform(math.radians(20.0), math.radians(150.0))
         out = direction + rng.uniform(-1.0, 1.0)
         lines += [f"G40 G1 X{x + 2.0 * math.cos(out):.4f} Y{y + 2.0 * math.sin(out):.4f}", "M5"]
     return "\n".join(lines + ["M2"]) + "\n", rng.choice([1, 7, 50, 997])

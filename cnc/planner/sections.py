@@ -46,6 +46,8 @@ FOLD_SAMPLE_SHARE = 0.25  # a folded corner's lines are sampled every this share
 FOLD_STRAY_SHARE = 0.85  # ... and keep within this share of P of the programmed path where sampled (between
 # samples they may stray half a step more) where the corner is a stop (`_fold_small_arcs`) ...
 FOLD_TURN_SHARE = 0.85  # ... and within this share where it may be blended (`_fold_small_turns`)
+FOLD_TURN_MAX_RAD = 2.6  # a folded corner turns at most this much (149 degrees; nearer a reversal the lines
+# would meet far off the arc): a stop in place of the crawl through the arc even where no overlap passes it
 FOLD_TILT_MAX_RAD = KINK_MAX_RAD / 4.0  # a line of a run tilted to a folded corner turns at most this much
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
@@ -693,7 +695,8 @@ def _fold_small_turns(run: list[Element], config: MachineConfig) -> list[Element
         if c.kind == ARC and out and out[-1].kind == LINE and k + 1 < len(run) and run[k + 1].kind == LINE:
             a, b = out[-1], run[k + 1]
             folded = _folded_corner(a, c, b, False, False, config, FOLD_TURN_SHARE, to_blend=True)
-            if folded is None:  # tilted a hair about a far end still where programmed
+            tangent = not (_stops_between(a, c) or _stops_between(c, b))  # else a stop: `_fold_small_arcs` may tilt more
+            if folded is None and tangent:  # tilted a hair about a far end still where programmed
                 tilt = (a.start == own_line(a).start, b.end == own_line(b).end)
                 if any(tilt):
                     folded = _folded_corner(a, c, b, *tilt, config, FOLD_TURN_SHARE, to_blend=True)
@@ -728,8 +731,8 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
         return None
     u, w = a.direction_at_end(), b.direction_at_start()
     cross = u[0] * w[1] - u[1] * w[0]
-    if abs(cross) < 1e-6 or abs(_turn_rad(u, w)) > math.pi / 2 + 0.1:
-        return None  # parallel lines, or a turn the overlap would not pass at speed
+    if abs(cross) < 1e-6 or abs(_turn_rad(u, w)) > FOLD_TURN_MAX_RAD:
+        return None  # parallel lines, or nearly a reversal
     side = math.copysign(1.0, cross)
     if min(_turn_rad(u, c.direction_at_start()) * side, c.sweep_rad * side, _turn_rad(c.direction_at_end(), w) * side) \
             < -KINK_MAX_RAD:
