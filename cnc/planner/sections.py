@@ -391,17 +391,18 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
     """Sections of a run of elements between hard stops, each corner blended or stopped at,
     whichever is faster."""
     corners: dict = {}  # each corner's blend, made once for both passes
+    folds: dict = {}  # each stop corner's fold (`_fold_small_arcs`), made once for every pass
     run = _fold_small_turns(run, config)
-    first = _split(blend_corners(run, memo=corners), config, offset, notes, choose_jerk=False, cut=cut)
+    first = _split(blend_corners(run, memo=corners), config, offset, notes, choose_jerk=False, cut=cut, folds=folds)
     stops, kept = _corners_to_stop(first, config)
     if stops:
-        out = _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut)
+        out = _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut, folds=folds)
         # the gentle corners kept beside sharp ones, weighed again with those a stop: a stop after all
         # where their own caps say so
         again = _corners_to_stop(out, config, only=kept)[0] if kept else set()
         if again:
             stops |= again
-            out = _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut)
+            out = _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut, folds=folds)
     else:
         out = first
         for section in first:  # the same path and sections: only the share of jerk is still to choose
@@ -528,7 +529,7 @@ def _fastest_limits(
 
 
 def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True,
-           cut=None) -> list[Section]:  # noqa: ANN001 - a CutPlan
+           cut=None, folds: dict | None = None) -> list[Section]:  # noqa: ANN001 - a CutPlan
     """Cut a blended run of elements at every corner that is neither tangent nor a small kink."""
     motion = [e for e in path if e.kind != DWELL and e.length_mm > 1e-9]  # blends may leave a line of length 0
     groups: list[list[Element]] = []
@@ -537,7 +538,7 @@ def _split(path: list[Element], config: MachineConfig, offset: float, notes: dic
         if i == len(motion) or _stops_between(motion[i - 1], motion[i]):
             groups.append(motion[start:i])
             start = i
-    groups = _fold_small_arcs(groups, config)
+    groups = _fold_small_arcs(groups, config, {} if folds is None else folds)
     _move_stop_corners(groups, config)
     out: list[Section] = []
     for elements, reserve in zip(groups, _jerk_reserves(groups, config)):
@@ -627,7 +628,7 @@ def own_line(e: Element) -> Element:
     return next((p for p in programmed_of(e) if p.kind != ARC), e) if e.kind == LINE else e
 
 
-def _fold_small_arcs(groups: list[list[Element]], config: MachineConfig) -> list[list[Element]]:
+def _fold_small_arcs(groups: list[list[Element]], config: MachineConfig, memo: dict) -> list[list[Element]]:
     """Fold a small arc that starts a section after a stop into the corner it rounds.
 
     Kerf compensation enters a part with a lead-in ending at the compensated point, a kink of a
@@ -641,7 +642,8 @@ def _fold_small_arcs(groups: list[list[Element]], config: MachineConfig) -> list
     the lines stray least from the programmed ones and the arc; never over P. The corner at M
     is a stop that a corner overlap (`overlap.py`) may pass, measured against the programmed
     elements (`Element.programmed` holds the arc on both sides). Nothing is folded where
-    overlaps are off or corners are not to be moved (`[planner] corner_move_share` 0)."""
+    overlaps are off or corners are not to be moved (`[planner] corner_move_share` 0). `memo`:
+    the folds made in an earlier pass over the same run, by the elements' identity."""
     if config.planner.corner_overlap_ms <= 0.0 or config.planner.corner_move_share <= 0.0 or len(groups) < 2:
         return groups
     gs = [list(g) for g in groups]
@@ -659,7 +661,9 @@ def _fold_small_arcs(groups: list[list[Element]], config: MachineConfig) -> list
         else:
             continue
         b = gs[b_at[0]][b_at[1]]
-        folded = _folded_corner(gs[i][-1], c, b, len(gs[i]) == 1, tilt_b, config)
+        a, tilt_a = gs[i][-1], len(gs[i]) == 1
+        key = (id(a), id(c), id(b), tilt_a, tilt_b)  # the same elements in every pass of a run (`memo`)
+        folded = memo[key] if key in memo else memo.setdefault(key, _folded_corner(a, c, b, tilt_a, tilt_b, config))
         if folded is None:
             continue
         gs[i][-1] = folded[0]
@@ -722,13 +726,13 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
     too)."""
     if a.kind != LINE or c.kind != ARC or b.kind != LINE or c.turns or a.end != c.start or c.end != b.start:
         return None
-    if not (overlap_may_apply(a, c) and overlap_may_apply(c, b)) or a.end != own_line(a).end or \
-            b.start != own_line(b).start:
-        return None  # a line moved at this end already
     cx, cy = c.center
     r = math.hypot(c.start[0] - cx, c.start[1] - cy)
     if _arc_speed_mm_s(r, config) >= c.feed_mm_s:  # the arc does not slow the head: a curve, not a corner
         return None
+    if not (overlap_may_apply(a, c) and overlap_may_apply(c, b)) or a.end != own_line(a).end or \
+            b.start != own_line(b).start:
+        return None  # a line moved at this end already
     u, w = a.direction_at_end(), b.direction_at_start()
     cross = u[0] * w[1] - u[1] * w[0]
     if abs(cross) < 1e-6 or abs(_turn_rad(u, w)) > FOLD_TURN_MAX_RAD:
@@ -744,6 +748,8 @@ def _folded_corner(a: Element, c: Element, b: Element, tilt_a: bool, tilt_b: boo
         return None
     tolerance = min(e.tolerance_mm for e in (a, c, b))
     q = (a.end[0] + s_q * u[0], a.end[1] + s_q * u[1])
+    if not (tilt_a or tilt_b) and min(abs(math.hypot(q[0] - cx, q[1] - cy) - r), s_q, t_q) > tolerance * share:
+        return None  # Q, the only corner untilted lines have, lies farther off the arc (or the lines' ends)
     if tilt_a and tilt_b:  # anywhere between the arc and Q, on the ray from the arc's centre through Q
         reach_q = math.hypot(q[0] - cx, q[1] - cy)
         points = [(cx + (q[0] - cx) * f, cy + (q[1] - cy) * f) for f in np.linspace(r / reach_q, 1.0, FOLD_CANDIDATES + 1)[1:]]
@@ -829,9 +835,9 @@ def _unique(elements: list[Element]) -> list[Element]:
 def _arc_speed_mm_s(radius_mm: float, config: MachineConfig) -> float:
     """The most an arc of this radius lets the head run with the axes' whole acceleration and jerk
     (centripetal a = v^2 / r, its jerk v^3 / r^2): a bound above what the planner gives it."""
-    axes = [config.axis[a] for a in "xy" if a in config.axis]
-    accel = min(x.max_accel_mm_s2 for x in axes)
-    jerk = min(x.max_jerk_mm_s3 for x in axes)
+    accel, jerk = config.axis["x"].max_accel_mm_s2, config.axis["x"].max_jerk_mm_s3
+    if "y" in config.axis:
+        accel, jerk = min(accel, config.axis["y"].max_accel_mm_s2), min(jerk, config.axis["y"].max_jerk_mm_s3)
     return min(math.sqrt(accel * radius_mm), (jerk * radius_mm * radius_mm) ** (1.0 / 3.0))
 
 
