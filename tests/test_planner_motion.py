@@ -414,6 +414,20 @@ def _operator_at_random(seed: int, config=None, feed_scale: float = 1.0, text: s
     return program, np.concatenate(out), stopped, events
 
 
+def runs_clean(text: str, chunk: int, operator_seed: int | None = None) -> None:
+    """`text` run plain keeps every axis within its limits, every record within P of the path as
+    programmed and the planned time as the run; given `operator_seed`, run again under the
+    operator's controls at random (`_operator_at_random`), it keeps the limits and P."""
+    program, _, records, planned = run(text, chunk=chunk)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    if operator_seed is not None:
+        program, records, _, _ = _operator_at_random(operator_seed, text=text)
+        within_limits(records)
+        assert (within_tolerance(program, records) <= 1e-9).all()
+
+
 @pytest.mark.parametrize("seed", [0, 3, 6, 17, 106, 124, 170, 202, 265, 372, 441, 1100, 1908, 1927, 2087, 2276])
 def test_holds_resumes_overrides_and_stops_at_random_keep_every_limit_and_the_tolerance(seed):
     """Seed 6 once hung the runner (a hold during the re-pierce after a resume, then a zero

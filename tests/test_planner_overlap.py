@@ -22,7 +22,7 @@ from cnc.machine_dialect import dialect_for
 from cnc.planner.runner import ProgramRunner, RunState
 
 from .conftest import machine_config
-from .test_planner_motion import DT, JET, LIMITS, _operator_at_random, run, speed, within_limits, within_tolerance
+from .test_planner_motion import DT, JET, LIMITS, _operator_at_random, run, runs_clean, speed, within_limits, within_tolerance
 
 pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
@@ -454,11 +454,4 @@ def test_random_cam_parts_with_lead_ins_off_square_keep_every_limit_and_time_exa
     arcs), plain and, for every third seed, under the operator's controls at random: 300 seeds of
     this generator run clean."""
     text, chunk = _random_cam_parts(seed)
-    program, runner, records, planned = run(text, chunk=chunk)
-    within_limits(records)
-    assert (within_tolerance(program, records) <= 1e-9).all()
-    assert len(records) == planned
-    if seed % 3 == 0:
-        program, records, stopped, _ = _operator_at_random(seed, text=text)
-        within_limits(records)
-        assert (within_tolerance(program, records) <= 1e-9).all()
+    runs_clean(text, chunk, seed if seed % 3 == 0 else None)
