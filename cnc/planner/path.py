@@ -22,8 +22,9 @@ the planner moves the corner outward within P (`sections._move_stop_corners`): t
 the one programmed (`Element.programmed`). A small arc of the kerf's radius between two lines
 (kerf compensation's outside corners) may be folded into the corner the lines make
 (`sections._fold_small_turns`, `_fold_small_arcs`): the lines keep the arc among their programmed
-elements, and a blend of that corner keeps within P of it (`_corner_off_path`). `deviation` measures how far a path strays from
-the programmed one, so tests check the bound rather than trust the formula.
+elements, and a blend of that corner keeps within P of it (`_corner_off_path`). `deviation`
+measures how far a path strays from the programmed one, so tests check the bound rather than
+trust the formula.
 """
 
 from __future__ import annotations
@@ -61,8 +62,9 @@ class Element:
     dwell_s: float = 0.0
     blend: bool = False  # a corner blend inserted by the planner
     programmed: "tuple[Element, ...] | None" = None  # where the planner moved an end within P
-    # (`sections.py` `_move_stop_corners`, `_fold_small_arcs`): the elements as programmed, in path
-    # order, which tolerances are measured against (a folded arc on both lines next to it)
+    # (`sections.py` `_move_stop_corners`, `_fold_small_turns`, `_fold_small_arcs`): the elements
+    # as programmed, in path order, which tolerances are measured against (a folded arc on both
+    # lines next to it)
     # what the planner asks of an element again and again (its sections, blends and limits each
     # look at it), worked out once: elements never change once made
     _length: float = field(default=-1.0, init=False, repr=False, compare=False)
