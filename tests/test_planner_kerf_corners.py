@@ -196,7 +196,7 @@ def _chord_circle(side: str, chords: int = 60, radius: float = 20.0) -> str:
               for k in range(chords + 1)]
     x0, y0 = points[0]
     body = [f"G1 X{x:.4f} Y{y:.4f}" for x, y in points[1:]]
-    return "\n".join([f"G21 G90 G17 G64 P0.05", f"G0 X{x0:.4f} Y{y0 + 3.0:.4f}", f"{side} D1 G1 X{x0:.4f} Y{y0:.4f} F2400",
+    return "\n".join(["G21 G90 G17 G64 P0.05", f"G0 X{x0:.4f} Y{y0 + 3.0:.4f}", f"{side} D1 G1 X{x0:.4f} Y{y0:.4f} F2400",
                       *body, f"G40 G1 X{x0 + 2.0:.4f} Y{y0 + 3.0:.4f}", "M2"]) + "\n"
 
 
