@@ -76,8 +76,8 @@ def ours(text: str, config: MachineConfig, fold: bool) -> lc.Figures:
     """Our planner's figures on `text`; `fold` False: the kerf arcs kept (the folds switched off)."""
     kept = (sections._fold_small_turns, sections._fold_small_arcs)
     if not fold:
-        sections._fold_small_turns = lambda run, config: run
-        sections._fold_small_arcs = lambda groups, config: groups
+        sections._fold_small_turns = lambda run, *_: run
+        sections._fold_small_arcs = lambda groups, *_: groups
     try:
         program, start = lc.interpret_from_start(text, config)
         return lc.run_ours(program, start, config, lc.line_kinds(text), lc.line_parts(text))
