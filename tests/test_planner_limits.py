@@ -66,6 +66,32 @@ def test_the_smoothing_follows_the_tolerance_and_an_exact_path_has_none():
     assert smoothing_for(cfg, 0.05, False, False, False).n_path == 25, "straight sections get the whole jerk"
 
 
+def test_a_slow_curved_section_holds_its_path_jerk_with_the_axis_average_alone():
+    """A section with curves smooths its axis positions over N_f samples, which smooths its speed
+    as well: at a cutting feed (top speed 80 mm/s, F2400 at 200 %) the path average is left out
+    (N_j = 1) and the acceleration set so that the axis average alone holds the path's jerk
+    (A = J_t N_f dt), the raw acceleration turning no sooner than N_f samples apart: its ramps take
+    v/A + N_f dt, well under what the path average would add. A fast section keeps the path average
+    (its A / J_t is longer than N_f), and so does a straight one (it has no axis average)."""
+    cfg = machine_config()
+    dt = cfg.timing.period_s
+    j_t = 2e5 * (1.0 - 0.3)
+    slow = smoothing_for(cfg, 0.05, True, False, False, 0.3, top_speed_mm_s=80.0)
+    assert slow.n_axis == 18 and slow.n_path == 1 and slow.turn_samples == slow.n_axis
+    assert slow.accel_cap == pytest.approx(j_t * slow.n_axis * dt)
+    assert slow.accel_cap / (max(slow.n_path, slow.turn_samples) * dt) <= j_t * (1.0 + 1e-12), "the path's jerk"
+    assert slow.plateau_s == pytest.approx((slow.n_axis + 2) * dt), "no turn of the acceleration within one axis window"
+    n_alone, a_alone = slow.alone
+    assert n_alone > slow.n_axis
+    ramp, ramp_alone = 80.0 / slow.accel_cap + (1 + slow.n_axis) * dt, 80.0 / a_alone + (n_alone + slow.n_axis) * dt
+    assert ramp < ramp_alone - 0.01, "from 80 mm/s at least 10 ms sooner"
+    fast = smoothing_for(cfg, 0.05, True, False, False, 0.3, top_speed_mm_s=1000.0)
+    assert fast.n_path == fast.alone[0] > fast.n_axis and fast.turn_samples == fast.n_path
+    assert fast.accel_cap == pytest.approx(5000.0)
+    straight = smoothing_for(cfg, 0.05, False, False, False, top_speed_mm_s=80.0)
+    assert straight.n_axis == 1 and straight.n_path == straight.alone[0] == 20
+
+
 def test_a_jerk_reserve_of_a_few_thousandths_costs_a_hair_of_acceleration_not_a_sample_of_ramp():
     """The path average is a whole number of samples, a / (J dt) rounded up: a reserve that puts
     it a hair over a whole number gives up under 1 % of the acceleration instead of ramping a

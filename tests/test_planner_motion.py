@@ -278,6 +278,46 @@ def test_a_cut_at_a_waterjet_feed_ramps_in_the_jerk_limited_least_time_and_stops
     assert braked_mm <= v * v / (2.0 * a_top) + v * a_top / (2.0 * j) + v * 3 * DT
 
 
+@pytest.mark.parametrize("feed_mm_min", [1200, 2400])
+def test_a_slow_contour_with_arcs_ramps_with_its_axis_average_holding_the_jerk(feed_mm_min):
+    """A contour with arcs has an axis average (N_f samples, from P) that smooths its speed as well
+    as its curvature: at a cutting feed the path's jerk is held by it alone (`limits.smoothing_for`:
+    N_j = 1, A = J_t N_f dt, the acceleration turning no sooner than N_f apart), so the contour
+    leaves rest in v/A + N_f dt instead of v/A' + (N_j + N_f) dt. Every axis keeps its limits from
+    rest, under a hold pressed every few samples of the ramp and of the braking at its end (resumed
+    at once), and under an override dropped to 0 and raised at once; every record within P."""
+    from cnc.planner.sections import Section, iter_steps
+
+    config = machine_config()
+    v = feed_mm_min / 60.0
+    text = (f"G21 G90 G64 P0.05\nG0 X100 Y100\nG4 P0.1\nG1 X140 F{feed_mm_min}\nG3 X140 Y110 I0 J5\n"
+            "G1 X100\nG3 X100 Y100 I0 J-5\nM2\n")
+    program, _, records, planned = run(text)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    contour = next(s for s in iter_steps(program, config) if isinstance(s, Section) and len(s.elements) > 1)
+    sm = contour.limits.smoothing
+    assert sm.n_path == 1 and sm.turn_samples == sm.n_axis > 1
+    on_cut = np.flatnonzero(records["line"] >= 4)
+    sp = speed(records)
+    start = int(on_cut[0])
+    reached = start + int(np.flatnonzero(sp[start:] >= v * (1.0 - 1e-9))[0])
+    n_alone, a_alone = sm.alone
+    assert (reached - start) * DT <= v / sm.accel_cap + (1 + sm.n_axis + 3) * DT
+    assert (reached - start) * DT < v / a_alone + (n_alone + sm.n_axis) * DT - 5 * DT, "sooner than with the path average"
+    end = int(on_cut[-1])
+    for at in [*range(start - 2, reached + 4, 6), *range(end - 70, end, 9)]:
+        _, _, held, _ = run(text, chunk=3, actions={at: lambda r: r.hold(), 10**9: lambda r: r.resume()})
+        within_limits(held)
+        assert (within_tolerance(program, held) <= 1e-9).all()
+        assert held["position"][-1] == pytest.approx([100, 100], abs=1e-9)
+    for at in (start + 5, reached + 20):
+        _, _, stalled, _ = run(text, chunk=3, actions={at: lambda r: r.set_override(0.0), at + 1: lambda r: r.set_override(1.0)})
+        within_limits(stalled)
+        assert stalled["position"][-1] == pytest.approx([100, 100], abs=1e-9)
+
+
 @pytest.mark.parametrize("chunk", [1, 2, 4, 7])
 def test_a_hold_or_a_zero_override_lifted_at_once_keeps_the_jerk_limit_whatever_the_take_size(chunk):
     """The stop's last samples settle at rest; the stream counts as at rest only after a few more

@@ -452,8 +452,11 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig,
         cap = np.minimum(lim.v_hard, lim.v_feed)
         programmed_arc = section.path.arc & ~np.array([e.blend for e in section.elements])
         near = np.minimum(np.where(programmed_arc, np.inf, lim.v_hard), lim.v_feed)
-        span_s = 2.0 * lim.smoothing.extension_s
-        a_blend = lim.smoothing.accel_cap
+        # the averages' span and acceleration as the path average alone would make them: a section
+        # whose axis average holds its jerk (`smoothing_for`) may still be made so once its share
+        # of jerk is chosen (`_fastest_limits`), and its blends then crawl that long
+        n_alone, a_blend = lim.smoothing.alone
+        span_s = 2.0 * (n_alone + lim.smoothing.n_axis + 3) * dt
         elements = section.elements
         chosen = []  # (where along the section, the neighbours' speed, gentle by itself, the blend's segment)
         for k in range(1, len(elements) - 1):

@@ -56,7 +56,7 @@ class SectionStream:
         lim = section.limits
         sm = lim.smoothing
         self.dt = sm.dt
-        self.plateau_s = (sm.n_path + 2) * self.dt
+        self.plateau_s = sm.plateau_s
         self.reach_s = sm.extension_s
         self.length = section.length_mm
         path = section.path
