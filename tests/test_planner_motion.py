@@ -318,6 +318,28 @@ def test_a_slow_contour_with_arcs_ramps_with_its_axis_average_holding_the_jerk(f
         assert stalled["position"][-1] == pytest.approx([100, 100], abs=1e-9)
 
 
+@pytest.mark.parametrize("share", [0.3, 0.5, 0.7])
+def test_an_arc_ending_a_slow_contour_brakes_within_the_axes_acceleration_not_at_a_crawl(monkeypatch, share):
+    """A slot (F2400): its last arc, R3.17, ends the contour at rest. Its tangential acceleration
+    is what the jerk budget of its turning leaves, within the axes' acceleration less the turning's
+    own. Where the axis average holds the section's jerk (`limits.smoothing_for`) the section's
+    acceleration cap is set for that jerk, below the axes': taken as the limit of tangential and
+    normal together, at 80 mm/s (F at 200 %) the turning alone passed over it and the arc's tail
+    was left a thousandth of it (1.8 mm/s^2): the head crawled 2.1 s through it. Under each share
+    of jerk the curves may get, the arc takes at most 0.13 s more than at its feed, within every limit."""
+    from cnc.planner import sections
+
+    monkeypatch.setattr(sections, "GEOMETRY_JERK_SHARES", (share,))
+    text = ("G21 G90 G17 G64 P0.05\nG0 X20 Y17\nG4 P0.1\nG1 X20 Y20 F2400\nG1 X53.957 Y20\n"
+            "G3 X53.957 Y26.339 I0 J3.170\nG1 X20 Y26.339\nG3 X20 Y20 I0 J-3.170\nG1 X18 Y18\nM2\n")
+    program, _, records, planned = run(text)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    last_arc_s = np.count_nonzero(records["line"] == 8) * DT
+    assert last_arc_s <= math.pi * 3.17 / 40.0 + 0.13
+
+
 @pytest.mark.parametrize("chunk", [1, 2, 4, 7])
 def test_a_hold_or_a_zero_override_lifted_at_once_keeps_the_jerk_limit_whatever_the_take_size(chunk):
     """The stop's last samples settle at rest; the stream counts as at rest only after a few more

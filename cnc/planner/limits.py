@@ -250,7 +250,8 @@ def section_limits(
         if caps.windows is None:
             caps.windows = CurveWindows(path, kinks * kink)
         v_curve, a_curve = _curvature_caps(path, caps.windows, sm, v_feed, j_geometry * (1.0 - share_kink),
-                                           sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min, v_top)
+                                           sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min, v_top,
+                                           a_min * (1.0 - KINK_ACCEL_SHARE) if kink.any() else a_min)
         v_hard = np.minimum(v_hard, v_curve)
         accel = np.where(curved, np.minimum(accel, a_curve), accel)
     v_kink = np.full(max(n - 1, 0), np.inf)
@@ -296,7 +297,7 @@ def _reach(path: PathArrays, reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
 
 def _curvature_caps(
     path: PathArrays, windows: "CurveWindows", sm: Smoothing, v_feed: np.ndarray, j_curv: float, deviation_mm: float,
-    a_normal_max: float, v_top: float = math.inf,
+    a_normal_max: float, v_top: float = math.inf, a_axes: float = math.inf,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Speed and tangential acceleration of each curved element that keep its turning within the
     jerk, acceleration and deviation budgets.
@@ -336,7 +337,11 @@ def _curvature_caps(
 
         def accel(window: tuple[np.ndarray, np.ndarray], u: np.ndarray) -> np.ndarray:
             """The tangential acceleration the budget over `window` leaves at speed u."""
-            a = np.minimum((budget - u * u * window[1]) / (3.0 * window[0] * u * t_w), sm.accel_cap - kappa * u * u)
+            # the budget's; the section's own cap; the axes' acceleration less the turning's (where a
+            # slow section's cap is set for its jerk, `smoothing_for`, the turning may take more of
+            # it than the cap leaves, never more than the axes allow)
+            a = np.minimum((budget - u * u * window[1]) / (3.0 * window[0] * u * t_w),
+                           np.minimum(sm.accel_cap, max(a_axes, sm.accel_cap) - kappa * u * u))
             return np.maximum(a, 0.001 * sm.accel_cap)
 
         v_max = speed(windows.own)
