@@ -14,8 +14,10 @@ Per axis i, with u the tangent, n the normal, kappa the signed curvature, v = s'
 
 so within any window of T_f = N_f dt the acceleration may change by at most J T_f. The jerk
 is shared: J_t for the path profile (its average of N_j = A_t / (J_t dt) samples gives
-|s'''| <= J_t), the rest for geometry: for a curved element, over the stretch of path a
-window can span (l = v_max (N_f + 2) dt) with curvature up to kappa_max,
+|s'''| <= J_t; where the axis average is the longer one, it alone may hold J_t instead, with
+N_j = 1 and A_t = J_t N_f dt: `smoothing_for`), the rest for geometry: for a curved element,
+over the stretch of path a window can span (l = v_max (N_f + 2) dt) with curvature up to
+kappa_max,
 
     3 kappa_max v A_t T_f  +  v^2 V   <=  J_curv T_f,
     V = min(sum of curvature steps in reach + kappa_max^2 l,  2 kappa_max)
@@ -54,7 +56,7 @@ from .path import BLEND_SHARE, COLLINEAR_RAD, Element, arc_pieces
 
 KINK_MAX_RAD = 0.01  # a larger turn between unblended elements is an exact stop
 GEOMETRY_JERK_SHARE = 0.5  # share of the jerk kept for curvature and kinks when a section has them
-GEOMETRY_JERK_SHARES = (0.3, 0.5, 0.7)
+GEOMETRY_JERK_SHARES = (0.3, 0.5, 0.7)  # the shares `sections.py` tries, keeping the fastest
 KINK_SHARE = 0.25  # of the geometry budgets (jerk, deviation), when a section has kinks
 KINK_ACCEL_SHARE = 0.02  # of the acceleration, when a section has kinks
 RAMP_ACCEL_GIVEN = 0.01  # share of its acceleration a section gives up to ramp in a sample less (`smoothing_for`)

@@ -59,7 +59,6 @@ class SectionStream:
         self.plateau_s = sm.plateau_s
         self.reach_s = sm.extension_s
         self.length = section.length_mm
-        path = section.path
         v_top = lim.v_max_any
         a_low = float(lim.accel.min())
         self.brake_mm = braking_distance(v_top, a_low, self.plateau_s) + 2.0 * v_top * self.reach_s + 1.0
