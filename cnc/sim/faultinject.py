@@ -45,7 +45,7 @@ from ..data.layout import ServoFault, ServoState
 from ..hw.board import DigitalOut
 from ..logic.states import CyclePhase, MachineState
 from ..runtime.supervisor import Supervisor
-from .operator import ask, logic_block, ready_to_cut, reset_until_clear  # noqa: F401 - the scripted operator, for the tests too
+from .operator import ask, logic_block, press_button_when_asked, ready_to_cut, reset_until_clear  # noqa: F401 - the scripted operator, for the tests too
 
 # A long straight first cut (every fault lands on it, far from its end), then a frame.
 CUT_PROGRAM = """(fault injection: a long straight cut, then a frame; every fault lands on the straight)
@@ -310,15 +310,16 @@ def pause_on_the_straight(sup: Supervisor, workdir: Path, speed_mm_s: float, att
 def start_cut(sup: Supervisor, speed_mm_s: float) -> None:
     """Cycle start, then wait until the head cuts along the long straight at `speed_mm_s`. An alarm
     that came up after the reset (the PLC's own, for a CNC heartbeat it missed meanwhile) is reset
-    first, as an operator would."""
+    first, as an operator would. A fault before the cut begins (the PLC link lost) ends the wait at
+    once with ScriptError saying why (`press_button_when_asked`), not after its time runs out."""
     def started() -> bool:
         reply = sup.logic.request(CycleStart(cycles=1))
         if not reply.ok and "alarms wait for reset" in reply.reason:
             reset_until_clear(sup)
         return reply.ok
     sup.wait_until(started, 60.0, "cycle start")
-    sup.wait_until(lambda: logic_block(sup)["phase"] == CyclePhase.CUTTING and cutting_now(sup), 60.0,
-                   "cutting with the jet on")
+    press_button_when_asked(sup, lambda: logic_block(sup)["phase"] == CyclePhase.CUTTING and cutting_now(sup), 60.0,
+                            "cutting with the jet on")
     sup.wait_until(lambda: on_the_straight(sup, speed_mm_s), 30.0, f"the head cutting at {speed_mm_s:g} mm/s")
 
 
