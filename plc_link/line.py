@@ -37,7 +37,18 @@ from . import rtu
 
 
 class NoAnswer(Exception):
-    """No answer that fits the request came within the timeout."""
+    """No answer that fits the request came within the timeout. `received` bytes came meanwhile
+    (0: the line stayed silent; more: noise or answers to other requests), and the master gave
+    up `waited_s` after sending: far past the timeout, the master itself was not scheduled."""
+
+    def __init__(self, received: int = 0, waited_s: float = 0.0) -> None:
+        super().__init__(received, waited_s)
+        self.received, self.waited_s = received, waited_s
+
+    def describe(self) -> str:
+        """What came, in words: "nothing came in 0.251 s", "7 bytes came, none the answer, in ..."."""
+        came = "nothing came" if not self.received else f"{self.received} bytes came, none the answer,"
+        return f"{came} in {self.waited_s:.3f} s"
 
 
 class ExceptionAnswer(Exception):
@@ -107,6 +118,7 @@ class RtuLine:
             port.write(request)
             deadline = time.monotonic() + self.timeout_s
             buffer = bytearray()
+            received = 0
             echo = request if self.local_echo else b""
             while True:
                 if echo:
@@ -118,10 +130,12 @@ class RtuLine:
                 if not waiting:
                     remaining = deadline - time.monotonic()
                     if remaining <= 0.0:
-                        raise NoAnswer()
+                        raise NoAnswer(received, time.monotonic() - deadline + self.timeout_s)
                     select.select([port.fileno()], [], [], remaining)
                     waiting = port.in_waiting
-                buffer += port.read(max(1, waiting))  # never blocks (timeout 0); a hung-up line raises
+                data = port.read(max(1, waiting))  # never blocks (timeout 0); a hung-up line raises
+                received += len(data)
+                buffer += data
         except serial.SerialException as exc:
             self.close()
             raise PortFailed(f"serial port {self.device!r} failed ({exc})") from None

@@ -185,9 +185,9 @@ class PlcMaster:
         """One request and its answer; every failure becomes a PlcLinkError naming the request."""
         try:
             return line.transact(self.config.unit_id, pdu, answer_size)
-        except NoAnswer:
+        except NoAnswer as exc:
             raise PlcTimeout(
-                f"{what}: no valid response within {self.config.timeout_ms:g} ms (no answer, or bad CRC)"
+                f"{what}: no valid response within {self.config.timeout_ms:g} ms ({exc.describe()})"
             ) from None
         except ExceptionAnswer as exc:
             name = _EXCEPTION_NAMES.get(exc.code, "exception")

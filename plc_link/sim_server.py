@@ -42,6 +42,10 @@ from .sim_model import FAULTS, ModelError, PlantTimes, PlcModel
 
 log = logging.getLogger(__name__)
 
+#: a loop woken this much later than it asked for says so: a PLC stands for a CPU of its own, so
+#: a master that counts answers missing then lost them to the host, not to the line or the PLC
+STALL_S = 0.1
+
 _READS = {  # function -> (table kind, bits, protocol limit)
     rtu.READ_COILS: ("coil", True, rtu.MAX_READ_BITS),
     rtu.READ_DISCRETE_INPUTS: ("discrete_input", True, rtu.MAX_READ_BITS),
@@ -68,6 +72,8 @@ class ServerStats:
     crc_errors: int = 0
     other_unit: int = 0
     unanswered: int = 0  # requests swallowed while the link_dead fault is on
+    stalls: int = 0  # times the server's loop woke STALL_S or more after it asked to
+    longest_stall_s: float = 0.0
 
 
 class _Tables:
@@ -141,7 +147,7 @@ class PlcSimServer:
     # -- the loop --------------------------------------------------------------------------
 
     def _run(self) -> None:
-        next_step = time.monotonic()
+        next_step = woke = time.monotonic()
         hung_up = False  # nobody has the device open: retry reading at the next step
         try:
             while not self._stop.is_set():
@@ -161,6 +167,8 @@ class PlcSimServer:
                 else:
                     readable = bool(select.select([self.fd], [], [], timeout)[0])
                 now = time.monotonic()
+                self._note_stall(now - woke - timeout)  # the loop's own work, and any oversleep
+                woke = now
                 if readable:
                     hung_up = not self._receive(now)
                 self._send_due(time.monotonic())
@@ -169,6 +177,17 @@ class PlcSimServer:
         except Exception as exc:  # a bug in the simulator: log it, keep it for the tests
             log.exception("PLC simulator server failed")
             self.error = exc
+
+    def _note_stall(self, late_s: float) -> None:
+        """Count and say a loop `late_s` behind its plan (its work since it last woke, and how far
+        it overslept its wait: it never asks to sleep past its next model step), when that is
+        `STALL_S` or more."""
+        if late_s < STALL_S:
+            return
+        self.stats.stalls += 1
+        self.stats.longest_stall_s = max(self.stats.longest_stall_s, late_s)
+        log.warning("PLC simulator: its server ran %.0f ms behind (the host did not run it, or a step was slow): answers "
+                    "due meanwhile went late", late_s * 1000.0)
 
     def _receive(self, now: float) -> bool:
         """Read what arrived; False when the other end is hung up (no master opened it)."""
@@ -413,6 +432,8 @@ def _child_main(plc: PlcConfig, times: PlantTimes | None, conn: Connection, laun
 
     die_with(launcher_pid)  # a simulator outliving its controller would hold the pty for the next one
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops us in order
+    logging.basicConfig(level=logging.WARNING,
+                        format=f"%(asctime)s plc-sim[{os.getpid()}] %(levelname)s %(message)s")
     try:  # it stands for a PLC with a CPU of its own: the host's load is not its load
         os.nice(-10)
     except OSError:

@@ -221,7 +221,8 @@ def test_silent_plc_is_a_timeout_naming_the_request(sim):
     try:
         master.exchange([0.0] * 8)
         sim.model.inject("link_dead", True)
-        with pytest.raises(PlcTimeout, match=r"read discrete inputs 0\.\.15 \(function 2\): no valid response within 100 ms"):
+        with pytest.raises(PlcTimeout, match=r"read discrete inputs 0\.\.15 \(function 2\): no valid response within 100 ms "
+                                             r"\(nothing came in 0\.\d{3} s\)"):
             master.exchange([0.0] * 8)
     finally:
         master.close()
@@ -315,6 +316,31 @@ def test_the_line_drops_noise_and_misfit_answers_and_takes_the_one_that_fits_the
         thread.join()
         assert rtu.unpack_bits(answer[2:], 16) == [1, 0, 1, 0, 0, 1, 0, 1, 1, 0, 0, 0, 0, 0, 0, 0]
         assert slave.line.misfits == 3 and slave.line.noise == 3
+    finally:
+        slave.close()
+
+
+def test_a_timeout_says_whether_the_line_stayed_silent_or_brought_only_misfits():
+    """A dead line and a line full of other answers are different repairs (cable or PLC against
+    a master out of step): the timeout says which, and how long the master really waited."""
+    slave = HandSlave()
+    try:
+        slave.line.timeout_s = 0.2
+        read = rtu.read_pdu(rtu.READ_DISCRETE_INPUTS, 0, 16)
+        size = rtu.response_size(rtu.READ_DISCRETE_INPUTS, 16)
+        thread = slave.answer()
+        with pytest.raises(NoAnswer) as silent:
+            slave.line.transact(PLC.unit_id, read, size)
+        thread.join()
+        assert silent.value.received == 0 and silent.value.waited_s >= 0.2
+        assert silent.value.describe().startswith("nothing came in 0.2")
+        late_write = frame(rtu.WRITE_SINGLE_COIL, 0, 3, 0xFF, 0)
+        thread = slave.answer(b"\x00\xff", late_write)
+        with pytest.raises(NoAnswer) as misfits:
+            slave.line.transact(PLC.unit_id, read, size)
+        thread.join()
+        assert misfits.value.received == 2 + len(late_write)
+        assert misfits.value.describe().startswith(f"{2 + len(late_write)} bytes came, none the answer, in 0.2")
     finally:
         slave.close()
 

@@ -150,6 +150,26 @@ def test_link_dead_fault_stops_the_answers(line):
     assert len(transact(fd, bytes((2,)) + u16(0, 16), expect=7)) == 7
 
 
+def test_a_server_held_off_its_loop_counts_and_says_the_stall(line, caplog):
+    """A PLC has a CPU of its own; the simulator shares the host's. When the host holds it off
+    (here: one model step that takes 0.25 s), the answers due meanwhile go late and a master
+    may count them missing: the simulator says so, so that a lost link in a test log tells a
+    host that did not run the simulator from a line or a master that failed."""
+    fd, model, server = line
+    slow = {"once": True}
+    step = model.step
+
+    def held_off(now_s: float) -> None:
+        if slow.pop("once", False):
+            time.sleep(0.25)
+        step(now_s)
+    model.step = held_off
+    assert wait_for(lambda: server.stats.stalls >= 1)
+    assert 0.2 <= server.stats.longest_stall_s < 5.0
+    assert any("PLC simulator: its server ran" in r.getMessage() and "ms behind" in r.getMessage() for r in caplog.records)
+    assert len(transact(fd, bytes((2,)) + u16(0, 16), expect=7)) == 7  # and it serves on
+
+
 # -- the model ---------------------------------------------------------------------------
 
 

@@ -21,6 +21,12 @@ from ..logic.states import MachineState, Mode
 from ..runtime.supervisor import Supervisor
 
 
+#: how often the scripted operator presses the transport button while the procedure waits for it:
+#: within the press the simulated PLC holds (`PlantTimes.button_s`), so the button reads held, and
+#: not at every poll of a wait, which would keep the simulator's process busy answering its pipe
+PRESS_EVERY_S = 0.1
+
+
 class ScriptError(RuntimeError):
     """The controller refused a command the script needed, or the machine faulted while the script
     waited for a cycle's progress; the message says which and why."""
@@ -74,11 +80,14 @@ def press_button_when_asked(sup: Supervisor, until: Callable[[], bool], timeout_
     that a block published before the command the caller has just sent (a reset) is not read
     as the answer to it."""
     first_scan = logic_block(sup)["scans"] + 2
+    pressed_at = [-PRESS_EVERY_S]
 
     def step() -> bool:
         lo = logic_block(sup)
         if lo["procedure"] == "transport" and lo["procedure_state"] in ("running", "timed_out"):
-            sup.plc_sim.press_button()
+            if time.monotonic() - pressed_at[0] >= PRESS_EVERY_S:
+                sup.plc_sim.press_button()
+                pressed_at[0] = time.monotonic()
         if until():
             return True
         if lo["state"] == MachineState.FAULT and lo["scans"] >= first_scan:
