@@ -173,7 +173,7 @@ def test_a_section_of_one_element_gets_the_zone_the_envelope_would_give_it(seed)
         total = path.total_mm
         lo = rng.choice([0.0, rng.uniform(0.0, total / 2)])
         hi = rng.choice([total, rng.uniform(lo + 1e-6, total)])
-        controls = (rng.random() < 0.2, rng.choice([0.0, 0.5, 1.0, 2.0]), rng.choice([0.0, 0.25, 1.0]))
+        controls = (rng.random() < 0.2, rng.choice([0.0, 0.5, 1.0, 2.0]), rng.choice([0.0, 0.25, 1.0]), rng.random() < 0.5)
         got, want = section_zones(path, lim, lo, hi, *controls), _enveloped_zones(path, lim, lo, hi, *controls)
         for field in ("edges", "hard", "soft", "accel"):
             assert np.asarray(getattr(got, field)).tobytes() == np.asarray(getattr(want, field)).tobytes(), (field, kind, controls)

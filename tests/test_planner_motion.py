@@ -318,6 +318,60 @@ def test_a_slow_contour_with_arcs_ramps_with_its_axis_average_holding_the_jerk(f
         assert stalled["position"][-1] == pytest.approx([100, 100], abs=1e-9)
 
 
+SLOT_R5 = ("G21 G90 G17 G64 P0.05\nG0 X1505 Y17\nG4 P0.1\nG1 X1505 Y20 F2400\nG1 X1520.507 Y20\n"
+           "G3 X1520.507 Y30.377 I0 J5.188\nG1 X1505 Y30.377\nG3 X1505 Y20 I0 J-5.188\nG1 X1503 Y18\nM2\n")
+
+
+def test_an_arc_never_run_over_its_feed_changes_speed_with_what_its_feed_leaves_of_the_budget(monkeypatch):
+    """A slot of the comparison nest (F2400, R5.188 arcs, the last one braking into the lead-out). An
+    arc's jerk budget is shared by its turning, which grows with its speed, and its speed changes:
+    planned for 200 % (80 mm/s) its tangential acceleration is about 0.5 m/s^2, at its feed three
+    times that (up to the section's own cap). A section no override above 100 % has touched is planned with the latter
+    (`SectionLimits.accel_for`): the slot ends 13 ms sooner, within every limit and P."""
+    from cnc.planner.limits import SectionLimits
+    from cnc.planner.sections import Section, iter_steps
+
+    program, _, records, planned = run(SLOT_R5)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    contour = next(s for s in iter_steps(program, machine_config()) if isinstance(s, Section) and len(s.elements) > 1)
+    lim, arcs = contour.limits, contour.path.arc
+    assert lim.accel_for(True) is lim.accel
+    assert (lim.accel_for(False)[~arcs] == lim.accel[~arcs]).all()
+    assert (lim.accel_for(False)[arcs] >= 2.5 * lim.accel[arcs]).all()
+    monkeypatch.setattr(SectionLimits, "accel_for", lambda self, over_feed: self.accel)
+    _, _, for_any_override, _ = run(SLOT_R5)
+    assert len(for_any_override) - len(records) >= 10
+
+
+def test_an_override_raised_over_100_percent_anywhere_in_a_slot_keeps_every_limit_and_takes_effect():
+    """The slot planned for its feed brakes on its arcs harder than 200 % allows. Raised to 200 %
+    anywhere (its first arc, the straight after it, its last arc's braking into the lead-out; also
+    held at once after the raise and resumed), the section is planned again for speeds over its
+    feed where it can still stop in time (`SectionStream.set_override`) and the head goes faster
+    only after that: every axis within its limits and every record within P, the slot ending where
+    programmed; raised before the straight's middle, the straight runs at 200 %."""
+    program, _, records, _ = run(SLOT_R5)
+    first_arc, last_arc = np.flatnonzero(records["line"] == 6), np.flatnonzero(records["line"] == 8)
+    straight = np.flatnonzero(records["line"] == 7)
+    points = [*range(int(first_arc[0]) - 40, int(straight[0]) + len(straight) // 2, 40),
+              *range(int(last_arc[0]) - 60, int(last_arc[-1]) + 5, 40)]
+    for at in points:
+        _, _, raised, _ = run(SLOT_R5, chunk=3, actions={at: lambda r: r.set_override(2.0)})
+        within_limits(raised)
+        assert (within_tolerance(program, raised) <= 1e-9).all(), at
+        assert raised["position"][-1] == pytest.approx([1503, 18], abs=1e-9)
+        if at < straight[0] + len(straight) // 4:
+            assert speed(raised)[raised["line"] == 7].max() == pytest.approx(80.0, rel=1e-6), at
+    for at in points[::3]:
+        _, _, held, _ = run(SLOT_R5, chunk=3, actions={at: lambda r: r.set_override(2.0), at + 6: lambda r: r.hold(),
+                                                       10**9: lambda r: r.resume()})
+        within_limits(held)
+        assert (within_tolerance(program, held) <= 1e-9).all(), at
+        assert held["position"][-1] == pytest.approx([1503, 18], abs=1e-9)
+
+
 @pytest.mark.parametrize("share", [0.3, 0.5, 0.7])
 def test_an_arc_ending_a_slow_contour_brakes_within_the_axes_acceleration_not_at_a_crawl(monkeypatch, share):
     """A slot (F2400): its last arc, R3.17, ends the contour at rest. Its tangential acceleration

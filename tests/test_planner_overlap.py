@@ -383,7 +383,8 @@ def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeyp
     the sharp corner beside it is a stop (`sections._corners_to_stop`): blended, passed near the feed
     (over 30 mm/s at F2400, over 45 at F4800). Weighed as a sharp one it is a stop: at F4800 the
     head stands there; at F2400, where the contour's axis average holds its jerk (`limits.
-    smoothing_for`), it passes that stop in an overlap, slower and later."""
+    smoothing_for`) and its arcs brake harder at 100 % (`SectionLimits.accel_for`), it passes that
+    stop in an overlap, slower (36 mm/s) and a sample later."""
     from cnc.planner import sections
 
     text = _round_part(kerf_by_controller=False, feed=feed)
@@ -406,7 +407,7 @@ def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeyp
         assert speed_at_gentle_corner(stopping) < 1.0, "a stop before (overlapped by a few ms)"
         assert len(stopping) - len(records) >= 20
     else:
-        assert speed_at_gentle_corner(stopping) < gentle_mm_s / 1.5
+        assert speed_at_gentle_corner(stopping) < speed_at_gentle_corner(records) - 2.0
         assert len(stopping) > len(records)
 
 
@@ -415,7 +416,7 @@ def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeyp
 def test_a_gentle_corner_kept_beside_a_sharp_one_is_weighed_again_and_never_slows_a_part(monkeypatch, kerf_by_controller, feed):
     """The gentle corners kept beside a stopped sharp one are weighed again once it is a stop. With
     the kerf by CAM the round part runs sooner for them (by tens of ms at F4800; at F2400, where the
-    stop is passed in a longer overlap, `limits.smoothing_for`, by a few); with G41 the compensated
+    stop is passed in a longer overlap, `limits.smoothing_for`, by a sample); with G41 the compensated
     path near the lead-in still caps the gentle blend, and weighed again it is a stop as before (kept
     blended, the part took 98 ms longer). Neither is slower than without the rule, and the timing is
     the run."""
@@ -432,7 +433,7 @@ def test_a_gentle_corner_kept_beside_a_sharp_one_is_weighed_again_and_never_slow
     if kerf_by_controller:
         assert len(records) <= len(without)
     else:
-        assert len(without) - len(records) >= (20 if feed == 4800 else 5)
+        assert len(without) - len(records) >= (20 if feed == 4800 else 1)
 
 
 def _random_cam_parts(seed: int) -> tuple[str, int]:

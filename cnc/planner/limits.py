@@ -99,10 +99,18 @@ class SectionLimits:
     v_hard: np.ndarray  # mm/s: axis velocities, curvature, jerk and deviation caps
     v_feed: np.ndarray  # mm/s: programmed feed (inf for rapids)
     rapid: np.ndarray  # bool
-    accel: np.ndarray  # mm/s^2: tangential acceleration
+    accel: np.ndarray  # mm/s^2: tangential acceleration at any override
     v_kink: np.ndarray  # mm/s at each junction (inf where smooth)
     smoothing: Smoothing
     caps: "PathCaps | None" = None  # what they were made from: the path's own caps, for the other shares
+    accel_feed: np.ndarray | None = None  # mm/s^2: the same where no element runs over its feed (None: `accel`)
+
+    def accel_for(self, over_feed: bool) -> np.ndarray:
+        """The tangential accelerations of a motion that may run over its feeds (an override above
+        100 % since the section began) or never does. A curve's turning takes more of its jerk
+        budget the faster it runs (`_curvature_caps`), so an arc planned for twice its feed leaves
+        less to speed changes than the same arc never run over its feed."""
+        return self.accel if over_feed or self.accel_feed is None else self.accel_feed
 
     @property
     def v_max(self) -> float:
@@ -248,20 +256,22 @@ def section_limits(
     j_geometry = j_min * (1.0 - jerk_reserve) - sm.jerk_path
     share_kink = KINK_SHARE if kink.any() else 0.0
     v_hard, accel = v_axis.copy(), a_axis.copy()
+    accel_feed = accel
     if curved.any():
         if caps.windows is None:
             caps.windows = CurveWindows(path, kinks * kink)
-        v_curve, a_curve = _curvature_caps(path, caps.windows, sm, v_feed, j_geometry * (1.0 - share_kink),
+        v_curve, a_curve, a_curve_feed = _curvature_caps(path, caps.windows, sm, v_feed, j_geometry * (1.0 - share_kink),
                                            sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min, v_top,
                                            a_min * (1.0 - KINK_ACCEL_SHARE) if kink.any() else a_min)
         v_hard = np.minimum(v_hard, v_curve)
+        accel_feed = np.where(curved, np.minimum(accel, a_curve_feed), accel)
         accel = np.where(curved, np.minimum(accel, a_curve), accel)
     v_kink = np.full(max(n - 1, 0), np.inf)
     if kink.any():
         v_run = np.minimum(v_axis, v_feed)
         v_kink[kink] = _kink_caps(path, kinks * kink, sm, np.minimum(v_run[:-1], v_run[1:]), np.minimum(v_fast[:-1], v_fast[1:]),
                                   j_geometry * share_kink, sm.deviation_mm * share_kink, a_min)[kink]
-    return SectionLimits(v_hard, v_feed, rapid, accel, v_kink, sm, caps)
+    return SectionLimits(v_hard, v_feed, rapid, accel, v_kink, sm, caps, accel_feed)
 
 
 def _axis_min(config: MachineConfig, key: str) -> float:
@@ -302,7 +312,8 @@ def _curvature_caps(
     a_normal_max: float, v_top: float = math.inf, a_axes: float = math.inf,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Speed and tangential acceleration of each curved element that keep its turning within the
-    jerk, acceleration and deviation budgets.
+    jerk, acceleration and deviation budgets, and the tangential acceleration where it never runs
+    over its feed (an override up to 100 %: the budget's turning at that speed, not at twice it).
 
     The jerk budget 3 kappa_max v A_t T + v^2 V <= J_curv T binds speed and tangential
     acceleration together: at A_t = 0 the speed could reach v0 = sqrt(J_curv T / V); the
@@ -330,6 +341,7 @@ def _curvature_caps(
     a_dev = 24.0 * deviation_mm / ((sm.n_axis**2 - 1) * sm.dt**2) if sm.n_axis > 1 else np.inf
     v = np.full(len(path), np.inf)
     a_t = np.full(len(path), sm.accel_cap)
+    a_feed = a_t.copy()  # where the element never runs over its feed (an override up to 100 %)
     with np.errstate(divide="ignore", invalid="ignore"):
         v_cap = np.minimum(np.sqrt(min(a_normal_max, a_dev) / kappa), v_top)  # normal acceleration, deviation, top
 
@@ -356,6 +368,7 @@ def _curvature_caps(
             window = windows.over(np.where(arc, candidate, 0.0) * span, remember=True)  # the same for every share
             holds = ask & (candidate <= speed(window))
             v[holds], a_t[holds] = candidate[holds], accel(window, candidate)[holds]
+            a_feed[holds] = accel(window, np.minimum(candidate, v_feed))[holds]  # the window spans more: conservative
             return holds
 
         rest = arc & ~take(2.0 * v_feed, arc)  # twice the feed holds: no override runs the element faster
@@ -363,8 +376,9 @@ def _curvature_caps(
             window = windows.over(np.where(rest, np.minimum(v_max, 2.0 * v_feed), 0.0) * span)
             v_2 = speed(window)
             v[rest], a_t[rest] = v_2[rest], accel(window, v_2)[rest]
+            a_feed[rest] = accel(window, np.minimum(v_2, v_feed))[rest]
             take(v_feed, rest & (v_feed > v_2))
-    return v, a_t
+    return v, a_t, a_feed
 
 
 class CurveWindows:
@@ -495,16 +509,19 @@ def envelope(
 
 def section_zones(
     path: PathArrays, lim: SectionLimits, lo: float, hi: float, holding: bool, override: float, rapid_override: float,
+    over_feed: bool,
 ) -> Zones:
     """Caps and accelerations over [lo, hi] of a section under these controls, each widened to
-    where the averages could mix it in (by its own speed times `Smoothing.extension_s`)."""
+    where the averages could mix it in (by its own speed times `Smoothing.extension_s`);
+    `over_feed`: the motion may run over its feeds (`SectionLimits.accel_for`)."""
     if len(path) == 1 and 0.0 <= lo < hi <= path.total_mm:
-        return _one_zone(lim, lo, hi, holding, override, rapid_override)
-    return _enveloped_zones(path, lim, lo, hi, holding, override, rapid_override)
+        return _one_zone(lim, lo, hi, holding, override, rapid_override, over_feed)
+    return _enveloped_zones(path, lim, lo, hi, holding, override, rapid_override, over_feed)
 
 
 def _enveloped_zones(
     path: PathArrays, lim: SectionLimits, lo: float, hi: float, holding: bool, override: float, rapid_override: float,
+    over_feed: bool,
 ) -> Zones:
     """`section_zones` for any section: each cap the lower envelope of the elements' caps widened."""
     reach = lim.smoothing.extension_s
@@ -527,14 +544,16 @@ def _enveloped_zones(
         np.concatenate((hard, kink_cap[k])), np.concatenate((hard, kink_cap[k])) * reach, lo, hi,
     )
     e_soft, v_soft = envelope(s0, s1, soft, np.minimum(soft, hard) * reach, lo, hi)
-    e_acc, v_acc = envelope(s0, s1, lim.accel[i0:i1], hard * reach, lo, hi)
+    e_acc, v_acc = envelope(s0, s1, lim.accel_for(over_feed)[i0:i1], hard * reach, lo, hi)
     edges = np.unique(np.concatenate((e_hard, e_soft, e_acc)))
     mid = (edges[:-1] + edges[1:]) / 2.0
     pick = lambda e, v: v[np.clip(np.searchsorted(e, mid, side="right") - 1, 0, len(v) - 1)]  # noqa: E731
     return Zones(edges, pick(e_hard, v_hard), pick(e_soft, v_soft), pick(e_acc, v_acc))
 
 
-def _one_zone(lim: SectionLimits, lo: float, hi: float, holding: bool, override: float, rapid_override: float) -> Zones:
+def _one_zone(
+    lim: SectionLimits, lo: float, hi: float, holding: bool, override: float, rapid_override: float, over_feed: bool,
+) -> Zones:
     """`section_zones` of a section of one element (a rapid, a lead-in, a lead-out: most sections of
     a CAM nest) over [lo, hi] inside it: one zone of its own caps, with nothing to widen against.
     The same values as the general path (the same operations on them), without its dozens of
@@ -546,4 +565,4 @@ def _one_zone(lim: SectionLimits, lo: float, hi: float, holding: bool, override:
         soft = hard * rapid_override
     else:
         soft = float(lim.v_feed[0]) * override
-    return Zones(np.array([lo, hi]), np.array([hard]), np.array([soft]), np.array([float(lim.accel[0])]))
+    return Zones(np.array([lo, hi]), np.array([hard]), np.array([soft]), np.array([float(lim.accel_for(over_feed)[0])]))

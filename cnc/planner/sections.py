@@ -76,10 +76,11 @@ class Section:
     end_cap_mm_s: float = math.inf
     zone_cache: dict = field(default_factory=dict)  # its zones per setting of the controls (`zones`)
 
-    def zones(self, holding: bool, override: float, rapid_override: float) -> Zones:
+    def zones(self, holding: bool, override: float, rapid_override: float, over_feed: bool) -> Zones:
         """The whole section's caps and accelerations under these controls, made once per setting
-        (`limits.section_zones`); shared by every stream of the section, from any thread."""
-        key = (holding, override, rapid_override)
+        (`limits.section_zones`; `over_feed`: the motion may run over its feeds, an override above
+        100 % since the section began); shared by every stream of the section, from any thread."""
+        key = (holding, override, rapid_override, over_feed)
         whole = self.zone_cache.get(key)
         if whole is None:
             whole = section_zones(self.path, self.limits, 0.0, self.length_mm, *key)
@@ -524,7 +525,7 @@ def _fastest_limits(
         if not choose or lim.smoothing.geometry_share == 0.0:  # straight: no share to choose
             return lim
         sm = lim.smoothing
-        zones = Zones(path.s0, lim.v_hard, lim.v_feed, lim.accel)
+        zones = Zones(path.s0, lim.v_hard, lim.v_feed, lim.accel_for(False))  # as timed: at 100 %
         seconds = rough_duration_s(zones) + (sm.n_path + sm.n_axis) * sm.dt
         if seconds < best_s:
             best, best_s = lim, seconds

@@ -37,11 +37,12 @@ class WindowJob:
     holding: bool
     override: float
     rapid_override: float
+    over_feed: bool
     pieces: Pieces | None = None
 
     def compute(self) -> None:
         s, v, a_prev, cruised, t0 = self.start
-        zones = self.stream.zones(s, self.end_mm, self.holding, self.override, self.rapid_override)
+        zones = self.stream.zones(s, self.end_mm, self.holding, self.override, self.rapid_override, self.over_feed)
         self.pieces = plan(zones, s, v, a_prev, 0.0, self.stream.plateau_s, t0, cruised)
 
 
@@ -65,6 +66,10 @@ class SectionStream:
         self.commit_mm = WINDOWS_PER_COMMIT * self.brake_mm
         self.window_mm = self.commit_mm + 2.0 * self.brake_mm
         self.override, self.rapid_override = override, rapid_override
+        # planned with the accelerations of a motion that may run over its feeds from the first
+        # override above 100 % on (`SectionLimits.accel_for`); sticky for the section
+        self.over_feed = override > 1.0
+        self._raise: tuple[int, float] | None = None  # (sample, override): a raise over 100 % still to apply
         self.holding = False
         self.generation = 0  # +1 at every replan: a window planned before it is stale
         self.pieces = Pieces.empty()
@@ -118,10 +123,63 @@ class SectionStream:
         return len(self.pieces) == 0 or abs(self.pieces.end_state()[1]) < 1e-9
 
     def set_override(self, feed: float, rapid: float) -> None:
-        """New feed and rapid override ratios (0..2 and 0..1), taking effect from the next sample."""
+        """New feed and rapid override ratios (0..2 and 0..1), taking effect from the next sample.
+
+        A section planned for its feeds (no override above 100 % since it began) brakes on its
+        curves harder than one that may run over them (`SectionLimits.accel_for`). The first raise
+        over 100 % in it therefore takes effect in steps: up to 100 % at once; then, at the next
+        sample, the section is planned again with the accelerations of a motion over its feeds
+        where that can still stop in time (braking at the lower acceleration near its end or a
+        slower stretch may not: it is tried again every `raise_after_samples`); and the rest of the
+        raise once the averages no longer mix in a sample of the motion planned before, whose arc
+        kept its turning within the jerk budget only up to its feed. (Replanned, a section planned
+        to its end has its corner overlap decided again, as at any override change.) A section that
+        ends first leaves the raise to the next one, which starts with it."""
+        if feed > 1.0 and (not self.over_feed or self._raise is not None):
+            self._raise = (self._raise[0] if self._raise is not None else self.k, feed)
+            feed = 1.0
+        else:
+            self._raise = None
         self.override, self.rapid_override = feed, rapid
         if not self.holding:
             self._replan()
+
+    def raise_after_samples(self) -> int:
+        """How long the rest of a first raise over 100 % waits after the section is planned for it
+        (`set_override`): until no average mixes in a sample of the motion planned before
+        (`Smoothing.extension_s`)."""
+        return self.n_path + self.n_axis + 3
+
+    def _raise_due(self) -> None:
+        """The next step of a raise over 100 % (`set_override`) whose sample has come."""
+        if self._raise is None or self.k < self._raise[0] or self.holding:
+            return
+        feed = self._raise[1]
+        if not self.over_feed:
+            if self._stops_in_time_over_feed():
+                self.over_feed = True
+                self._replan()
+            self._raise = (self.k + self.raise_after_samples(), feed)  # the rest, or another try
+            return
+        self._raise = None
+        self.override = feed
+        self._replan()
+
+    def _stops_in_time_over_feed(self) -> bool:
+        """Whether the motion from the last sample made, planned with the accelerations of a
+        motion over its feeds, still comes to rest within its window (`plan` assumes a stop at a
+        window's end: from a speed the lower acceleration cannot brake in time, it does not)."""
+        t = self.k * self.dt
+        if len(self.pieces):
+            s_arr, v_arr, _ = self.pieces.state_at(np.array([t]))
+            s, v = float(s_arr[0]), float(v_arr[0])
+            a_prev, cruised = self._history_at(t)
+        else:
+            s = v = a_prev = cruised = 0.0
+        job = WindowJob(self, self.generation, (s, v, a_prev, cruised, t), min(s + self.window_mm, self.length),
+                        self.holding, self.override, self.rapid_override, True)
+        job.compute()
+        return not len(job.pieces) or abs(job.pieces.end_state()[1]) < 1e-9
 
     def hold(self) -> None:
         """Decelerate along the path to a stop, as hard as the limits allow."""
@@ -136,6 +194,14 @@ class SectionStream:
     def take(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """The next n samples (fewer at the end, or while held at rest): positions (m, 3) and the
         arc length of each (where the head is on the section, for flags and progress)."""
+        self._raise_due()
+        due = self._raise[0] if self._raise is not None else None
+        if due is not None and self.k < due < self.k + n:  # a raise's next step comes due among them
+            y, s = self.take(due - self.k)
+            if self.k < due:
+                return y, s  # fewer came (the end, or held at rest)
+            y_rest, s_rest = self.take(n - len(s))
+            return np.concatenate((y, y_rest)), np.concatenate((s, s_rest))
         self._cover((self.k + n) * self.dt)
         if self.k_end is not None:
             n = min(n, self.k_end - self.k)
@@ -223,7 +289,8 @@ class SectionStream:
     def _job(self, start: tuple | None = None) -> WindowJob:
         start = start or self._plan_start()
         end = min(start[0] + self.window_mm, self.length)
-        return WindowJob(self, self.generation, start, end, self.holding, self.override, self.rapid_override)
+        return WindowJob(self, self.generation, start, end, self.holding, self.override, self.rapid_override,
+                         self.over_feed)
 
     def _commit(self, s: float, v: float, a_prev: float, cruised: float, t0: float) -> None:
         job = self._job((s, v, a_prev, cruised, t0))
@@ -286,10 +353,11 @@ class SectionStream:
             return float(p.a[k]), 0.0
         return self._history(t)
 
-    def zones(self, lo: float, hi: float, holding: bool, override: float, rapid_override: float) -> Zones:
+    def zones(self, lo: float, hi: float, holding: bool, override: float, rapid_override: float,
+              over_feed: bool) -> Zones:
         """Caps and accelerations over [lo, hi] under these controls: a slice of the whole section's
         (`Section.zones`). Safe from another thread (the arrays are never changed)."""
-        return _slice(self.section.zones(holding, override, rapid_override), lo, hi)
+        return _slice(self.section.zones(holding, override, rapid_override, over_feed), lo, hi)
 
     def _raw(self, t: np.ndarray) -> np.ndarray:
         """Raw arc length at times t (held at the end of the committed pieces beyond them)."""
