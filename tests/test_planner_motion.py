@@ -347,25 +347,26 @@ def test_an_arc_never_run_over_its_feed_changes_speed_with_what_its_feed_leaves_
 
 def test_an_override_raised_over_100_percent_anywhere_in_a_slot_keeps_every_limit_and_takes_effect():
     """The slot planned for its feed brakes on its arcs harder than 200 % allows. Raised to 200 %
-    anywhere (its first arc, the straight after it, its last arc's braking into the lead-out; also
-    held at once after the raise and resumed), the section is planned again for speeds over its
-    feed where it can still stop in time (`SectionStream.set_override`) and the head goes faster
-    only after that: every axis within its limits and every record within P, the slot ending where
-    programmed; raised before the straight's middle, the straight runs at 200 %."""
+    anywhere (every 50-70 samples over its first arc, the straight after it and its last arc's
+    braking into the lead-out; some held at once after the raise and resumed), the section is
+    planned again for speeds over its feed where it can still stop in time (`SectionStream.
+    set_override`) and the head goes faster only after that: every axis within its limits and
+    every record within P, the slot ending where programmed; raised before the straight's first
+    quarter, the straight runs at 200 %."""
     program, _, records, _ = run(SLOT_R5)
     first_arc, last_arc = np.flatnonzero(records["line"] == 6), np.flatnonzero(records["line"] == 8)
     straight = np.flatnonzero(records["line"] == 7)
-    points = [*range(int(first_arc[0]) - 40, int(straight[0]) + len(straight) // 2, 40),
-              *range(int(last_arc[0]) - 60, int(last_arc[-1]) + 5, 40)]
+    points = [*range(int(first_arc[0]) - 40, int(straight[0]) + len(straight) // 2, 70),
+              *range(int(last_arc[0]) - 60, int(last_arc[-1]) + 5, 50)]
     for at in points:
-        _, _, raised, _ = run(SLOT_R5, chunk=3, actions={at: lambda r: r.set_override(2.0)})
+        _, _, raised, _ = run(SLOT_R5, chunk=7, actions={at: lambda r: r.set_override(2.0)})
         within_limits(raised)
         assert (within_tolerance(program, raised) <= 1e-9).all(), at
         assert raised["position"][-1] == pytest.approx([1503, 18], abs=1e-9)
         if at < straight[0] + len(straight) // 4:
             assert speed(raised)[raised["line"] == 7].max() == pytest.approx(80.0, rel=1e-6), at
-    for at in points[::3]:
-        _, _, held, _ = run(SLOT_R5, chunk=3, actions={at: lambda r: r.set_override(2.0), at + 6: lambda r: r.hold(),
+    for at in points[::4]:
+        _, _, held, _ = run(SLOT_R5, chunk=7, actions={at: lambda r: r.set_override(2.0), at + 6: lambda r: r.hold(),
                                                        10**9: lambda r: r.resume()})
         within_limits(held)
         assert (within_tolerance(program, held) <= 1e-9).all(), at
