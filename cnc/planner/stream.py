@@ -169,14 +169,8 @@ class SectionStream:
         """Whether the motion from the last sample made, planned with the accelerations of a
         motion over its feeds, still comes to rest within its window (`plan` assumes a stop at a
         window's end: from a speed the lower acceleration cannot brake in time, it does not)."""
-        t = self.k * self.dt
-        if len(self.pieces):
-            s_arr, v_arr, _ = self.pieces.state_at(np.array([t]))
-            s, v = float(s_arr[0]), float(v_arr[0])
-            a_prev, cruised = self._history_at(t)
-        else:
-            s = v = a_prev = cruised = 0.0
-        job = WindowJob(self, self.generation, (s, v, a_prev, cruised, t), min(s + self.window_mm, self.length),
+        start = self._state_at_last_sample()
+        job = WindowJob(self, self.generation, start, min(start[0] + self.window_mm, self.length),
                         self.holding, self.override, self.rapid_override, True)
         job.compute()
         return not len(job.pieces) or abs(job.pieces.end_state()[1]) < 1e-9
@@ -333,17 +327,22 @@ class SectionStream:
         t = self.k * self.dt
         if self.done or (len(self.pieces) and t >= self.pieces.t_end and self.final):
             return
+        s, v, a_prev, cruised, _ = self._state_at_last_sample()
         if len(self.pieces):
-            s_arr, v_arr, _ = self.pieces.state_at(np.array([t]))
-            s, v = float(s_arr[0]), float(v_arr[0])
-            a_prev, cruised = self._history_at(t)
             self.pieces = self.pieces.until(t)
-        else:
-            s = v = a_prev = cruised = 0.0
         self.final, self.k_end = False, None
         if self.stopping and v <= 1e-9:
             return  # already at rest
         self._commit(s, v, a_prev, cruised, t)
+
+    def _state_at_last_sample(self) -> tuple[float, float, float, float, float]:
+        """Where a plan from the last sample made starts: arc length, speed, the last acceleration
+        and the cruise since it (`_history_at`), and the time."""
+        t = self.k * self.dt
+        if not len(self.pieces):
+            return 0.0, 0.0, 0.0, 0.0, t
+        s_arr, v_arr, _ = self.pieces.state_at(np.array([t]))
+        return (float(s_arr[0]), float(v_arr[0]), *self._history_at(t), t)
 
     def _history_at(self, t: float) -> tuple[float, float]:
         """Like `_history`, but the piece running at t counts as under way."""
