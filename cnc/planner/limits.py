@@ -310,7 +310,7 @@ def _reach(path: PathArrays, reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
 def _curvature_caps(
     path: PathArrays, windows: "CurveWindows", sm: Smoothing, v_feed: np.ndarray, j_curv: float, deviation_mm: float,
     a_normal_max: float, v_top: float = math.inf, a_axes: float = math.inf,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Speed and tangential acceleration of each curved element that keep its turning within the
     jerk, acceleration and deviation budgets, and the tangential acceleration where it never runs
     over its feed (an override up to 100 %: the budget's turning at that speed, not at twice it).
