@@ -545,7 +545,7 @@ def runs_clean(text: str, chunk: int, operator_seed: int | None = None) -> None:
         assert (within_tolerance(program, records) <= 1e-9).all()
 
 
-@pytest.mark.parametrize("seed", [0, 3, 6, 17, 106, 124, 170, 202, 265, 372, 441, 1100, 1908, 1927, 2087, 2276])
+@pytest.mark.parametrize("seed", [0, 3, 6, 17, 106, 124, 170, 202, 265, 372, 441, 1100, 1488, 1908, 1927, 2087, 2276])
 def test_holds_resumes_overrides_and_stops_at_random_keep_every_limit_and_the_tolerance(seed):
     """Seed 6 once hung the runner (a hold during the re-pierce after a resume, then a zero
     override); seed 17 ran past a section's end (a hold lifted at once, then the override
@@ -558,7 +558,9 @@ def test_holds_resumes_overrides_and_stops_at_random_keep_every_limit_and_the_to
     in seed 1908 the head jumped 9 mm in one sample (an override of 0 with a rapid after the feed
     moves in the same section: 25x the jerk). Run over 4000 seeds, none breaks a limit now.
     Seeds 2087 and 2276 strayed 38 nm beyond P on a long arc cut into pieces for its caps (its
-    programmed end a hair off its circle: the pieces kept the start's radius all the way)."""
+    programmed end a hair off its circle: the pieces kept the start's radius all the way); seed
+    1488 12 nm in a corner's overlap after an arc whose end was 30 nm off its circle (the check
+    within P measured against the start's circle, not the spiral the arc is run as)."""
     program, records, stopped, events = _operator_at_random(seed)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all(), events

@@ -436,12 +436,8 @@ def distance_to(pts: np.ndarray, programmed: list[Element]) -> np.ndarray:
     for e in programmed:
         if e.kind == DWELL:
             continue
-        if e.kind == ARC and e.turns == 0 and abs(e.sweep_rad) < 2.0 * math.pi - 1e-9:
+        if e.kind == ARC:
             best = np.minimum(best, _distance_to_arc(pts, e))
-        elif e.kind == ARC:
-            cx, cy = e.center
-            r = math.hypot(e.start[0] - cx, e.start[1] - cy)
-            best = np.minimum(best, np.abs(np.hypot(pts[:, 0] - cx, pts[:, 1] - cy) - r))
         else:
             best = np.minimum(best, _distance_to_segment(pts, e.start[:2], e.end[:2]))
     return best
@@ -457,16 +453,26 @@ def _distance_to_segment(pts: np.ndarray, a, b) -> np.ndarray:
 
 
 def _distance_to_arc(pts: np.ndarray, e: Element) -> np.ndarray:
+    """Distance to an arc as it is run: an end a hair off the start's circle makes it a spiral
+    between the two radii (`PathArrays.points`), and the overlap's and blends' checks within P
+    must measure against that, not against the start's circle (a CAM arc's end off by 30 nm let
+    an overlap pass P by 12 nm). Arcs of several turns: the nearest turn counts."""
     cx, cy = e.center
-    r = math.hypot(e.start[0] - cx, e.start[1] - cy)
+    r0 = math.hypot(e.start[0] - cx, e.start[1] - cy)
+    dr = math.hypot(e.end[0] - cx, e.end[1] - cy) - r0
     a0 = math.atan2(e.start[1] - cy, e.start[0] - cx)
-    sweep = e.sweep_rad
+    sweep = abs(e.sweep_rad)
     ang = np.arctan2(pts[:, 1] - cy, pts[:, 0] - cx)
-    rel = (ang - a0) * (1.0 if sweep >= 0 else -1.0)
-    rel = np.mod(rel, 2.0 * math.pi)
-    on_arc = rel <= abs(sweep)
-    radial = np.abs(np.hypot(pts[:, 0] - cx, pts[:, 1] - cy) - r)
+    along = np.mod((ang - a0) * (1.0 if e.sweep_rad >= 0 else -1.0), 2.0 * math.pi)
+    dist = np.hypot(pts[:, 0] - cx, pts[:, 1] - cy)
+    radial = np.full(len(pts), np.inf)
+    for turn in range(int(sweep // (2.0 * math.pi)) + 1):
+        angle = along + 2.0 * math.pi * turn
+        frac = np.minimum(angle / sweep, 1.0) if sweep > 0.0 else np.zeros(len(pts))
+        radial = np.where((angle <= sweep) | (turn == 0), np.minimum(radial, np.abs(dist - (r0 + frac * dr))), radial)
+    if sweep >= 2.0 * math.pi - 1e-9:
+        return radial
     ends = np.minimum(
         np.hypot(pts[:, 0] - e.start[0], pts[:, 1] - e.start[1]), np.hypot(pts[:, 0] - e.end[0], pts[:, 1] - e.end[1])
     )
-    return np.where(on_arc, radial, ends)
+    return np.where(along <= sweep, radial, ends)
