@@ -331,7 +331,8 @@ def _zone_pieces_arrays(edges, caps, accel, w) -> tuple[np.ndarray, np.ndarray, 
     """`_zone_pieces` on arrays, for any number of zones."""
     x0, length = edges[:-1], np.diff(edges)
     wa, wb = w[:-1], w[1:]
-    peak = np.sqrt((wa * wa + wb * wb + 2.0 * accel * length) / 2.0)
+    with np.errstate(invalid="ignore"):  # a zone rounded to -1e-16 mm between two rests: NaN, no piece (not `real`)
+        peak = np.sqrt((wa * wa + wb * wb + 2.0 * accel * length) / 2.0)
     top = np.maximum(np.minimum(caps, peak), np.maximum(wa, wb))
     d_up = np.maximum((top * top - wa * wa) / (2.0 * accel), 0.0)
     d_down = np.maximum((top * top - wb * wb) / (2.0 * accel), 0.0)
