@@ -91,6 +91,11 @@ class Smoothing:
         """How far in time a cap must reach beyond its stretch: the two averages' span, and a sample."""
         return (self.n_path + self.n_axis + 3) * self.dt
 
+    @property
+    def alone_extension_s(self) -> float:
+        """`extension_s` where the path average alone holds the path's jerk (`alone`)."""
+        return (self.alone[0] + self.n_axis + 3) * self.dt
+
 
 @dataclass(frozen=True)
 class SectionLimits:
@@ -170,7 +175,7 @@ def smoothing_for(
         if v / a_axis + (1 + n_axis) * dt < v / accel_cap + (n_path + n_axis) * dt:
             n_path, accel_cap, turn = 1, a_axis, n_axis
     deviation = tolerance_mm * (1.0 - BLEND_SHARE) if blended else tolerance_mm
-    return Smoothing(dt, n_path, n_axis, accel_cap, accel_cap / (max(n_path, turn) * dt),
+    return Smoothing(dt, n_path, n_axis, accel_cap, accel_cap / (turn * dt),
                      deviation if n_axis > 1 else 0.0, share, jerk_reserve, turn, alone)
 
 

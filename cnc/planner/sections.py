@@ -456,8 +456,8 @@ def _corners_to_stop(sections: list[Section], config: MachineConfig,
         # the averages' span and acceleration as the path average alone would make them: a section
         # whose axis average holds its jerk (`smoothing_for`) may still be made so once its share
         # of jerk is chosen (`_fastest_limits`), and its blends then crawl that long
-        n_alone, a_blend = lim.smoothing.alone
-        span_s = 2.0 * (n_alone + lim.smoothing.n_axis + 3) * dt
+        a_blend = lim.smoothing.alone[1]
+        span_s = 2.0 * lim.smoothing.alone_extension_s
         elements = section.elements
         chosen = []  # (where along the section, the neighbours' speed, gentle by itself, the blend's segment)
         for k in range(1, len(elements) - 1):
