@@ -214,22 +214,3 @@ def test_kinks_a_window_spans_together_keep_their_share_at_any_override(spacing_
     if spacing_spans > 1.0:
         assert kinks.min() >= feed * (1 - 1e-9), "a window at the feed spans one kink: the feed holds"
 
-
-def test_the_distance_to_an_arc_whose_end_is_off_its_circle_follows_the_spiral_it_is_run_as():
-    """An arc is run as a spiral from its start's radius to its end's (`PathArrays.points`); the
-    checks within P (a corner's overlap, a blend) measure against the same spiral. Against the
-    start's circle, an end 2 um off its circle let a point on the run path read 2 um off it."""
-    from cnc.planner.path import distance_to
-
-    r0, r1 = 10.0, 10.002
-    arc = element(ARC, (10.0, 0.0, 0.0), (0.0, r1, 0.0), center=(0.0, 0.0))  # a quarter turn, counter-clockwise
-    path = PathArrays.of([arc])
-    on_run_path = path.points(np.linspace(0.0, path.total_mm, 9))[:, :2]
-    assert distance_to(on_run_path, [arc]).max() < 1e-9
-    halfway = np.array([[math.cos(math.pi / 4) * (r0 + 0.001), math.sin(math.pi / 4) * (r0 + 0.001)]])
-    assert distance_to(halfway, [arc])[0] == pytest.approx(0.0, abs=1e-9)
-    outside = np.array([[0.0, r1 + 0.005]])  # at the end, 5 um outside
-    assert distance_to(outside, [arc])[0] == pytest.approx(0.005, abs=1e-9)
-    several = Element(ARC, arc.start, arc.end, arc.center, False, 2, math.inf, 0.05, False, 0, 0, 0, 1)  # two more turns
-    beyond = np.array([[r0 + 0.0005, 0.0]])  # a hair outside where the first turn starts
-    assert distance_to(beyond, [several])[0] <= 0.0005 + 1e-9

@@ -5,13 +5,15 @@ from __future__ import annotations
 import math
 import random
 
+import numpy as np
 import pytest
 
 from gcode.canon import ARC, LINE
 from gcode.dialect import Dialect
 from gcode.interp import interpret
 
-from cnc.planner.path import blend_corners, deviation, elements_from_program
+from cnc.planner.geometry import PathArrays
+from cnc.planner.path import Element, blend_corners, deviation, distance_to, elements_from_program
 
 pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
@@ -126,3 +128,21 @@ def test_the_path_keeps_segment_and_line_for_progress():
     _, path = path_of("G64 P0.1\nG1 X10 F600\nG1 Y10\n")
     assert [e.line for e in path] == [2, 3, 3] and [e.segment for e in path] == [0, 1, 1]
     assert all(e.feed_mm_s == pytest.approx(10.0) for e in path)
+
+
+def test_the_distance_to_an_arc_whose_end_is_off_its_circle_follows_the_spiral_it_is_run_as():
+    """An arc is run as a spiral from its start's radius to its end's (`PathArrays.points`); the
+    checks within P (a corner's overlap, a blend) measure against the same spiral. Against the
+    start's circle, an end 2 um off its circle let a point on the run path read 2 um off it."""
+    r0, r1 = 10.0, 10.002
+    arc = Element(ARC, (10.0, 0.0, 0.0), (0.0, r1, 0.0), (0.0, 0.0), False, 0, math.inf, 0.05, False, 0, 0, 0, 1)  # a quarter turn, CCW
+    path = PathArrays.of([arc])
+    on_run_path = path.points(np.linspace(0.0, path.total_mm, 9))[:, :2]
+    assert distance_to(on_run_path, [arc]).max() < 1e-9
+    halfway = np.array([[math.cos(math.pi / 4) * (r0 + 0.001), math.sin(math.pi / 4) * (r0 + 0.001)]])
+    assert distance_to(halfway, [arc])[0] == pytest.approx(0.0, abs=1e-9)
+    outside = np.array([[0.0, r1 + 0.005]])  # at the end, 5 um outside
+    assert distance_to(outside, [arc])[0] == pytest.approx(0.005, abs=1e-9)
+    several = Element(ARC, arc.start, arc.end, arc.center, False, 2, math.inf, 0.05, False, 0, 0, 0, 1)  # two more turns
+    beyond = np.array([[r0 + 0.0005, 0.0]])  # a hair outside where the first turn starts
+    assert distance_to(beyond, [several])[0] <= 0.0005 + 1e-9
