@@ -121,6 +121,67 @@ def test_a_near_tangent_kink_gets_a_speed_cap_and_a_smooth_join_none():
     assert 0 < lim.v_kink[0] < 500.0 and lim.v_kink[1] == np.inf
 
 
+def test_kinks_with_no_curve_beside_them_take_the_whole_geometry_budget():
+    """A polyline's kinks (chords of a curve, passed at speed) share the geometry's jerk and
+    deviation budgets with nothing: their cap is the one the whole budgets leave (`_kink_caps`:
+    the velocity's jump v phi spread over the axis average), not a quarter of them."""
+    cfg = machine_config()
+    phi = 0.008
+    a = element(LINE, (0, 0, 0), (50, 0, 0))
+    b = element(LINE, (50, 0, 0), (50 + 50 * math.cos(phi), 50 * math.sin(phi), 0))
+    lim = limits_of([a, b], config=cfg)
+    sm, dt = lim.smoothing, cfg.timing.period_s
+    j_geometry = 200000.0 - sm.jerk_path
+    k = min(j_geometry * sm.n_axis * dt * dt / 2.0, 0.02 * 5000.0 * sm.n_axis * dt / 2.0, 4.0 * sm.deviation_mm / (sm.n_axis * dt))
+    assert lim.v_kink[0] == pytest.approx(k / phi, rel=1e-6)
+    assert lim.v_kink[0] > 2.0 * (0.25 * j_geometry * sm.n_axis * dt * dt / 2.0) / phi
+
+
+def _rounded_corner(end_y: float) -> list:
+    """A rounded rectangle's corner as a CAM writes it to 3 decimals (the comparison nest's part 44):
+    a line, a quarter arc R2.014, a line; `end_y` 88.509 leaves the arc's end a micrometre off its
+    tangent (a kink of 0.5 mrad into the line), 88.510 meets it exactly."""
+    return [element(LINE, (873.561, 90.524, 0), (847.014, 90.524, 0), feed=40.0),
+            element(ARC, (847.014, 90.524, 0), (845.0, end_y, 0), center=(847.014, 88.510), feed=40.0),
+            element(LINE, (845.0, end_y, 0), (845.0, 65.0, 0), feed=40.0)]
+
+
+def test_a_hairs_kink_where_an_arc_meets_a_line_leaves_the_arc_its_jerk_budget():
+    """A kink of half a milliradian, a CAM's rounding where an arc ends, takes the share of the
+    geometry budgets it needs to pass at the fastest it may run (twice its feed), a few per cent,
+    and the arc keeps within 3 % the cap it has where it meets the line exactly (the kink took a
+    quarter of the budgets, and the nest's arc ran at 37 mm/s instead of its 40 mm/s feed)."""
+    exact = limits_of(_rounded_corner(88.510))
+    rounded = limits_of(_rounded_corner(88.509))
+    assert np.isinf(exact.v_kink).all()
+    assert math.isfinite(rounded.v_kink[1]) and rounded.v_kink[1] >= 80.0
+    assert 0.97 * exact.v_hard[1] <= rounded.v_hard[1] <= exact.v_hard[1]  # a quarter of the budget: 0.87
+
+
+def test_a_contours_straights_away_from_its_curves_speed_up_with_the_whole_path_jerk():
+    """The curves' share of the jerk binds where a window of the averages reaches them: a straight
+    element of a section with arcs accelerates at what the whole path jerk allows through the
+    average that holds it (`Smoothing.turn_samples`), and the zones hold the section's own
+    acceleration, or the arc's, wherever a window can reach the arc or a kink."""
+    from cnc.planner.geometry import PathArrays
+    from cnc.planner.limits import section_zones
+
+    cfg = machine_config()
+    elements = _rounded_corner(88.509)
+    lim = limits_of(elements, config=cfg)
+    sm, dt = lim.smoothing, cfg.timing.period_s
+    a_far = min(5000.0 * 0.98, 200000.0 * sm.turn_samples * dt)
+    assert sm.geometry_share > 0.0 and lim.accel[0] == pytest.approx(a_far) and lim.accel[2] == pytest.approx(a_far)
+    assert lim.accel[0] > 1.5 * sm.accel_cap and lim.accel[1] <= sm.accel_cap
+    path = PathArrays.of(elements)
+    zones = section_zones(path, lim, 0.0, path.total_mm, False, 1.0, 1.0, False)
+    reach_mm = lim.v_max_any * sm.extension_s
+    mid = (zones.edges[:-1] + zones.edges[1:]) / 2.0
+    near = (mid > path.s0[1] - reach_mm) & (mid < path.s0[2] + reach_mm)
+    assert (zones.accel[near] <= sm.accel_cap * (1 + 1e-12)).all()
+    assert zones.accel[0] == pytest.approx(a_far) and zones.accel[-1] == pytest.approx(a_far)
+
+
 def test_an_envelope_is_the_lowest_cap_widened_to_where_it_reaches():
     edges, values = envelope(np.array([0.0, 10.0]), np.array([10.0, 20.0]), np.array([100.0, 5.0]), np.array([1.0, 1.0]), 0.0, 20.0)
     assert list(edges) == [0.0, 9.0, 20.0] and list(values) == [100.0, 5.0]

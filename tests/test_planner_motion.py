@@ -318,6 +318,45 @@ def test_a_slow_contour_with_arcs_ramps_with_its_axis_average_holding_the_jerk(f
         assert stalled["position"][-1] == pytest.approx([100, 100], abs=1e-9)
 
 
+@pytest.mark.parametrize("feed_mm_min", [2400, 6000])
+def test_a_contours_straight_speeds_up_with_the_whole_path_jerk_and_holds_near_its_arc_keep_the_limits(feed_mm_min):
+    """A contour with arcs keeps a share of the jerk for its curves; on its straights away from
+    them (further than a window of the averages reaches) the speed changes with the whole path
+    jerk (`limits.section_limits`): from rest it reaches its feed in v/A + (N_j + N_f) dt at that
+    acceleration, sooner than at the section's own. Held and resumed every few samples of the ramp and of the
+    approach to the first arc, and under an override dropped to 30 % there and raised again, every
+    axis keeps its limits and every record lies within P."""
+    from cnc.planner.sections import Section, iter_steps
+
+    config = machine_config()
+    v = feed_mm_min / 60.0
+    text = (f"G21 G90 G64 P0.05\nG0 X100 Y100\nG4 P0.1\nG1 X160 F{feed_mm_min}\nG3 X160 Y120 I0 J10\n"
+            "G1 X100\nG3 X100 Y100 I0 J-10\nM2\n")
+    program, _, records, planned = run(text)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    contour = next(s for s in iter_steps(program, config) if isinstance(s, Section) and len(s.elements) > 1)
+    sm, a_first = contour.limits.smoothing, float(contour.limits.accel[0])
+    assert a_first > 1.1 * sm.accel_cap
+    on_cut = np.flatnonzero(records["line"] >= 4)
+    sp = speed(records)
+    start = int(on_cut[0])
+    reached = start + int(np.flatnonzero(sp[start:] >= v * (1.0 - 1e-9))[0])
+    assert (reached - start) * DT <= v / a_first + (sm.n_path + sm.n_axis + 3) * DT
+    assert (reached - start) * DT < v / sm.accel_cap + (sm.n_path + sm.n_axis - 2) * DT, "sooner than at the section's own"
+    arc = int(np.flatnonzero(records["line"] == 5)[0])
+    for at in [*range(start + 1, reached + 3, 5), *range(arc - 60, arc + 10, 7)]:
+        _, _, held, _ = run(text, chunk=3, actions={at: lambda r: r.hold(), 10**9: lambda r: r.resume()})
+        within_limits(held)
+        assert (within_tolerance(program, held) <= 1e-9).all(), at
+        assert held["position"][-1] == pytest.approx([100, 100], abs=1e-9)
+    for at in (start + 4, arc - 40, arc - 15):
+        _, _, slowed, _ = run(text, chunk=3, actions={at: lambda r: r.set_override(0.3), at + 25: lambda r: r.set_override(1.0)})
+        within_limits(slowed)
+        assert (within_tolerance(program, slowed) <= 1e-9).all(), at
+
+
 SLOT_R5 = ("G21 G90 G17 G64 P0.05\nG0 X1505 Y17\nG4 P0.1\nG1 X1505 Y20 F2400\nG1 X1520.507 Y20\n"
            "G3 X1520.507 Y30.377 I0 J5.188\nG1 X1505 Y30.377\nG3 X1505 Y20 I0 J-5.188\nG1 X1503 Y18\nM2\n")
 

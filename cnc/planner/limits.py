@@ -38,6 +38,12 @@ no smoothing and an exact path. Kinks (tangent within KINK_MAX_RAD, e.g. an arc 
 line a hair off tangent) pass at a speed whose direction jump v phi the axis average can
 absorb; a larger turn is an exact stop. Every cap on a stretch of path also holds for the
 T_ext before and after it (`envelope`), because the averages mix samples that far apart.
+
+The geometry's share binds only where a window reaches a curve or a kink: a straight element
+of a curved section takes A_t = J N dt (N the average that holds the path's jerk) and the
+envelope keeps the section's own A_t, or the curve's, over the T_ext around every curve and
+kink. Kinks beside curves take only the share of the geometry's budgets they need to pass at
+the fastest they may run (`_kink_share`); with no curve beside them, all of it.
 """
 
 from __future__ import annotations
@@ -57,7 +63,8 @@ from .path import BLEND_SHARE, COLLINEAR_RAD, Element, arc_pieces
 KINK_MAX_RAD = 0.01  # a larger turn between unblended elements is an exact stop
 GEOMETRY_JERK_SHARE = 0.5  # share of the jerk kept for curvature and kinks when a section has them
 GEOMETRY_JERK_SHARES = (0.3, 0.5, 0.7)  # the shares `sections.py` tries, keeping the fastest
-KINK_SHARE = 0.25  # of the geometry budgets (jerk, deviation), when a section has kinks
+KINK_SHARE = 0.25  # of the geometry budgets (jerk, deviation) at most, when a section has kinks and curves
+KINK_SHARE_MARGIN = 1.05  # the kinks' share over what they need (`_kink_share`)
 KINK_ACCEL_SHARE = 0.02  # of the acceleration, when a section has kinks
 RAMP_ACCEL_GIVEN = 0.01  # share of its acceleration a section gives up to ramp in a sample less (`smoothing_for`)
 KINK_BISECTIONS = 8  # steps finding the fastest speed a kink's cap holds at
@@ -257,9 +264,18 @@ def section_limits(
     v_top = float(v_fast.max()) if n else math.inf
     sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended, geometry_share, v_top,
                        jerk_reserve)
-    a_axis = np.minimum(a_axis, sm.accel_cap)
+    if sm.geometry_share > 0.0:
+        # the curves' and kinks' share of the jerk binds only where a window of the averages
+        # reaches them: there each element's acceleration is widened over its neighbours
+        # (`section_zones`); a straight element elsewhere speeds up with the whole path jerk
+        a_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if kink.any() else a_min
+        a_far = min(a_cap, j_min * (1.0 - jerk_reserve) * sm.turn_samples * sm.dt)
+        a_axis = np.where(curved, np.minimum(a_axis, sm.accel_cap), np.minimum(a_axis, max(a_far, sm.accel_cap)))
+    else:
+        a_axis = np.minimum(a_axis, sm.accel_cap)
     j_geometry = j_min * (1.0 - jerk_reserve) - sm.jerk_path
-    share_kink = KINK_SHARE if kink.any() else 0.0
+    share_kink = _kink_share(path, kinks * kink, sm, curved.any(), np.minimum(v_fast[:-1], v_fast[1:]),
+                             j_geometry, a_min) if kink.any() else 0.0
     v_hard, accel = v_axis.copy(), a_axis.copy()
     accel_feed = accel
     if curved.any():
@@ -277,6 +293,35 @@ def section_limits(
         v_kink[kink] = _kink_caps(path, kinks * kink, sm, np.minimum(v_run[:-1], v_run[1:]), np.minimum(v_fast[:-1], v_fast[1:]),
                                   j_geometry * share_kink, sm.deviation_mm * share_kink, a_min)[kink]
     return SectionLimits(v_hard, v_feed, rapid, accel, v_kink, sm, caps, accel_feed)
+
+
+def _kink_share(
+    path: PathArrays, kink_angles: np.ndarray, sm: Smoothing, curves: bool, v_top: np.ndarray, j_geometry: float,
+    a_min: float,
+) -> float:
+    """The share of the geometry's jerk and deviation budgets the kinks take: all of it in a
+    section without curves; beside curves, what lets every kink pass at the fastest it may run
+    (`v_top`, any override), up to `KINK_SHARE`. A CAM program's rounding leaves kinks of a
+    fraction of a milliradian where an arc meets a line (its end a micrometre off the tangent):
+    such a hair needs a few per cent of the budget, and the curves keep the rest."""
+    if not curves:
+        return 1.0
+    n_axis, dt = sm.n_axis, sm.dt
+    if n_axis <= 1 or j_geometry <= 0.0 or sm.deviation_mm <= 0.0:
+        return KINK_SHARE
+    # the kinks within the stretch a window spans at that speed add their jumps (`_kink_caps`)
+    at = path.s0[1:-1]
+    cum = np.concatenate(([0.0], np.cumsum(kink_angles)))
+    reach = np.where(np.isfinite(v_top), v_top, 0.0) * (n_axis + 2) * dt + 1e-6
+    phi = np.maximum(cum[np.searchsorted(at, at + reach, side="right")] - cum[np.searchsorted(at, at - reach, side="left")],
+                     kink_angles)
+    if not np.isfinite(v_top[kink_angles > 0]).all():
+        return KINK_SHARE
+    need = float((v_top * phi)[kink_angles > 0].max())  # k of `_kink_caps` that passes every kink at v_top
+    if need > KINK_ACCEL_SHARE * a_min * n_axis * dt / 2.0:
+        return KINK_SHARE  # the acceleration's share caps it anyway
+    share = max(need * 2.0 / (n_axis * dt * dt) / j_geometry, need * n_axis * dt / 4.0 / sm.deviation_mm)
+    return min(KINK_SHARE, share * KINK_SHARE_MARGIN)
 
 
 def _axis_min(config: MachineConfig, key: str) -> float:
@@ -549,7 +594,12 @@ def _enveloped_zones(
         np.concatenate((hard, kink_cap[k])), np.concatenate((hard, kink_cap[k])) * reach, lo, hi,
     )
     e_soft, v_soft = envelope(s0, s1, soft, np.minimum(soft, hard) * reach, lo, hi)
-    e_acc, v_acc = envelope(s0, s1, lim.accel_for(over_feed)[i0:i1], hard * reach, lo, hi)
+    # a kink holds the section's own acceleration wherever a window reaches it (a straight element
+    # may speed up harder away from the curves and kinks: `section_limits`)
+    a_kink = np.full(int(k.sum()), lim.smoothing.accel_cap)
+    e_acc, v_acc = envelope(np.concatenate((s0, kink_at[k])), np.concatenate((s1, kink_at[k])),
+                            np.concatenate((lim.accel_for(over_feed)[i0:i1], a_kink)),
+                            np.concatenate((hard, kink_cap[k])) * reach, lo, hi)
     edges = np.unique(np.concatenate((e_hard, e_soft, e_acc)))
     mid = (edges[:-1] + edges[1:]) / 2.0
     pick = lambda e, v: v[np.clip(np.searchsorted(e, mid, side="right") - 1, 0, len(v) - 1)]  # noqa: E731
