@@ -323,9 +323,9 @@ def test_a_contours_straight_speeds_up_with_the_whole_path_jerk_and_holds_near_i
     """A contour with arcs keeps a share of the jerk for its curves; on its straights away from
     them (further than a window of the averages reaches) the speed changes with the whole path
     jerk (`limits.section_limits`): from rest it reaches its feed in v/A + (N_j + N_f) dt at that
-    acceleration, sooner than at the section's own. Held and resumed every few samples of the ramp and of the
-    approach to the first arc, and under an override dropped to 30 % there and raised again, every
-    axis keeps its limits and every record lies within P."""
+    acceleration, sooner than at the section's own. Held and resumed every 9 samples of the ramp and
+    every 13 of the approach to the first arc, and under an override dropped to 30 % there and raised
+    again, every axis keeps its limits and every record lies within P."""
     from cnc.planner.sections import Section, iter_steps
 
     config = machine_config()
@@ -346,12 +346,12 @@ def test_a_contours_straight_speeds_up_with_the_whole_path_jerk_and_holds_near_i
     assert (reached - start) * DT <= v / a_first + (sm.n_path + sm.n_axis + 3) * DT
     assert (reached - start) * DT < v / sm.accel_cap + (sm.n_path + sm.n_axis - 2) * DT, "sooner than at the section's own"
     arc = int(np.flatnonzero(records["line"] == 5)[0])
-    for at in [*range(start + 1, reached + 3, 5), *range(arc - 60, arc + 10, 7)]:
+    for at in [*range(start + 1, reached + 3, 9), *range(arc - 60, arc + 10, 13)]:
         _, _, held, _ = run(text, chunk=3, actions={at: lambda r: r.hold(), 10**9: lambda r: r.resume()})
         within_limits(held)
         assert (within_tolerance(program, held) <= 1e-9).all(), at
         assert held["position"][-1] == pytest.approx([100, 100], abs=1e-9)
-    for at in (start + 4, arc - 40, arc - 15):
+    for at in (start + 4, arc - 30):
         _, _, slowed, _ = run(text, chunk=3, actions={at: lambda r: r.set_override(0.3), at + 25: lambda r: r.set_override(1.0)})
         within_limits(slowed)
         assert (within_tolerance(program, slowed) <= 1e-9).all(), at
