@@ -278,6 +278,26 @@ def test_a_cut_at_a_waterjet_feed_ramps_in_the_jerk_limited_least_time_and_stops
     assert braked_mm <= v * v / (2.0 * a_top) + v * a_top / (2.0 * j) + v * 3 * DT
 
 
+def _contour_run(text: str):
+    """Run a program whose cut (line 4 on) is one contour section: the program, its records (every
+    axis within its limits, every record within P, as many as planned) and that section."""
+    from cnc.planner.sections import Section, iter_steps
+
+    program, _, records, planned = run(text)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    contour = next(s for s in iter_steps(program, machine_config()) if isinstance(s, Section) and len(s.elements) > 1)
+    return program, records, contour
+
+
+def _ramp_from_rest(records, v: float) -> tuple[np.ndarray, int, int]:
+    """The cut's records (line 4 on), the first of them, and the first at the speed v."""
+    on_cut = np.flatnonzero(records["line"] >= 4)
+    start = int(on_cut[0])
+    return on_cut, start, start + int(np.flatnonzero(speed(records)[start:] >= v * (1.0 - 1e-9))[0])
+
+
 @pytest.mark.parametrize("feed_mm_min", [1200, 2400])
 def test_a_slow_contour_with_arcs_ramps_with_its_axis_average_holding_the_jerk(feed_mm_min):
     """A contour with arcs has an axis average (N_f samples, from P) that smooths its speed as well
@@ -286,23 +306,13 @@ def test_a_slow_contour_with_arcs_ramps_with_its_axis_average_holding_the_jerk(f
     leaves rest in v/A + N_f dt instead of v/A' + (N_j + N_f) dt. Every axis keeps its limits from
     rest, under a hold pressed every few samples of the ramp and of the braking at its end (resumed
     at once), and under an override dropped to 0 and raised at once; every record within P."""
-    from cnc.planner.sections import Section, iter_steps
-
-    config = machine_config()
     v = feed_mm_min / 60.0
     text = (f"G21 G90 G64 P0.05\nG0 X100 Y100\nG4 P0.1\nG1 X140 F{feed_mm_min}\nG3 X140 Y110 I0 J5\n"
             "G1 X100\nG3 X100 Y100 I0 J-5\nM2\n")
-    program, _, records, planned = run(text)
-    within_limits(records)
-    assert (within_tolerance(program, records) <= 1e-9).all()
-    assert len(records) == planned
-    contour = next(s for s in iter_steps(program, config) if isinstance(s, Section) and len(s.elements) > 1)
+    program, records, contour = _contour_run(text)
     sm = contour.limits.smoothing
     assert sm.n_path == 1 and sm.turn_samples == sm.n_axis > 1
-    on_cut = np.flatnonzero(records["line"] >= 4)
-    sp = speed(records)
-    start = int(on_cut[0])
-    reached = start + int(np.flatnonzero(sp[start:] >= v * (1.0 - 1e-9))[0])
+    on_cut, start, reached = _ramp_from_rest(records, v)
     n_alone, a_alone = sm.alone
     assert (reached - start) * DT <= v / sm.accel_cap + (1 + sm.n_axis + 3) * DT
     assert (reached - start) * DT < v / a_alone + (n_alone + sm.n_axis) * DT - 5 * DT, "sooner than with the path average"
@@ -326,23 +336,13 @@ def test_a_contours_straight_speeds_up_with_the_whole_path_jerk_and_holds_near_i
     acceleration, sooner than at the section's own. Held and resumed every 9 samples of the ramp and
     every 13 of the approach to the first arc, and under an override dropped to 30 % there and raised
     again, every axis keeps its limits and every record lies within P."""
-    from cnc.planner.sections import Section, iter_steps
-
-    config = machine_config()
     v = feed_mm_min / 60.0
     text = (f"G21 G90 G64 P0.05\nG0 X100 Y100\nG4 P0.1\nG1 X160 F{feed_mm_min}\nG3 X160 Y120 I0 J10\n"
             "G1 X100\nG3 X100 Y100 I0 J-10\nM2\n")
-    program, _, records, planned = run(text)
-    within_limits(records)
-    assert (within_tolerance(program, records) <= 1e-9).all()
-    assert len(records) == planned
-    contour = next(s for s in iter_steps(program, config) if isinstance(s, Section) and len(s.elements) > 1)
+    program, records, contour = _contour_run(text)
     sm, a_first = contour.limits.smoothing, float(contour.limits.accel[0])
     assert a_first > 1.1 * sm.accel_cap
-    on_cut = np.flatnonzero(records["line"] >= 4)
-    sp = speed(records)
-    start = int(on_cut[0])
-    reached = start + int(np.flatnonzero(sp[start:] >= v * (1.0 - 1e-9))[0])
+    _, start, reached = _ramp_from_rest(records, v)
     assert (reached - start) * DT <= v / a_first + (sm.n_path + sm.n_axis + 3) * DT
     assert (reached - start) * DT < v / sm.accel_cap + (sm.n_path + sm.n_axis - 2) * DT, "sooner than at the section's own"
     arc = int(np.flatnonzero(records["line"] == 5)[0])
