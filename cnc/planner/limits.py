@@ -264,11 +264,11 @@ def section_limits(
     v_top = float(v_fast.max()) if n else math.inf
     sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended, geometry_share, v_top,
                        jerk_reserve)
+    a_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if kink.any() else a_min
     if sm.geometry_share > 0.0:
         # the curves' and kinks' share of the jerk binds only where a window of the averages
         # reaches them: there each element's acceleration is widened over its neighbours
         # (`section_zones`); a straight element elsewhere speeds up with the whole path jerk
-        a_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if kink.any() else a_min
         a_far = min(a_cap, j_min * (1.0 - jerk_reserve) * sm.turn_samples * sm.dt)
         a_axis = np.where(curved, np.minimum(a_axis, sm.accel_cap), np.minimum(a_axis, max(a_far, sm.accel_cap)))
     else:
@@ -283,7 +283,7 @@ def section_limits(
             caps.windows = CurveWindows(path, kinks * kink)
         v_curve, a_curve, a_curve_feed = _curvature_caps(path, caps.windows, sm, v_feed, j_geometry * (1.0 - share_kink),
                                            sm.deviation_mm * (1.0 - share_kink), config.planner.arc_normal_share * a_min, v_top,
-                                           a_min * (1.0 - KINK_ACCEL_SHARE) if kink.any() else a_min)
+                                           a_cap)
         v_hard = np.minimum(v_hard, v_curve)
         accel_feed = np.where(curved, np.minimum(accel, a_curve_feed), accel)
         accel = np.where(curved, np.minimum(accel, a_curve), accel)
@@ -309,15 +309,11 @@ def _kink_share(
     n_axis, dt = sm.n_axis, sm.dt
     if n_axis <= 1 or j_geometry <= 0.0 or sm.deviation_mm <= 0.0:
         return KINK_SHARE
-    # the kinks within the stretch a window spans at that speed add their jumps (`_kink_caps`)
-    at = path.s0[1:-1]
-    cum = np.concatenate(([0.0], np.cumsum(kink_angles)))
-    reach = np.where(np.isfinite(v_top), v_top, 0.0) * (n_axis + 2) * dt + 1e-6
-    phi = np.maximum(cum[np.searchsorted(at, at + reach, side="right")] - cum[np.searchsorted(at, at - reach, side="left")],
-                     kink_angles)
-    if not np.isfinite(v_top[kink_angles > 0]).all():
+    kinks = kink_angles > 0
+    if not np.isfinite(v_top[kinks]).all():
         return KINK_SHARE
-    need = float((v_top * phi)[kink_angles > 0].max())  # k of `_kink_caps` that passes every kink at v_top
+    phi = _window_turns(path, kink_angles, np.where(kinks, v_top, 0.0) * (n_axis + 2) * dt)
+    need = float((v_top * phi)[kinks].max())  # k of `_kink_caps` that passes every kink at v_top
     if need > KINK_ACCEL_SHARE * a_min * n_axis * dt / 2.0:
         return KINK_SHARE  # the acceleration's share caps it anyway
     share = max(need * 2.0 / (n_axis * dt * dt) / j_geometry, need * n_axis * dt / 4.0 / sm.deviation_mm)
@@ -484,18 +480,13 @@ def _kink_caps(
     """
     n_axis, dt = sm.n_axis, sm.dt
     span = (n_axis + 2) * dt
-    at = path.s0[1:-1]
-    cum = np.concatenate(([0.0], np.cumsum(kink_angles)))
     k = min(j_kink * n_axis * dt * dt / 2.0, KINK_ACCEL_SHARE * a_min * n_axis * dt / 2.0)
     if n_axis > 1:
         k = min(k, 4.0 * deviation_mm / (n_axis * dt))
 
     def f(v: np.ndarray) -> np.ndarray:
         """The cap the kinks within the stretch a window spans at speed v leave."""
-        reach = v * span + 1e-6
-        phi = np.maximum(cum[np.searchsorted(at, at + reach, side="right")] - cum[np.searchsorted(at, at - reach, side="left")],
-                         kink_angles)
-        return k / phi
+        return k / _window_turns(path, kink_angles, v * span)
 
     with np.errstate(divide="ignore", invalid="ignore"):
         v_own = k / kink_angles
@@ -511,6 +502,16 @@ def _kink_caps(
         feed_holds = (v_run > v) & (v_run <= hi) & (v_run <= f(v_run))
         v = np.where(feed_holds, v_run, v)
     return np.where(kink_angles > 0, v, np.inf)
+
+
+def _window_turns(path: PathArrays, kink_angles: np.ndarray, reach_mm: np.ndarray) -> np.ndarray:
+    """phi per junction: the turns of the kinks within `reach_mm` of it (per junction) on either
+    side, at least its own: what a window of the axis average spanning that stretch adds up."""
+    at = path.s0[1:-1]
+    cum = np.concatenate(([0.0], np.cumsum(kink_angles)))
+    reach = reach_mm + 1e-6
+    return np.maximum(cum[np.searchsorted(at, at + reach, side="right")] - cum[np.searchsorted(at, at - reach, side="left")],
+                      kink_angles)
 
 
 def _max_table(values: np.ndarray) -> list[np.ndarray]:
