@@ -21,7 +21,7 @@ import time
 from cnc.config import MachineConfig
 from cnc.data.dataserver import SharedArea
 from cnc.data.layout import MAX_PLC_VARS, LinkState, Proc, controller_layouts
-from cnc.runtime.rt import enter_realtime
+from cnc.runtime.rt import enter_realtime, step_up_for_wall_time
 from cnc.runtime.table import realtime_priority
 from cnc.runtime.child import Runtime, child_setup, set_ready
 
@@ -30,6 +30,7 @@ from .master import NO_PORT, PlcMaster
 log = logging.getLogger(__name__)
 
 HEARTBEAT_PERIOD_S = 0.25
+LATE_S = 0.1  # a cycle that wakes this much after its deadline is said (`PlcLink.run`)
 
 
 class PlcLink:
@@ -52,6 +53,8 @@ class PlcLink:
         self._heartbeat = 0.0  # the value forwarded to the PLC
         self._heartbeat_due = 0.0
         self._out_idx = self._out_reader.layout.index
+        self.late_wakes = 0  # cycles that woke LATE_S or more after their deadline
+        self.longest_late_s = 0.0
 
     def step(self, now_s: float) -> bool:
         """One cycle: exchange the latest output image, publish the result; True when the
@@ -99,6 +102,17 @@ class PlcLink:
             if deadline < now:  # an exchange overran: start the next cycle now, do not catch up
                 deadline = now
             time.sleep(deadline - now)
+            self._note_late(time.monotonic() - deadline)
+
+    def _note_late(self, late_s: float) -> None:
+        """Count and say a cycle that woke `late_s` after its deadline, when that is `LATE_S` or
+        more: the host did not run the link (its exchanges' own overruns start the next cycle at
+        once and are not counted), so a stale input image then is the host's, not the PLC's."""
+        if late_s < LATE_S:
+            return
+        self.late_wakes += 1
+        self.longest_late_s = max(self.longest_late_s, late_s)
+        log.warning("PLC link: a cycle woke %.0f ms after its deadline (the host did not run the link)", late_s * 1000.0)
 
     def announce(self) -> None:
         """Before the first exchange: the link is connecting (its port about to open), not down, so
@@ -129,6 +143,8 @@ def run_plc_link(rt: Runtime, ready) -> None:
         # below the logic: the PLC's safety and plant signals must not wait behind a busy host
         # (a program being planned, fifty observers): three exchanges late is a lost link
         enter_realtime(realtime_priority(rt.config, "plc_link"), "plc link")
+    else:
+        step_up_for_wall_time(rt.clock)
     set_ready(ready)
     try:
         link.run()

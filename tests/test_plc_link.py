@@ -6,6 +6,7 @@ process loop over shared memory."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import select
 import threading
@@ -574,6 +575,39 @@ def test_link_loop_publishes_inputs_state_and_counters_into_shared_memory(sim, a
         link.close()
     assert not thread.is_alive()
     assert reader.read_dict()["state"] == LinkState.DOWN
+
+
+def test_the_link_loop_says_a_cycle_the_host_woke_late_but_not_its_own_overrun(area, monkeypatch, caplog):
+    """A stale input image is a safe stop; whether the PLC or the host made it stale, the link's
+    log tells: a cycle that wakes 100 ms or more after its deadline is counted and said, while an
+    exchange that overruns its cycle (an answer waited for up to its timeout) starts the next
+    one at once and is not. On a clock of the test's own: the first exchange takes three cycles,
+    the third cycle's sleep oversleeps by 150 ms, the fifth by 50 ms."""
+    import plc_link.process as process
+
+    clock = {"now": 100.0, "sleeps": 0}
+    link = PlcLink(dataclasses.replace(MACHINE, plc=dataclasses.replace(PLC, port="")), area, "")
+    period = link.period_s
+
+    def step(now_s: float) -> bool:
+        clock["now"] += 3.0 * period if clock["sleeps"] == 0 else 0.001
+        return True
+
+    def sleep(s: float) -> None:
+        clock["sleeps"] += 1
+        clock["now"] += s + {3: 0.150, 5: 0.050}.get(clock["sleeps"], 0.0)
+        if clock["sleeps"] == 8:
+            area.blocks["supervisor"].array["shutdown"][0] |= 1 << Proc.PLC_LINK
+
+    monkeypatch.setattr(link, "step", step)
+    monkeypatch.setattr(process.time, "monotonic", lambda: clock["now"])
+    monkeypatch.setattr(process.time, "sleep", sleep)
+    with caplog.at_level(logging.WARNING, logger="plc_link.process"):
+        link.run()
+    link.close()
+    assert link.late_wakes == 1 and link.longest_late_s == pytest.approx(0.150)
+    assert [r.getMessage() for r in caplog.records] == [
+        "PLC link: a cycle woke 150 ms after its deadline (the host did not run the link)"]
 
 
 def test_link_loop_without_a_port_stays_down_and_beats(area):
