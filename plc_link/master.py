@@ -245,3 +245,6 @@ class PlcMaster:
             s.losses += 1
             self._next_reconnect = now_s + self.config.reconnect_s
             log.warning("PLC link lost after %d failed exchanges: %s", s.missed, error)
+        else:  # on the way to a loss: said, so that a stale image tells answers missing from a link not run
+            log.warning("PLC link: exchange failed (%d of %d before the link counts as lost): %s", s.missed,
+                        self.config.lost_after_cycles, error)

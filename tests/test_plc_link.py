@@ -481,7 +481,9 @@ def test_out_of_range_output_is_clamped_and_reported_without_failing_the_cycle(s
         master.close()
 
 
-def test_cut_cable_is_lost_within_lost_after_cycles_then_reconnects_to_a_new_simulator(sim):
+def test_cut_cable_is_lost_within_lost_after_cycles_then_reconnects_to_a_new_simulator(sim, caplog):
+    """Each failed exchange on the way to a loss is said (a stale input image then tells answers
+    missing from a link the host did not run), the loss once."""
     plc = dataclasses.replace(PLC, reconnect_s=0.2)
     master = PlcMaster(plc, sim.device)
     outputs = [0.0] * 8
@@ -490,10 +492,16 @@ def test_cut_cable_is_lost_within_lost_after_cycles_then_reconnects_to_a_new_sim
         assert master.cycle(outputs) and master.status.state == LinkState.OK
         sim.cut()
         cycles = 0
-        while master.status.state != LinkState.LOST and cycles < 10:
-            master.cycle(outputs)
-            cycles += 1
+        with caplog.at_level(logging.WARNING, logger="plc_link.master"):
+            while master.status.state != LinkState.LOST and cycles < 10:
+                master.cycle(outputs)
+                cycles += 1
         assert master.status.state == LinkState.LOST and cycles == plc.lost_after_cycles
+        said = [r.getMessage() for r in caplog.records if r.name == "plc_link.master"]
+        expected = [*[f"PLC link: exchange failed ({k} of {plc.lost_after_cycles} before the link counts as lost): "
+                      for k in range(1, plc.lost_after_cycles)],
+                    f"PLC link lost after {plc.lost_after_cycles} failed exchanges: "]
+        assert len(said) == len(expected) and all(m.startswith(e) for m, e in zip(said, expected)), said
         assert master.status.losses == 1 and master.status.error
         second = Sim()
         master.retarget(second.device)
