@@ -92,8 +92,8 @@ def step_up_for_wall_time(clock: str) -> None:
     CPU of its own, and the lockstep processes step aside (`step_aside_for_wall_time`); but at
     nice 0 the link itself shared the CPUs evenly with the operator stations, fifty observers'
     sessions and a test's other work: on a busy 2-CPU host its input image once went a second
-    without a refresh, and homing stopped on a lost link that no PLC had lost. At nice
-    `WALL_TIME_NICE` its few milliseconds of work per exchange come first."""
+    without a refresh while its simulator reported no stall, and homing stopped on a lost link.
+    At nice `WALL_TIME_NICE` its few milliseconds of work per exchange come first."""
     if clock != "virtual":
         return
     try:
