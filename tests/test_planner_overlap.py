@@ -471,3 +471,102 @@ def test_random_cam_parts_with_lead_ins_off_square_keep_every_limit_and_time_exa
     this generator run clean."""
     text, chunk = _random_cam_parts(seed)
     runs_clean(text, chunk, seed if seed % 3 == 0 else None)
+
+
+def _part_turned_back(feed: int) -> str:
+    """`_lead_in_and_chords` left by a lead-out turned back at 45 degrees (into the scrap, as CAM
+    writes it): the last chord runs along +X into the corner, the lead-out goes off down-left."""
+    return _lead_in_and_chords(feed=feed).replace("M2\n", "G1 X-2 Y1\nM2\n")
+
+
+def _sections_of(text: str) -> list:
+    from cnc.planner.sections import Section, iter_steps
+
+    config = machine_config()
+    return [s for s in iter_steps(interpret(text, dialect_for(config)), config) if isinstance(s, Section)]
+
+
+@pytest.mark.parametrize("feed,sooner", [(2400, 5), (4800, 0)])
+def test_a_lead_out_turned_back_eases_both_ramps_where_that_passes_it_sooner(monkeypatch, feed, sooner):
+    """At a turn back the contour's first braking jerk and the lead-out's first add on X, so at
+    their own jerk the lead-out starts only once the contour has braked about halfway. At F2400
+    both ramps eased to `SHARP_TURN_ACCEL_SHARE` overlap until P holds them, and the part ends
+    sooner, passing the corner at about twice the speed; at F4800 the overlap is near its cap
+    already and easing would cost more than it gains, so the corner is left as it was. Either
+    way every axis keeps its limits, every record stays within P, the planned time is the one run."""
+    from cnc.planner import sections
+
+    text = _part_turned_back(feed)
+    program, _, records, planned = run(text, chunk=41)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    eased = [s.eased_ends for s in _sections_of(text)]
+    monkeypatch.setattr(sections, "SHARP_TURN_ACCEL_SHARE", 1.0)
+    _, _, whole, planned_whole = run(text, chunk=41)
+    assert len(whole) == planned_whole
+    corner = [(0.0, 3.0)]
+    second_half = slice(len(records) // 2, None)  # the circle closes at the lead-in's corner
+    if sooner:
+        assert eased == [(1.0, 1.0), (1.0, 0.7), (0.7, 1.0)], "the lead-in's right angle is not eased"
+        assert len(whole) - len(records) >= sooner
+        assert corner_speeds(records[second_half], corner)[0] > 1.5 * corner_speeds(whole[len(whole) // 2:], corner)[0]
+    else:
+        assert eased == [(1.0, 1.0)] * 3
+        assert len(whole) == len(records)
+
+
+def test_eased_ramps_keep_a_hold_at_the_whole_acceleration_and_the_same_stretch_at_any_override():
+    """The contour's end and the lead-out's start ramp at 0.7 of their acceleration over the
+    stretch a braking from the fastest they may run takes, whatever the override (a motion planned
+    again under a raise finds the accelerations it braked at); a hold brakes at the whole."""
+    from cnc.planner.limits import section_zones
+    from cnc.planner.sections import SHARP_TURN_ACCEL_SHARE
+
+    lead_in, contour, lead_out = _sections_of(_part_turned_back(2400))
+    for section, eased_at_end in ((contour, True), (lead_out, False)):
+        length = section.length_mm
+        stretches = []
+        for controls in ((1.0, 1.0, False), (2.0, 1.0, True), (0.3, 1.0, False)):
+            own = section_zones(section.path, section.limits, 0.0, length, False, *controls)
+            zones = section.zones(False, *controls)
+            near = length - 1e-3 if eased_at_end else 1e-3
+            far = 1e-3 if eased_at_end else length - 1e-3
+
+            def accel(z, s):  # noqa: ANN001, ANN202
+                return float(z.accel[min(np.searchsorted(z.edges, s, side="right") - 1, len(z.accel) - 1)])
+
+            assert accel(zones, near) == pytest.approx(SHARP_TURN_ACCEL_SHARE * accel(own, near), rel=1e-12)
+            assert accel(zones, far) == accel(own, far), "only the end at the corner is eased"
+            stretch = [e for e in zones.edges if 0.0 < e < length and e not in own.edges]
+            assert len(stretch) == 1
+            stretches.append(stretch[0])
+            held = section.zones(True, *controls)
+            assert np.array_equal(held.accel, section_zones(section.path, section.limits, 0.0, length, True,
+                                                            *controls).accel), "a hold brakes at the whole acceleration"
+        assert len(set(stretches)) == 1, "the eased stretch is the same at every override"
+    assert lead_in.eased_ends == (1.0, 1.0)
+
+
+@pytest.mark.parametrize("control", ["hold", "override 200", "override 10", "stop"])
+def test_a_control_anywhere_in_eased_ramps_keeps_every_limit_and_ends_where_programmed(control):
+    """Holds (resumed 30 samples later), raises to 200 %, drops to 10 % and stops every 9 samples
+    from 60 samples before the contour's eased braking to the lead-out's end: every axis within
+    its limits, every record within P of the program, and the part ends at the lead-out's end (a
+    stop: at rest on the path)."""
+    text = _part_turned_back(2400)
+    program, _, undisturbed, _ = run(text, chunk=41)
+    lead_out_line = int(undisturbed["line"][-1])
+    start = int(np.flatnonzero(undisturbed["line"] == lead_out_line)[0])
+    for at in range(start - 60, len(undisturbed) - 5, 9):
+        actions = {at: CONTROLS[control]}
+        if control == "hold":
+            actions[at + 30] = lambda r: r.resume()
+        _, runner, records, _ = run(text, chunk=7, actions=actions)
+        within_limits(records)
+        assert (within_tolerance(program, records) <= 1e-9).all(), f"control at {at}"
+        if control == "stop":
+            assert speed(records)[-1] == 0.0
+        else:
+            assert runner.state == RunState.DONE
+            assert records["position"][-1] == pytest.approx([-2.0, 1.0], abs=1e-9), f"control at {at}"

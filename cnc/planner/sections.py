@@ -49,6 +49,8 @@ FOLD_TURN_SHARE = 0.85  # ... and within this share where it may be blended (`_f
 FOLD_TURN_MAX_RAD = 2.6  # a folded corner turns at most this much (149 degrees; nearer a reversal the lines
 # would meet far off the arc): a stop in place of the crawl through the arc even where no overlap passes it
 FOLD_TILT_MAX_RAD = KINK_MAX_RAD / 4.0  # a line of a run tilted to a folded corner turns at most this much
+SHARP_TURN_RAD = math.radians(120.0)  # a corner overlap turning at least this much eases both moves' ramps ...
+SHARP_TURN_ACCEL_SHARE = 0.7  # ... to this share of their acceleration (`_eased_sharp_corners`)
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
 
@@ -75,6 +77,9 @@ class Section:
     # passes it instead of stopping (`overlap.py`): its jet-lag cap for the turn (inf: none)
     end_cap_mm_s: float = math.inf
     zone_cache: dict = field(default_factory=dict)  # its zones per setting of the controls (`zones`)
+    # the share of its acceleration it ramps at next to its start and its end, where a sharp corner
+    # overlap joins it to its neighbour (`_eased_sharp_corners`; 1: its own)
+    eased_ends: tuple[float, float] = (1.0, 1.0)
 
     def zones(self, holding: bool, override: float, rapid_override: float, over_feed: bool) -> Zones:
         """The whole section's caps and accelerations under these controls, made once per setting
@@ -84,6 +89,8 @@ class Section:
         whole = self.zone_cache.get(key)
         if whole is None:
             whole = section_zones(self.path, self.limits, 0.0, self.length_mm, *key)
+            if not holding and self.eased_ends != (1.0, 1.0):  # a hold brakes at the whole acceleration
+                whole = _eased_zones(whole, self.eased_ends, self.limits)
             self.zone_cache[key] = whole
         return whole
 
@@ -551,7 +558,121 @@ def _split(path: list[Element], config: MachineConfig, offset: float, notes: dic
     if cut is not None:
         for a, b in zip(out[:-1], out[1:]):
             a.end_cap_mm_s = _overlap_cap(a.elements[-1], b.elements[0], cut)
+    _eased_sharp_corners(out, config)
     return out
+
+
+def _eased_sharp_corners(sections: list[Section], config: MachineConfig) -> None:
+    """Ease both moves' ramps at a sharp corner that a corner overlap may pass (`overlap.py`), where
+    that passes it sooner.
+
+    Where the path turns back sharply the two moves run largely against each other on an axis:
+    the last one's braking jerk (-J along u_a as it starts to slow down) and the next one's first
+    (+J along u_b, against u_a there) add on it, so at their own jerk the next move may only start
+    once the last one has braked about halfway; the overlap is held by that sum, not by P (a
+    contour's end into a lead-out turned back at 45 degrees, at F2400: 21 samples). Ramping both at
+    `SHARP_TURN_ACCEL_SHARE` of their acceleration (the jerk through the averages follows it) lets
+    them overlap until P holds them instead (33 samples there), for ramps about a fifth longer
+    (3 samples each). Whether that pays depends on what holds the overlap and on what the
+    section does near its end (at F4800 the overlap nears its cap, `[planner] corner_overlap_ms`,
+    at its own jerk, and a circle's kinks near the end slow down and speed up again at the eased
+    acceleration): so the corner is tried both ways, on the stretches of the two sections next
+    to it (`_stretch_near`: long enough that their own ends far from the corner do not reach it),
+    and eased only where the sum of their samples less the overlap is smaller. Only turns of at
+    least `SHARP_TURN_RAD` are tried (at a turn a little over a right angle P holds the overlap
+    anyway), only between feed moves (a rapid's ramps are long), and only where each move's ramp
+    is shorter than the overlap's cap (a zigzag at 12 m/min gains nothing). A hold brakes at the
+    whole acceleration (`Section.zones`). The choice is made here, once, from the sections alone,
+    so the timing and the streamed run share it; the overlap's own check decides, as everywhere,
+    how far the eased moves are added."""
+    cap_s = config.planner.corner_overlap_ms / 1000.0
+    if cap_s <= 0.0:
+        return
+    for a, b in zip(sections[:-1], sections[1:]):
+        ea, eb = a.elements[-1], b.elements[0]
+        if ea.kind == RAPID or eb.kind == RAPID or not overlap_may_apply(ea, eb):
+            continue
+        if abs(_turn_rad(ea.direction_at_end(), eb.direction_at_start())) < SHARP_TURN_RAD:
+            continue
+        if _ramp_s(a, -1) > cap_s or _ramp_s(b, 0) > cap_s:
+            continue
+        if _eased_corner_samples(a, b, config, SHARP_TURN_ACCEL_SHARE) < _eased_corner_samples(a, b, config, 1.0):
+            a.eased_ends = (a.eased_ends[0], SHARP_TURN_ACCEL_SHARE)
+            b.eased_ends = (SHARP_TURN_ACCEL_SHARE, b.eased_ends[1])
+
+
+def _ramp_s(section: Section, k: int) -> float:
+    """How long the section's ramp between rest and its speed at element k takes (its acceleration
+    there, through the average that holds its jerk)."""
+    lim = section.limits
+    v = float(min(lim.v_feed[k], lim.v_hard[k]))
+    return v / float(lim.accel_for(False)[k]) + lim.smoothing.turn_samples * lim.smoothing.dt
+
+
+def _eased_corner_samples(a: Section, b: Section, config: MachineConfig, share: float) -> int:
+    """Servo periods of the stretches of a and b next to their corner (`_stretch_near`) with both
+    ramps there at `share` of their acceleration, less the samples the corner overlap adds."""
+    from .overlap import CornerOverlap  # they plan with sections
+    from .stream import SectionStream
+
+    tail = dataclasses.replace(_stretch_near(a, at_end=True), eased_ends=(1.0, share), zone_cache={})
+    head = dataclasses.replace(_stretch_near(b, at_end=False), eased_ends=(share, 1.0), zone_cache={})
+    ta, tb = SectionStream(tail), SectionStream(head)
+    n = ta.planned_samples() + tb.planned_samples()
+    return n - CornerOverlap.of(config).samples(ta, tb)
+
+
+def _stretch_near(section: Section, at_end: bool) -> Section:
+    """The section's elements near its end (or start) as a section of their own, with their own
+    limits: as long as two ramps from rest and the averages' reach, so that the stretch's other
+    end, from rest, leaves the motion near the corner as the whole section's (where it cruises
+    there); the whole section where it is not much longer."""
+    lim = section.limits
+    k = -1 if at_end else 0
+    v = float(min(lim.v_feed[k], lim.v_hard[k]))
+    need = 2.0 * (v * v / float(lim.accel_for(False)[k]) + 2.0 * v * lim.smoothing.extension_s)
+    s0 = section.path.s0
+    if s0[-1] <= 2.0 * need:
+        return section
+    if at_end:
+        first = int(np.searchsorted(s0, s0[-1] - need, side="right")) - 1
+        keep = slice(max(first, 0), len(section.elements))
+    else:
+        last = int(np.searchsorted(s0, need, side="left"))
+        keep = slice(0, max(last, 1))
+    junctions = slice(keep.start, max(keep.stop - 1, keep.start))
+    elements = section.elements[keep]
+    limits = dataclasses.replace(
+        lim, v_hard=lim.v_hard[keep], v_feed=lim.v_feed[keep], rapid=lim.rapid[keep], accel=lim.accel[keep],
+        v_kink=lim.v_kink[junctions], caps=None,
+        accel_feed=None if lim.accel_feed is None else lim.accel_feed[keep])
+    return Section(elements, PathArrays.of(elements), limits, 0.0, section.flags[keep], section.segment[keep],
+                   section.line[keep], [], section.end_cap_mm_s)
+
+
+def _eased_zones(zones: Zones, shares: tuple[float, float], limits: SectionLimits) -> Zones:
+    """The zones with the acceleration scaled by shares[0] over the stretch a ramp from rest at the
+    start takes (its braking distance at the eased acceleration from the fastest the section may
+    run at any override, and the averages' reach at that speed), and by shares[1] over the same at
+    the end; the two stretches meet halfway on a short section. The stretches depend on the
+    section alone, not on the controls: a motion planned under one override and planned again
+    under another from where it is (`SectionStream.set_override`) finds the same accelerations
+    where it brakes."""
+    v, a = limits.v_max_any, float(limits.accel.max())
+    lo_mm, hi_mm = float(zones.edges[0]), float(zones.edges[-1])
+    half = (lo_mm + hi_mm) / 2.0
+
+    def reach(share: float) -> float:
+        return v * v / (2.0 * a * share) + v * limits.smoothing.extension_s if share < 1.0 else 0.0
+
+    head = min(lo_mm + reach(shares[0]), half)
+    tail = max(hi_mm - reach(shares[1]), half)
+    inner = [x for x in (head, tail) if lo_mm < x < hi_mm]
+    edges = np.unique(np.concatenate((zones.edges, inner)))
+    mid = (edges[:-1] + edges[1:]) / 2.0
+    k = np.clip(np.searchsorted(zones.edges, mid, side="right") - 1, 0, len(zones.accel) - 1)
+    accel = zones.accel[k] * np.where(mid < head, shares[0], 1.0) * np.where(mid > tail, shares[1], 1.0)
+    return Zones(edges, zones.hard[k], zones.soft[k], accel)
 
 
 def _overlap_cap(a: Element, b: Element, cut) -> float:  # noqa: ANN001 - a CutPlan
