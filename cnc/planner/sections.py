@@ -50,7 +50,8 @@ FOLD_TURN_MAX_RAD = 2.6  # a folded corner turns at most this much (149 degrees;
 # would meet far off the arc): a stop in place of the crawl through the arc even where no overlap passes it
 FOLD_TILT_MAX_RAD = KINK_MAX_RAD / 4.0  # a line of a run tilted to a folded corner turns at most this much
 SHARP_TURN_RAD = math.radians(120.0)  # a corner overlap turning at least this much eases both moves' ramps ...
-SHARP_TURN_ACCEL_SHARE = 0.7  # ... to this share of their acceleration (`_eased_sharp_corners`)
+SHARP_TURN_ACCEL_SHARE = 0.7  # ... to this share of their acceleration (`_eased_sharp_corners`) ...
+RAMP_TRIED_CAPS = 1.5  # ... tried where neither ramp takes longer than this many times the overlap's cap
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
 
@@ -421,6 +422,7 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
     for section in out:  # chosen: what the limits were made from is not kept in the window ahead
         if section.limits.caps is not None:
             section.limits = dataclasses.replace(section.limits, caps=None)
+    _eased_sharp_corners(out, config)  # with the limits the sections run with
     return out
 
 
@@ -558,7 +560,6 @@ def _split(path: list[Element], config: MachineConfig, offset: float, notes: dic
     if cut is not None:
         for a, b in zip(out[:-1], out[1:]):
             a.end_cap_mm_s = _overlap_cap(a.elements[-1], b.elements[0], cut)
-    _eased_sharp_corners(out, config)
     return out
 
 
@@ -580,8 +581,10 @@ def _eased_sharp_corners(sections: list[Section], config: MachineConfig) -> None
     to it (`_stretch_near`: long enough that their own ends far from the corner do not reach it),
     and eased only where the sum of their samples less the overlap is smaller. Only turns of at
     least `SHARP_TURN_RAD` are tried (at a turn a little over a right angle P holds the overlap
-    anyway), only between feed moves (a rapid's ramps are long), and only where each move's ramp
-    is shorter than the overlap's cap (a zigzag at 12 m/min gains nothing). A hold brakes at the
+    anyway), only between feed moves (a rapid's ramps are long), and only where neither move's
+    ramp takes longer than `RAMP_TRIED_CAPS` times the overlap's cap (the overlap can grow by less
+    than its cap; a zigzag at 30 m/min, 110 ms ramps, is not tried, one at 12 m/min is and is
+    left as it was). A hold brakes at the
     whole acceleration (`Section.zones`). The choice is made here, once, from the sections alone,
     so the timing and the streamed run share it; the overlap's own check decides, as everywhere,
     how far the eased moves are added."""
@@ -594,7 +597,7 @@ def _eased_sharp_corners(sections: list[Section], config: MachineConfig) -> None
             continue
         if abs(_turn_rad(ea.direction_at_end(), eb.direction_at_start())) < SHARP_TURN_RAD:
             continue
-        if _ramp_s(a, -1) > cap_s or _ramp_s(b, 0) > cap_s:
+        if _ramp_s(a, -1) > RAMP_TRIED_CAPS * cap_s or _ramp_s(b, 0) > RAMP_TRIED_CAPS * cap_s:
             continue
         if _eased_corner_samples(a, b, config, SHARP_TURN_ACCEL_SHARE) < _eased_corner_samples(a, b, config, 1.0):
             a.eased_ends = (a.eased_ends[0], SHARP_TURN_ACCEL_SHARE)
