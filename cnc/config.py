@@ -242,6 +242,11 @@ class PlannerConfig:
         "up to 90 degrees, so that the overlap uses the tolerance on both sides of the corner and passes faster "
         "(0: corners only cut on their inside)", 0.0, 0.9,
     )
+    lead_move_share: float = opt(
+        0.8, "", "the same share where the straight move alone is a lead-in or lead-out meeting a longer section (its "
+        "contour): the corner moves back along the contour's line, so it takes more of P for the same use of the band "
+        "(corner_move_share 0 keeps these too)", 0.0, 0.9,
+    )
     divisor: int = opt(5, "ticks", "the planner runs every Nth base tick", 1, 100)
     jog_velocity_mm_s: float = opt(50.0, "mm/s", "default jog speed", 0.01, 10000.0)
     jog_deadman_ms: float = opt(

@@ -570,3 +570,34 @@ def test_a_control_anywhere_in_eased_ramps_keeps_every_limit_and_ends_where_prog
         else:
             assert runner.state == RunState.DONE
             assert records["position"][-1] == pytest.approx([-2.0, 1.0], abs=1e-9), f"control at {at}"
+
+
+RECTANGLE_PART = ["G0 X570 Y62", "G4 P0.1", "G1 X570 Y65 F2400", *[f"G1 X{570 + 2.758 * k:.3f} Y65" for k in range(1, 13)],
+                  "G3 X605.152 Y67.054 I0 J2.054", "G1 X605.152 Y86.341", "G3 X603.098 Y88.395 I-2.054 J0",
+                  "G1 X572.054 Y88.395", "G3 X570 Y86.341 I0 J-2.054", "G1 X570 Y65", "G1 X568 Y63"]
+
+
+def test_a_lead_in_and_a_lead_out_corner_move_along_the_contour_by_their_own_share():
+    """A rounded rectangle of the comparison nest: its lead-in's corner moves back along the
+    contour's first line and its lead-out's corner on along the last one, by `[planner]
+    lead_move_share` of P (0.8), not `corner_move_share` (0.5, between two lone lines); the
+    part keeps every limit and P and ends a sample sooner than at 0.5."""
+    text = "\n".join(["G21 G90 G17 G64 P0.05", *RECTANGLE_PART, "M2"]) + "\n"
+    config = machine_config()
+    assert (config.planner.lead_move_share, config.planner.corner_move_share) == (0.8, 0.5)
+    _, lead_in, contour, lead_out = _sections_of(text)
+    moved = 0.8 * 0.05
+    assert lead_in.elements[-1].end[:2] == pytest.approx((570.0 - moved, 65.0), abs=1e-12)
+    assert contour.elements[0].start == lead_in.elements[-1].end
+    assert contour.elements[-1].end[:2] == pytest.approx((570.0, 65.0 - moved), abs=1e-12)
+    assert lead_out.elements[0].start == contour.elements[-1].end
+    assert lead_in.elements[-1].programmed[0].end[:2] == (570.0, 65.0), "measured against the corner as programmed"
+    program, _, records, planned = run(text, chunk=41)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    _, _, half, planned_half = run(text, machine_config(**{"planner.lead_move_share": 0.5}), chunk=41)
+    assert len(half) == planned_half and len(half) > len(records)
+    for bad in (-0.1, 0.95, "most"):
+        with pytest.raises(ConfigError, match=r"lead_move_share"):
+            machine_config(**{"planner.lead_move_share": bad})
