@@ -243,7 +243,7 @@ class PlannerConfig:
         "(0: corners only cut on their inside)", 0.0, 0.9,
     )
     lead_move_share: float = opt(
-        0.8, "", "the same share where the straight move alone is a lead-in or lead-out meeting a longer section (its "
+        0.7, "", "the same share where the straight move alone is a lead-in or lead-out meeting a longer section (its "
         "contour): the corner moves back along the contour's line, so it takes more of P for the same use of the band "
         "(corner_move_share 0 keeps these too)", 0.0, 0.9,
     )

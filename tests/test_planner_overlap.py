@@ -580,13 +580,13 @@ RECTANGLE_PART = ["G0 X570 Y62", "G4 P0.1", "G1 X570 Y65 F2400", *[f"G1 X{570 + 
 def test_a_lead_in_and_a_lead_out_corner_move_along_the_contour_by_their_own_share():
     """A rounded rectangle of the comparison nest: its lead-in's corner moves back along the
     contour's first line and its lead-out's corner on along the last one, by `[planner]
-    lead_move_share` of P (0.8), not `corner_move_share` (0.5, between two lone lines); the
+    lead_move_share` of P (0.7), not `corner_move_share` (0.5, between two lone lines); the
     part keeps every limit and P and ends a sample sooner than at 0.5."""
     text = "\n".join(["G21 G90 G17 G64 P0.05", *RECTANGLE_PART, "M2"]) + "\n"
     config = machine_config()
-    assert (config.planner.lead_move_share, config.planner.corner_move_share) == (0.8, 0.5)
+    assert (config.planner.lead_move_share, config.planner.corner_move_share) == (0.7, 0.5)
     _, lead_in, contour, lead_out = _sections_of(text)
-    moved = 0.8 * 0.05
+    moved = 0.7 * 0.05
     assert lead_in.elements[-1].end[:2] == pytest.approx((570.0 - moved, 65.0), abs=1e-12)
     assert contour.elements[0].start == lead_in.elements[-1].end
     assert contour.elements[-1].end[:2] == pytest.approx((570.0, 65.0 - moved), abs=1e-12)
