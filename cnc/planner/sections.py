@@ -584,10 +584,9 @@ def _eased_sharp_corners(sections: list[Section], config: MachineConfig) -> None
     anyway), only between feed moves (a rapid's ramps are long), and only where neither move's
     ramp takes longer than `RAMP_TRIED_CAPS` times the overlap's cap (the overlap can grow by less
     than its cap; a zigzag at 30 m/min, 110 ms ramps, is not tried, one at 12 m/min is and is
-    left as it was). A hold brakes at the
-    whole acceleration (`Section.zones`). The choice is made here, once, from the sections alone,
-    so the timing and the streamed run share it; the overlap's own check decides, as everywhere,
-    how far the eased moves are added."""
+    left as it was). A hold brakes at the whole acceleration (`Section.zones`). The choice is made
+    here, once per run, from the sections alone, so the timing and the streamed run share it; the
+    overlap's own check decides, as everywhere, how far the eased moves are added."""
     cap_s = config.planner.corner_overlap_ms / 1000.0
     if cap_s <= 0.0:
         return
@@ -604,12 +603,16 @@ def _eased_sharp_corners(sections: list[Section], config: MachineConfig) -> None
             b.eased_ends = (SHARP_TURN_ACCEL_SHARE, b.eased_ends[1])
 
 
+def _speed_at(limits: SectionLimits, k: int) -> float:
+    """The fastest element k of a section runs at 100 % (its feed, or its caps where lower)."""
+    return float(min(limits.v_feed[k], limits.v_hard[k]))
+
+
 def _ramp_s(section: Section, k: int) -> float:
     """How long the section's ramp between rest and its speed at element k takes (its acceleration
     there, through the average that holds its jerk)."""
     lim = section.limits
-    v = float(min(lim.v_feed[k], lim.v_hard[k]))
-    return v / float(lim.accel_for(False)[k]) + lim.smoothing.turn_samples * lim.smoothing.dt
+    return _speed_at(lim, k) / float(lim.accel_for(False)[k]) + lim.smoothing.turn_samples * lim.smoothing.dt
 
 
 def _eased_corner_samples(a: Section, b: Section, config: MachineConfig, share: float) -> int:
@@ -632,7 +635,7 @@ def _stretch_near(section: Section, at_end: bool) -> Section:
     there); the whole section where it is not much longer."""
     lim = section.limits
     k = -1 if at_end else 0
-    v = float(min(lim.v_feed[k], lim.v_hard[k]))
+    v = _speed_at(lim, k)
     need = 2.0 * (v * v / float(lim.accel_for(False)[k]) + 2.0 * v * lim.smoothing.extension_s)
     s0 = section.path.s0
     if s0[-1] <= 2.0 * need:
@@ -713,8 +716,8 @@ def _move_stop_corners(groups: list[list[Element]], config: MachineConfig) -> No
     `[planner] lead_move_share` of P (0.7), as the move along the longer section's line puts the
     corner only sin(turn) of it outside the lone line, where a move along the bisector puts it
     outside both (0.7 instead of 0.5 there: the comparison nest 0.09 s sooner at F2400, 0.08 s
-    over its five feeds; between two lone lines it left a zigzag a sample slower). Arcs are not moved, nor corners whose moved point
-    leaves the travel. Each moved element keeps the one
+    over its five feeds; between two lone lines it left a zigzag a sample slower). Arcs are not
+    moved, nor corners whose moved point leaves the travel. Each moved element keeps the one
     programmed (`Element.programmed`), against which the overlap measures its tolerance."""
     share, lead_share = config.planner.corner_move_share, config.planner.lead_move_share
     if config.planner.corner_overlap_ms <= 0.0 or share <= 0.0:
