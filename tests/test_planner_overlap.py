@@ -550,7 +550,7 @@ def test_eased_ramps_keep_a_hold_at_the_whole_acceleration_and_the_same_stretch_
 
 @pytest.mark.parametrize("control", ["hold", "override 200", "override 10", "stop"])
 def test_a_control_anywhere_in_eased_ramps_keeps_every_limit_and_ends_where_programmed(control):
-    """Holds (resumed 30 samples later), raises to 200 %, drops to 10 % and stops every 9 samples
+    """Holds (resumed 30 samples later), raises to 200 %, drops to 10 % and stops every 13 samples
     from 60 samples before the contour's eased braking to the lead-out's end: every axis within
     its limits, every record within P of the program, and the part ends at the lead-out's end (a
     stop: at rest on the path)."""
@@ -558,11 +558,11 @@ def test_a_control_anywhere_in_eased_ramps_keeps_every_limit_and_ends_where_prog
     program, _, undisturbed, _ = run(text, chunk=41)
     lead_out_line = int(undisturbed["line"][-1])
     start = int(np.flatnonzero(undisturbed["line"] == lead_out_line)[0])
-    for at in range(start - 60, len(undisturbed) - 5, 9):
+    for at in range(start - 60, len(undisturbed) - 5, 13):
         actions = {at: CONTROLS[control]}
         if control == "hold":
             actions[at + 30] = lambda r: r.resume()
-        _, runner, records, _ = run(text, chunk=7, actions=actions)
+        _, runner, records, _ = run(text, chunk=23, actions=actions)
         within_limits(records)
         assert (within_tolerance(program, records) <= 1e-9).all(), f"control at {at}"
         if control == "stop":
