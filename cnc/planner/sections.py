@@ -33,6 +33,7 @@ from .profile import Zones, rough_duration_s
 from .path import Element, blend_corners, blends, distance_to, iter_elements
 
 if TYPE_CHECKING:
+    from .overlap import CornerOverlap
     from .quality import CutPlan
 
 Z_RATE_STEP = 1e-9  # two elements whose dz/ds differ by more meet at a stop (rounding alone stays under it)
@@ -587,9 +588,12 @@ def _eased_sharp_corners(sections: list[Section], config: MachineConfig) -> None
     left as it was). A hold brakes at the whole acceleration (`Section.zones`). The choice is made
     here, once per run, from the sections alone, so the timing and the streamed run share it; the
     overlap's own check decides, as everywhere, how far the eased moves are added."""
+    from .overlap import CornerOverlap  # it checks sections' sums
+
     cap_s = config.planner.corner_overlap_ms / 1000.0
     if cap_s <= 0.0:
         return
+    corners = CornerOverlap.of(config)
     for a, b in zip(sections[:-1], sections[1:]):
         ea, eb = a.elements[-1], b.elements[0]
         if ea.kind == RAPID or eb.kind == RAPID or not overlap_may_apply(ea, eb):
@@ -598,7 +602,7 @@ def _eased_sharp_corners(sections: list[Section], config: MachineConfig) -> None
             continue
         if _ramp_s(a, -1) > RAMP_TRIED_CAPS * cap_s or _ramp_s(b, 0) > RAMP_TRIED_CAPS * cap_s:
             continue
-        if _eased_corner_samples(a, b, config, SHARP_TURN_ACCEL_SHARE) < _eased_corner_samples(a, b, config, 1.0):
+        if _eased_corner_samples(a, b, corners, SHARP_TURN_ACCEL_SHARE) < _eased_corner_samples(a, b, corners, 1.0):
             a.eased_ends = (a.eased_ends[0], SHARP_TURN_ACCEL_SHARE)
             b.eased_ends = (SHARP_TURN_ACCEL_SHARE, b.eased_ends[1])
 
@@ -615,17 +619,16 @@ def _ramp_s(section: Section, k: int) -> float:
     return _speed_at(lim, k) / float(lim.accel_for(False)[k]) + lim.smoothing.turn_samples * lim.smoothing.dt
 
 
-def _eased_corner_samples(a: Section, b: Section, config: MachineConfig, share: float) -> int:
+def _eased_corner_samples(a: Section, b: Section, corners: "CornerOverlap", share: float) -> int:
     """Servo periods of the stretches of a and b next to their corner (`_stretch_near`) with both
     ramps there at `share` of their acceleration, less the samples the corner overlap adds."""
-    from .overlap import CornerOverlap  # they plan with sections
-    from .stream import SectionStream
+    from .stream import SectionStream  # it plans sections
 
     tail = dataclasses.replace(_stretch_near(a, at_end=True), eased_ends=(1.0, share), zone_cache={})
     head = dataclasses.replace(_stretch_near(b, at_end=False), eased_ends=(share, 1.0), zone_cache={})
     ta, tb = SectionStream(tail), SectionStream(head)
     n = ta.planned_samples() + tb.planned_samples()
-    return n - CornerOverlap.of(config).samples(ta, tb)
+    return n - corners.samples(ta, tb)
 
 
 def _stretch_near(section: Section, at_end: bool) -> Section:
