@@ -52,7 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.optimize import linprog
+from scipy.optimize import Bounds, LinearConstraint, linprog, milp
 
 FEED_SIDES = 16  # the feed's circle as a polygon around it (|v| may reach F / cos(pi / 16), 2 % over, between
 # its sides; along each leg of a window it is exact: the leg's direction is one more side)
@@ -386,6 +386,141 @@ def _solve(w: Window, limits: Limits, n_periods: int, origin: np.ndarray, legs: 
             return result.status == 0
     print(f"corner bound: undecided, counted as feasible (the bound can only come out lower): {w}, N {n_periods}, "
           f"k in {ks}: {result.message}", file=sys.stderr)
+    return True
+
+# -- stretches of several legs, each at its own feed (a mixed-integer programme) --------------------
+def stretch_ticks(points: list[tuple[float, float]], feeds: list[float], limits: Limits) -> int:
+    """Servo periods no jerk-limited trajectory beats over a stretch of straight legs between two
+    cuts, each leg at its own feed (`math.inf` for a rapid: its axes' speeds rule): from the first
+    sample past the cut at `points[0]` to the first past the cut at `points[-1]`, the states at
+    both cuts free (so it is a bound wherever the stretch lies in a longer trajectory).
+
+    The windows above have one corner and one feed; a stretch such as a lead-out, the rapid to the
+    next part and its lead-in (a rapid's ramps far longer than the leads, and its two corners
+    within a ramp of each other) is one problem, not windows whose free cuts would let each half
+    run at the top speed the other cannot reach. The same problem as the windows' (the axes'
+    limits on backward differences, each sample within P of its leg, the feed's polygon), with the
+    leg a sample lies near chosen by binaries (monotone: the legs in order) instead of by branch
+    and bound, and a sample's speed kept to the feed of the leg it lies near. Same assumptions:
+    forward only (no sample more than P behind the first cut), legs that come near each other
+    refused (`check_apart`), a stretch runnable in N periods taken to be runnable in N + 1."""
+    finite = [f for f in feeds if math.isfinite(f)] or [math.hypot(*limits.v_axis)]
+    check_apart(list(points), Limits(limits.dt, limits.v_axis, limits.a_axis, limits.j_axis, max(finite), limits.tolerance))
+    if len(feeds) != len(points) - 1:
+        raise ValueError(f"stretch bound: {len(points) - 1} legs but {len(feeds)} feeds")
+    top = [f if math.isfinite(f) else math.hypot(*limits.v_axis) for f in feeds]
+    length = sum(math.dist(a, b) for a, b in zip(points, points[1:]))
+    step = max(top) * limits.dt / math.cos(math.pi / FEED_SIDES)
+    lo = max(1, math.floor((length - 20.0 * limits.tolerance) / step) - 2)
+    if _stretch_feasible(points, feeds, limits, lo):
+        return lo
+    hi = lo + 8
+    while not _stretch_feasible(points, feeds, limits, hi):
+        lo, hi = hi, hi + 2 * (hi - lo)
+    while hi - lo > 1:  # lo infeasible, hi feasible
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if _stretch_feasible(points, feeds, limits, mid) else (mid, hi)
+    return hi
+
+
+def _stretch_feasible(points: list[tuple[float, float]], feeds: list[float], limits: Limits, n_periods: int) -> bool:
+    """Whether the stretch can be run in `n_periods`: samples t = 0..N, positions in units of
+    J dt^3 relative to the first point, and per switch i (between legs i - 1 and i) a binary s_i(t),
+    1 once sample t is past it; sample t lies near leg i where s_i(t) = 1 and s_(i+1)(t) = 0,
+    each leg's rows relaxed by a large M elsewhere."""
+    dt, tol = limits.dt, limits.tolerance
+    unit = min(limits.j_axis) * dt ** 3
+    widen = 1.0 + SLACK
+    origin = np.array(points[0], dtype=float)
+    legs = []  # (u, n, along-from, along-to, across) in units, relative to the origin
+    for a, b in zip(points, points[1:]):
+        a_, b_ = (np.array(a, dtype=float) - origin) / unit, (np.array(b, dtype=float) - origin) / unit
+        u = (b_ - a_) / np.linalg.norm(b_ - a_)
+        n = np.array([-u[1], u[0]])
+        legs.append((u, n, float(u @ a_), float(u @ b_), float(n @ a_)))
+    n_legs, m = len(legs), n_periods + 1
+    n_x = 2 * m
+    n_var = n_x + (n_legs - 1) * m
+
+    def switch(i: int, t: np.ndarray) -> np.ndarray:  # the variable of s_i(t), i = 1 .. n_legs - 1
+        return n_x + (i - 1) * m + t
+
+    def step_of(feed: float) -> float:
+        top = feed if math.isfinite(feed) else math.hypot(*limits.v_axis)
+        return top * dt / math.cos(math.pi / FEED_SIDES) / unit * widen
+
+    s_tol = tol / unit
+    reach = max(np.linalg.norm((np.array(p, dtype=float) - origin) / unit) for p in points) + s_tol + step_of(feeds[-1])
+    big = 4.0 * reach  # no sample near its leg is further than `reach` from the origin
+    big_v = 4.0 * math.hypot(*limits.v_axis) * dt / unit
+    rows: list[sparse.spmatrix] = []
+    lows: list[np.ndarray] = []
+    highs: list[np.ndarray] = []
+
+    def add(entries: list[tuple[np.ndarray, np.ndarray]], low: np.ndarray | float, high: np.ndarray | float, count: int) -> None:
+        """Rows r = 0..count-1, each the sum of coefficient * variable over `entries` (pairs of arrays, one value per row)."""
+        r = np.concatenate([np.arange(count)] * len(entries))
+        c = np.concatenate([np.broadcast_to(var, (count,)) for var, _ in entries])
+        v = np.concatenate([np.broadcast_to(coef, (count,)).astype(float) for _, coef in entries])
+        rows.append(sparse.csr_matrix((v, (r, c)), shape=(count, n_var)))
+        lows.append(np.broadcast_to(low, (count,)).astype(float))
+        highs.append(np.broadcast_to(high, (count,)).astype(float))
+
+    t = np.arange(m)
+    for axis in (0, 1):  # the axes' limits: backward differences of order 1, 2, 3
+        for order, per_axis in ((1, limits.v_axis), (2, limits.a_axis), (3, limits.j_axis)):
+            bound = per_axis[axis] * dt ** order / unit * widen
+            tt = t[order:]
+            coefs = [math.comb(order, k) * (-1) ** k for k in range(order + 1)]
+            add([(2 * (tt - k) + axis, np.full(len(tt), c)) for k, c in enumerate(coefs)], -bound, bound, len(tt))
+    for i in range(1, n_legs):  # the legs in order: s_i(t) <= s_i(t + 1), s_(i+1)(t) <= s_i(t)
+        add([(switch(i, t[:-1]), 1.0), (switch(i, t[1:]), -1.0)], -np.inf, 0.0, m - 1)
+        if i + 1 < n_legs:
+            add([(switch(i + 1, t), 1.0), (switch(i, t), -1.0)], -np.inf, 0.0, m)
+
+    def relaxed(i: int, scale: float) -> tuple[list[tuple[np.ndarray, float]], float]:
+        """Terms that lift a row of leg i by `scale` where sample t is not near it, and the constant part."""
+        terms, const = [], 0.0
+        if i > 0:
+            terms.append((switch(i, t), -scale))  # + scale (1 - s_i)
+            const += scale
+        if i + 1 < n_legs:
+            terms.append((switch(i + 1, t), scale))
+        return terms, const
+
+    angles = 2.0 * np.pi * np.arange(FEED_SIDES) / FEED_SIDES
+    directions = [np.array([math.cos(q), math.sin(q)]) for q in angles]
+    for i, (u, n, a, b, c) in enumerate(legs):
+        b_hi = b + (step_of(feeds[-1]) if i == n_legs - 1 else s_tol)
+        terms, const = relaxed(i, big)
+        for d, low, high in ((n, c - s_tol, c + s_tol), (u, a - s_tol, b_hi)):
+            p = [(2 * t, d[0]), (2 * t + 1, d[1])]
+            add(p + [(var, -coef) for var, coef in terms], -np.inf, high + const, m)  # d.p <= high + lift
+            add(p + terms, low - const, np.inf, m)  # d.p >= low - lift
+        if math.isfinite(feeds[i]):  # the speed into a sample near leg i within its feed's polygon
+            feed = feeds[i] * dt / unit * widen
+            terms_v, const_v = relaxed(i, big_v)
+            tt = t[1:]
+            for d in [*directions, u]:
+                add([(2 * tt, d[0]), (2 * tt + 1, d[1]), (2 * tt - 2, -d[0]), (2 * tt - 1, -d[1]),
+                     *[(var[1:], -coef) for var, coef in terms_v]], -np.inf, feed + const_v, m - 1)
+    # the cuts: the first sample within a period past the first, the last past the last
+    u0, u1 = legs[0][0], legs[-1][0]
+    add([(np.array([0]), u0[0]), (np.array([1]), u0[1])], legs[0][2], legs[0][2] + step_of(feeds[0]), 1)
+    add([(np.array([2 * (m - 1)]), u1[0]), (np.array([2 * (m - 1) + 1]), u1[1])], legs[-1][3], np.inf, 1)
+    lower, upper = np.full(n_var, -np.inf), np.full(n_var, np.inf)
+    lower[n_x:], upper[n_x:] = 0.0, 1.0
+    for i in range(1, n_legs):  # the first sample is near the first leg, the last near the last
+        upper[switch(i, 0)], lower[switch(i, m - 1)] = 0.0, 1.0
+    integrality = np.zeros(n_var)
+    integrality[n_x:] = 1
+    result = milp(np.zeros(n_var), constraints=LinearConstraint(sparse.vstack(rows).tocsr(), np.concatenate(lows),
+                                                                np.concatenate(highs)),
+                  integrality=integrality, bounds=Bounds(lower, upper))
+    if result.status in (0, 2):  # 0: a feasible point found, 2: infeasible
+        return result.status == 0
+    print(f"stretch bound: undecided, counted as feasible (the bound can only come out lower): {points}, "
+          f"N {n_periods}: {result.message}", file=sys.stderr)
     return True
 
 

@@ -7,6 +7,7 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
@@ -112,3 +113,35 @@ def test_the_corner_bound_refuses_a_polyline_whose_other_legs_come_near():
     hairpin = [(100.0, 100.0), (110.0, 100.0), (110.0, 100.08), (100.0, 100.08)]
     with pytest.raises(ValueError, match="legs 1 and 3 of the polyline come within 0.080 mm"):
         lc.corner_bound.polyline_bound_ticks(hairpin, _limits(3000, 0.05))
+
+
+def test_a_stretch_of_one_corner_at_one_feed_has_the_corner_windows_bound():
+    """The mixed-integer stretch bound and the windows' branch and bound state the same problem
+    for one corner at one feed: a right angle of two 2 mm legs at 40 mm/s, cut at both ends."""
+    window = lc.corner_bound.Window((100.0, 98.0), (100.0, 100.0), (102.0, 100.0), False, False)
+    limits = _limits(2400, 0.05)
+    stretch = lc.corner_bound.stretch_ticks([(100.0, 98.0), (100.0, 100.0), (102.0, 100.0)], [40.0, 40.0], limits)
+    assert stretch == lc.corner_bound.window_ticks(window, limits)
+
+
+def test_our_planner_never_beats_the_bound_of_a_lead_out_a_rapid_and_a_lead_in():
+    """Between two parts: a lead-out turned back at 45 degrees, a short rapid, the next lead-in,
+    cut at the leads' middles (`bench/nest_stretches.py`). Our run over it is a trajectory the
+    programme must admit in as many periods (the bound is never above it: the bisection finds the
+    least N that is); the rapid's speed is its axes' alone, so with the leads' feed on the rapid
+    no trajectory makes it in those periods."""
+    import nest_stretches
+
+    text = ("G21 G90 G64 P0.05 G0 X100 Y97\nG1 X100 Y100 F2400\nG1 X104 Y100\nG1 X103 Y99\n"
+            "G0 X107 Y98.5\nG1 X107 Y100\nG1 X110 Y100\nM2\n")
+    program, start = lc.interpret_from_start(text, CONFIG)
+    (stretch,) = nest_stretches.stretches(program)
+    assert stretch.points == ((103.5, 99.5), (103.0, 99.0), (107.0, 98.5), (107.0, 99.25))
+    assert stretch.feeds == (40.0, math.inf, 40.0)
+    records = lc.every_record(ProgramRunner(program, CONFIG))
+    xy = np.concatenate(([start], records["position"][:, :2]))
+    lines = program.segments["line"][np.concatenate((records["segment"][:1], records["segment"]))]
+    ours = nest_stretches.periods_over(xy, lines, stretch)
+    limits = _limits(2400, 0.05)
+    assert lc.corner_bound._stretch_feasible(list(stretch.points), list(stretch.feeds), limits, ours)
+    assert not lc.corner_bound._stretch_feasible(list(stretch.points), [40.0, 40.0, 40.0], limits, ours)
