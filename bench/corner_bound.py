@@ -424,7 +424,16 @@ def stretch_ticks(points: list[tuple[float, float]], feeds: list[float], limits:
 
 
 def _stretch_feasible(points: list[tuple[float, float]], feeds: list[float], limits: Limits, n_periods: int) -> bool:
-    """Whether the stretch can be run in `n_periods`: samples t = 0..N, positions in units of
+    """Whether the stretch can be run in `n_periods` (`stretch_solution`; a programme the solver
+    leaves undecided counts as feasible: the bound can only come out lower)."""
+    feasible, _ = stretch_solution(points, feeds, limits, n_periods)
+    return feasible
+
+
+def stretch_solution(points: list[tuple[float, float]], feeds: list[float], limits: Limits,
+                     n_periods: int) -> tuple[bool, np.ndarray | None]:
+    """Whether the stretch can be run in `n_periods`, and one such trajectory's samples (mm, an
+    (N + 1, 2) array; None where it cannot or the solver left it undecided): samples t = 0..N, positions in units of
     J dt^3 relative to the first point, and per switch i (between legs i - 1 and i) a binary s_i(t),
     1 once sample t is past it; sample t lies near leg i where s_i(t) = 1 and s_(i+1)(t) = 0,
     each leg's rows relaxed by a large M elsewhere."""
@@ -517,11 +526,13 @@ def _stretch_feasible(points: list[tuple[float, float]], feeds: list[float], lim
     result = milp(np.zeros(n_var), constraints=LinearConstraint(sparse.vstack(rows).tocsr(), np.concatenate(lows),
                                                                 np.concatenate(highs)),
                   integrality=integrality, bounds=Bounds(lower, upper))
-    if result.status in (0, 2):  # 0: a feasible point found, 2: infeasible
-        return result.status == 0
+    if result.status == 0:  # a feasible point found
+        return True, result.x[:n_x].reshape(m, 2) * unit + origin
+    if result.status == 2:  # infeasible
+        return False, None
     print(f"stretch bound: undecided, counted as feasible (the bound can only come out lower): {points}, "
           f"N {n_periods}: {result.message}", file=sys.stderr)
-    return True
+    return True, None
 
 
 def main() -> int:

@@ -19,7 +19,8 @@ lead-in. Stretches whose rapid reaches the axes' top speed (a row's end to the n
 are left out: there the cut-up windows of `corner_bound.py` are tight and the programme would be
 long. Needs LinuxCNC (Debian `linuxcnc-uspace`); from the repository root:
 
-    .venv/bin/python bench/nest_stretches.py
+    .venv/bin/python bench/nest_stretches.py            # the table
+    .venv/bin/python bench/nest_stretches.py --trace    # how one optimal trajectory passes the corners
 """
 
 from __future__ import annotations
@@ -136,6 +137,28 @@ def measure(config: MachineConfig, workers: int) -> dict:
             "dt": dt, "rapids_left_out": int((program.segments["kind"] == RAPID_KIND).sum()) - len(found)}
 
 
+def trace(config: MachineConfig) -> str:
+    """One trajectory at the bound's least periods over the nest's first stretch, every 5th sample:
+    how the optimum passes the two corners (one of possibly many at that N)."""
+    program, _ = lc.interpret_from_start(lc.nest_bench().text, config)
+    s = stretches(program)[0]
+    limits = lc.corner_limits(config, 60.0 * max(f for f in s.feeds if math.isfinite(f)),
+                              float(program.segments["tolerance"].max()))
+    n = corner_bound.stretch_ticks(list(s.points), list(s.feeds), limits)
+    _, xy = corner_bound.stretch_solution(list(s.points), list(s.feeds), limits, n)
+    if xy is None:
+        return f"the programme at N = {n} was left undecided: no trajectory to show"
+    dt = config.timing.period_s
+    v = np.diff(xy, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    out = [f"the first stretch (corners at {s.points[1]} and {s.points[2]}), N = {n}: sample, x, y mm, vx, vy mm/s, "
+           f"|v| mm/s, ax, ay mm/s^2"]
+    for t in range(1, len(a), 5):
+        out.append(f"{t:4d} {xy[t, 0]:9.3f} {xy[t, 1]:8.3f} {v[t - 1, 0]:8.1f} {v[t - 1, 1]:7.1f} "
+                   f"{math.hypot(*v[t - 1]):7.1f} {a[t - 1, 0]:7.0f} {a[t - 1, 1]:7.0f}")
+    return "\n".join(out)
+
+
 def report(m: dict) -> str:
     rows, dt = m["stretches"], m["dt"]
     bound = np.array([r["bound"] for r in rows])
@@ -155,7 +178,12 @@ def report(m: dict) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", type=Path, help="also write the figures here")
+    ap.add_argument("--trace", action="store_true",
+                    help="print one optimal trajectory over the first stretch instead (no LinuxCNC needed)")
     args = ap.parse_args()
+    if args.trace:
+        print(trace(load_machine(lc.MACHINE_FILE, lc.NO_JET_DELAYS)))
+        return 0
     usable, why = linuxcnc_sim.available()
     if not usable:
         print(f"nest_stretches: LinuxCNC's simulator cannot run here: {why}", file=sys.stderr)
