@@ -388,6 +388,7 @@ def _solve(w: Window, limits: Limits, n_periods: int, origin: np.ndarray, legs: 
           f"k in {ks}: {result.message}", file=sys.stderr)
     return True
 
+
 # -- stretches of several legs, each at its own feed (a mixed-integer programme) --------------------
 def stretch_ticks(points: list[tuple[float, float]], feeds: list[float], limits: Limits) -> int:
     """Servo periods no jerk-limited trajectory beats over a stretch of straight legs between two
@@ -404,11 +405,10 @@ def stretch_ticks(points: list[tuple[float, float]], feeds: list[float], limits:
     and bound, and a sample's speed kept to the feed of the leg it lies near. Same assumptions:
     forward only (no sample more than P behind the first cut), legs that come near each other
     refused (`check_apart`), a stretch runnable in N periods taken to be runnable in N + 1."""
-    finite = [f for f in feeds if math.isfinite(f)] or [math.hypot(*limits.v_axis)]
-    check_apart(list(points), Limits(limits.dt, limits.v_axis, limits.a_axis, limits.j_axis, max(finite), limits.tolerance))
     if len(feeds) != len(points) - 1:
         raise ValueError(f"stretch bound: {len(points) - 1} legs but {len(feeds)} feeds")
     top = [f if math.isfinite(f) else math.hypot(*limits.v_axis) for f in feeds]
+    check_apart(list(points), Limits(limits.dt, limits.v_axis, limits.a_axis, limits.j_axis, max(top), limits.tolerance))
     length = sum(math.dist(a, b) for a, b in zip(points, points[1:]))
     step = max(top) * limits.dt / math.cos(math.pi / FEED_SIDES)
     lo = max(1, math.floor((length - 20.0 * limits.tolerance) / step) - 2)
@@ -433,10 +433,11 @@ def _stretch_feasible(points: list[tuple[float, float]], feeds: list[float], lim
 def stretch_solution(points: list[tuple[float, float]], feeds: list[float], limits: Limits,
                      n_periods: int) -> tuple[bool, np.ndarray | None]:
     """Whether the stretch can be run in `n_periods`, and one such trajectory's samples (mm, an
-    (N + 1, 2) array; None where it cannot or the solver left it undecided): samples t = 0..N, positions in units of
-    J dt^3 relative to the first point, and per switch i (between legs i - 1 and i) a binary s_i(t),
-    1 once sample t is past it; sample t lies near leg i where s_i(t) = 1 and s_(i+1)(t) = 0,
-    each leg's rows relaxed by a large M elsewhere."""
+    (N + 1, 2) array; None where it cannot or the solver left it undecided).
+
+    Samples t = 0..N, positions in units of J dt^3 relative to the first point, and per switch i
+    (between legs i - 1 and i) a binary s_i(t), 1 once sample t is past it: sample t lies near leg
+    i where s_i(t) = 1 and s_(i+1)(t) = 0, each leg's rows lifted by a large M elsewhere."""
     dt, tol = limits.dt, limits.tolerance
     unit = min(limits.j_axis) * dt ** 3
     widen = 1.0 + SLACK
@@ -466,8 +467,9 @@ def stretch_solution(points: list[tuple[float, float]], feeds: list[float], limi
     lows: list[np.ndarray] = []
     highs: list[np.ndarray] = []
 
-    def add(entries: list[tuple[np.ndarray, np.ndarray]], low: np.ndarray | float, high: np.ndarray | float, count: int) -> None:
-        """Rows r = 0..count-1, each the sum of coefficient * variable over `entries` (pairs of arrays, one value per row)."""
+    def add(entries: list, low: np.ndarray | float, high: np.ndarray | float, count: int) -> None:
+        """`count` rows low <= sum of coefficient * variable <= high, over `entries`: pairs of
+        (variables, coefficients), each an array of one value per row or a scalar."""
         r = np.concatenate([np.arange(count)] * len(entries))
         c = np.concatenate([np.broadcast_to(var, (count,)) for var, _ in entries])
         v = np.concatenate([np.broadcast_to(coef, (count,)).astype(float) for _, coef in entries])

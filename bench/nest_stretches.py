@@ -96,7 +96,8 @@ def periods_over(xy: np.ndarray, lines: np.ndarray, s: Stretch) -> int:
         return int(past[0])
 
     start = first_past(s.lead_out_line, s.points[0], s.points[1], 0)
-    end = first_past(s.lead_in_line, s.points[3], (2 * s.points[3][0] - s.points[2][0], 2 * s.points[3][1] - s.points[2][1]), start)
+    (x2, y2), (x3, y3) = s.points[2], s.points[3]
+    end = first_past(s.lead_in_line, s.points[3], (2 * x3 - x2, 2 * y3 - y2), start)  # along the lead-in
     return end - start
 
 
