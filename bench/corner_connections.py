@@ -38,7 +38,6 @@ import linuxcnc_compare as lc  # noqa: E402
 import nest_stretches  # noqa: E402
 
 from cnc.config import load_machine  # noqa: E402
-from cnc.planner.runner import ProgramRunner  # noqa: E402
 
 CHECK_DT = 2e-4  # s between the samples a connection is checked at
 # the grid of states searched: distance before the corner where the lead's cruise ends (mm, up to
@@ -144,10 +143,7 @@ def main() -> int:
     wall = time.monotonic()
     seconds, first, last = fastest(config, stretch, tolerance)
     wall = time.monotonic() - wall
-    records = lc.every_record(ProgramRunner(program, config))
-    xy = np.concatenate(([start], records["position"][:, :2]))
-    lines = program.segments["line"][np.concatenate((records["segment"][:1], records["segment"]))]
-    ours_ms = nest_stretches.periods_over(xy, lines, stretch) * config.timing.period_s * 1e3
+    ours_ms = nest_stretches.periods_over(*nest_stretches.ours(program, start, config), stretch) * config.timing.period_s * 1e3
     print(f"the nest's first stretch (corners at {stretch.points[1]} and {stretch.points[2]}), searched in {wall:.0f} s")
     if first is None:
         print("no pair of connections keeps the band")

@@ -101,6 +101,14 @@ def periods_over(xy: np.ndarray, lines: np.ndarray, s: Stretch) -> int:
     return end - start
 
 
+def ours(program, start: tuple[float, float], config: MachineConfig) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+    """Our run of the program (`ProgramRunner`, the code the planner process runs) from its start:
+    every sample's XY and program line, the start first."""
+    records = lc.every_record(ProgramRunner(program, config))
+    xy = np.concatenate(([start], records["position"][:, :2]))
+    return xy, program.segments["line"][np.concatenate((records["segment"][:1], records["segment"]))]
+
+
 def bound_ticks(args: tuple[Stretch, corner_bound.Limits]) -> int:
     s, limits = args
     return corner_bound.stretch_ticks(list(s.points), list(s.feeds), limits)
@@ -120,9 +128,7 @@ def measure(config: MachineConfig, workers: int) -> dict:
     with ProcessPoolExecutor(workers) as pool:
         bounds = dict(zip(shapes, pool.map(bound_ticks, [(s, limits) for s in shapes.values()])))
     bound_wall = time.monotonic() - wall
-    records = lc.every_record(ProgramRunner(program, config))
-    ours_xy = np.concatenate(([start], records["position"][:, :2]))
-    ours_lines = program.segments["line"][np.concatenate((records["segment"][:1], records["segment"]))]
+    ours_xy, ours_lines = ours(program, start, config)
     with tempfile.TemporaryDirectory(prefix="nest_stretches-") as tmp:
         path = Path(tmp) / "nest.ngc"
         path.write_text(bench.text)

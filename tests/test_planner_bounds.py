@@ -7,7 +7,6 @@ import math
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
@@ -138,10 +137,7 @@ def test_our_planner_never_beats_the_bound_of_a_lead_out_a_rapid_and_a_lead_in()
     (stretch,) = nest_stretches.stretches(program)
     assert stretch.points == ((103.5, 99.5), (103.0, 99.0), (107.0, 98.5), (107.0, 99.25))
     assert stretch.feeds == (40.0, math.inf, 40.0)
-    records = lc.every_record(ProgramRunner(program, CONFIG))
-    xy = np.concatenate(([start], records["position"][:, :2]))
-    lines = program.segments["line"][np.concatenate((records["segment"][:1], records["segment"]))]
-    ours = nest_stretches.periods_over(xy, lines, stretch)
+    ours = nest_stretches.periods_over(*nest_stretches.ours(program, start, CONFIG), stretch)
     limits = _limits(2400, 0.05)
     assert lc.corner_bound._stretch_feasible(list(stretch.points), list(stretch.feeds), limits, ours)
     assert not lc.corner_bound._stretch_feasible(list(stretch.points), [40.0, 40.0, 40.0], limits, ours)
