@@ -154,7 +154,7 @@ def main() -> int:
     print(f"{'per-axis connections':28} {seconds * 1e3:7.1f} {seconds * 1e3 / ours_ms:7.3f}")
     print(f"{'ours (two motions summed)':28} {ours_ms:7.1f} {1.0:7.3f}")
     if args.bound:
-        limits = lc.corner_limits(config, 60.0 * stretch.feeds[0], tolerance)
+        limits = nest_stretches.stretch_limits(program, config)
         bound_ms = corner_bound.stretch_ticks(list(stretch.points), list(stretch.feeds), limits) * config.timing.period_s * 1e3
         print(f"{'the optimum (a bound)':28} {bound_ms:7.1f} {bound_ms / ours_ms:7.3f}")
     return 0

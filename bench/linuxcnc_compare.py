@@ -526,16 +526,23 @@ def run_ours(program: Program, start: tuple[float, float], config: MachineConfig
                    **time_split(program.segments["line"][records["segment"]], kinds, parts, dt))
 
 
-def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
-               config: MachineConfig, kinds: dict[int, str], parts: dict[int, int]) -> Figures:
-    dt = config.timing.period_s
-    wall = time.monotonic()
-    res = linuxcnc_sim.run_linuxcnc(
+def run_linuxcnc_like_ours(program_file: Path, start: tuple[float, float], config: MachineConfig) -> dict:
+    """LinuxCNC's run of the program (`linuxcnc_sim.run_linuxcnc`) with this machine's X and Y
+    limits, travel, servo period and nozzle table, from the program's first point."""
+    return linuxcnc_sim.run_linuxcnc(
         program_file,
         max_velocity_mm_s={ax: config.axis[ax].max_velocity_mm_s for ax in AXES},
         max_accel_mm_s2={ax: config.axis[ax].max_accel_mm_s2 for ax in AXES},
         travel_mm={ax: (config.axis[ax].travel_min_mm, config.axis[ax].travel_max_mm) for ax in AXES},
-        period_s=dt, home_mm=dict(zip(AXES, start)), tools_mm=dict(dialect_for(config).tool_diameters_mm))
+        period_s=config.timing.period_s, home_mm=dict(zip(AXES, start)),
+        tools_mm=dict(dialect_for(config).tool_diameters_mm))
+
+
+def run_theirs(program_file: Path, program: Program, start: tuple[float, float],
+               config: MachineConfig, kinds: dict[int, str], parts: dict[int, int]) -> Figures:
+    dt = config.timing.period_s
+    wall = time.monotonic()
+    res = run_linuxcnc_like_ours(program_file, start, config)
     wall = time.monotonic() - wall
     xy = res["xy_mm"]
     path = ProgrammedPath(program.segments)

@@ -109,6 +109,13 @@ def ours(program, start: tuple[float, float], config: MachineConfig) -> tuple[np
     return xy, program.segments["line"][np.concatenate((records["segment"][:1], records["segment"]))]
 
 
+def stretch_limits(program, config: MachineConfig) -> corner_bound.Limits:  # noqa: ANN001
+    """The bound's limits for the program's stretches: the machine's axes, the leads' feed (the
+    fastest of them; each leg keeps its own in `corner_bound.stretch_ticks`) and the program's P."""
+    feed = max(f for s in stretches(program) for f in s.feeds if math.isfinite(f))
+    return lc.corner_limits(config, 60.0 * feed, float(program.segments["tolerance"].max()))
+
+
 def bound_ticks(args: tuple[Stretch, corner_bound.Limits]) -> int:
     s, limits = args
     return corner_bound.stretch_ticks(list(s.points), list(s.feeds), limits)
@@ -123,8 +130,7 @@ def measure(config: MachineConfig, workers: int) -> dict:
     for s in found:
         shapes.setdefault(s.shape(), s)
     wall = time.monotonic()
-    limits = lc.corner_limits(config, 60.0 * max(f for s in found for f in s.feeds if math.isfinite(f)),
-                              float(program.segments["tolerance"].max()))
+    limits = stretch_limits(program, config)
     with ProcessPoolExecutor(workers) as pool:
         bounds = dict(zip(shapes, pool.map(bound_ticks, [(s, limits) for s in shapes.values()])))
     bound_wall = time.monotonic() - wall
@@ -132,11 +138,7 @@ def measure(config: MachineConfig, workers: int) -> dict:
     with tempfile.TemporaryDirectory(prefix="nest_stretches-") as tmp:
         path = Path(tmp) / "nest.ngc"
         path.write_text(bench.text)
-        res = linuxcnc_sim.run_linuxcnc(
-            path, max_velocity_mm_s={ax: config.axis[ax].max_velocity_mm_s for ax in lc.AXES},
-            max_accel_mm_s2={ax: config.axis[ax].max_accel_mm_s2 for ax in lc.AXES},
-            travel_mm={ax: (config.axis[ax].travel_min_mm, config.axis[ax].travel_max_mm) for ax in lc.AXES},
-            period_s=dt, home_mm=dict(zip(lc.AXES, start)))
+        res = lc.run_linuxcnc_like_ours(path, start, config)
     rows = [{"lead_out_line": s.lead_out_line, "bound": bounds[s.shape()],
              "linuxcnc": periods_over(res["xy_mm"], res["line"], s), "ours": periods_over(ours_xy, ours_lines, s)}
             for s in found]
@@ -149,8 +151,7 @@ def trace(config: MachineConfig) -> str:
     how the optimum passes the two corners (one of possibly many at that N)."""
     program, _ = lc.interpret_from_start(lc.nest_bench().text, config)
     s = stretches(program)[0]
-    limits = lc.corner_limits(config, 60.0 * max(f for f in s.feeds if math.isfinite(f)),
-                              float(program.segments["tolerance"].max()))
+    limits = stretch_limits(program, config)
     n = corner_bound.stretch_ticks(list(s.points), list(s.feeds), limits)
     _, xy = corner_bound.stretch_solution(list(s.points), list(s.feeds), limits, n)
     if xy is None:
@@ -170,14 +171,14 @@ def report(m: dict) -> str:
     rows, dt = m["stretches"], m["dt"]
     bound = np.array([r["bound"] for r in rows])
     theirs = np.array([r["linuxcnc"] for r in rows])
-    ours = np.array([r["ours"] for r in rows])
+    mine = np.array([r["ours"] for r in rows])
     out = [f"{m['program']}: {len(rows)} stretches lead-out, rapid, lead-in (cut at the leads' middles), "
            f"{m['shapes']} shape(s) bounded in {m['bound_wall_s']:.0f} s; {m['rapids_left_out']} rapids left out",
            f"{'':24} {'bound':>9} {'LinuxCNC':>9} {'ours':>9}  {'LinuxCNC/bound':>14} {'ours/bound':>10} {'ours/LinuxCNC':>13}"]
     for name, f in (("per stretch, median ms", np.median), ("per stretch, least ms", np.min), ("per stretch, most ms", np.max)):
-        b, t, o = (float(f(x)) * dt * 1e3 for x in (bound, theirs, ours))
+        b, t, o = (float(f(x)) * dt * 1e3 for x in (bound, theirs, mine))
         out.append(f"{name:24} {b:9.1f} {t:9.1f} {o:9.1f}")
-    b, t, o = (float(x.sum()) * dt for x in (bound, theirs, ours))
+    b, t, o = (float(x.sum()) * dt for x in (bound, theirs, mine))
     out.append(f"{'all, s':24} {b:9.3f} {t:9.3f} {o:9.3f}  {t / b:14.3f} {o / b:10.3f} {o / t:13.3f}")
     return "\n".join(out)
 
