@@ -237,6 +237,12 @@ class PlannerConfig:
         "this much before the last one comes to rest, the two added within the axis limits and P; a hold or override "
         "change in an overlap acts when it ends (0: stop at every such corner)", 0.0, 200.0,
     )
+    corner_connection_ms: float = opt(
+        60.0, "ms", "where it passes such a corner sooner than the overlap, the axes leave the last move while it "
+        "still brakes and join the next while it speeds up by one time-optimal motion of both, lasting at most this, "
+        "within the axis limits, the feeds and P; a hold or override change in a connection acts when it ends "
+        "(0: overlaps only)", 0.0, 200.0,
+    )
     corner_move_share: float = opt(
         0.5, "", "share of P by which such a corner is moved outward first, where a straight move alone meets it at "
         "up to 90 degrees, so that the overlap uses the tolerance on both sides of the corner and passes faster "

@@ -40,6 +40,7 @@ def corner_speeds(records, corners) -> list[float]:
 
 
 NO_OVERLAP = {"planner.corner_overlap_ms": 0.0}
+NO_CONNECTION = {"planner.corner_connection_ms": 0.0}  # the overlap's own choices, measured without connections
 SQUARE_CORNERS = [(100.0, 0.0), (100.0, 100.0), (0.0, 100.0)]
 
 
@@ -175,14 +176,15 @@ def test_a_corner_moved_outward_within_p_is_passed_faster_and_sooner(feed, p):
     (`sections._move_stop_corners`), the corner may be cut deeper and still within P of the
     programmed one: the head uses the band on both sides of the corner, passes it faster and the
     square is cut sooner, every axis within its limits, every record within P of the program, the
-    planned time the one run; `[planner] corner_move_share = 0` leaves the corners where they are."""
+    planned time the one run; `[planner] corner_move_share = 0` leaves the corners where they are.
+    (Overlaps only: a connection, `connection.py`, passes some of these corners sooner still.)"""
     text = SQUARE.format(p=p, f=feed, x0=200.0, y0=200.0, x1=300.0, y1=300.0)
     corners = [(300.0, 200.0), (300.0, 300.0), (200.0, 300.0)]
-    program, _, records, planned = run(text, chunk=29)
+    program, _, records, planned = run(text, machine_config(**NO_CONNECTION), chunk=29)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all()
     assert len(records) == planned
-    _, _, unmoved, planned_unmoved = run(text, machine_config(**{"planner.corner_move_share": 0.0}), chunk=29)
+    _, _, unmoved, planned_unmoved = run(text, machine_config(**NO_CONNECTION, **{"planner.corner_move_share": 0.0}), chunk=29)
     assert len(unmoved) == planned_unmoved
     assert len(records) < len(unmoved), "sooner"
     assert min(corner_speeds(records, corners)) > max(corner_speeds(unmoved, corners)), "faster at every corner"
@@ -389,20 +391,21 @@ def test_a_gentle_corner_next_to_a_sharp_one_is_blended_at_its_own_speed(monkeyp
 
     text = _round_part(kerf_by_controller=False, feed=feed)
     gentle_corner = np.asarray(ROUND_PART_FIRST_CHORD_END)
+    config = machine_config(**NO_CONNECTION)  # the stop's overlap, as the rule was weighed against
 
     def speed_at_gentle_corner(records) -> float:  # lowest within 0.3 mm (the sharp corner is 1.4 mm away)
         first_pass = records[: len(records) * 3 // 5]  # before the circle closes (the rapid is a share)
         near = np.hypot(*(first_pass["position"][:, :2] - gentle_corner).T) < 0.3
         return float(speed(first_pass)[near].min())
 
-    program, _, records, planned = run(text, chunk=29)
+    program, _, records, planned = run(text, config, chunk=29)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all()
     assert len(records) == planned
     assert speed_at_gentle_corner(records) > gentle_mm_s, "passed near the feed"
 
     monkeypatch.setattr(sections, "_blend_own_cap", lambda *args: 0.0)  # every blend weighed as a sharp one, as before
-    _, _, stopping, _ = run(text, chunk=29)
+    _, _, stopping, _ = run(text, config, chunk=29)
     if feed == 4800:
         assert speed_at_gentle_corner(stopping) < 1.0, "a stop before (overlapped by a few ms)"
         assert len(stopping) - len(records) >= 20
@@ -423,12 +426,13 @@ def test_a_gentle_corner_kept_beside_a_sharp_one_is_weighed_again_and_never_slow
     from cnc.planner import sections
 
     text = _round_part(kerf_by_controller, feed)
-    program, _, records, planned = run(text, chunk=53)
+    config = machine_config(**NO_CONNECTION)  # the stop's overlap, as the rule was weighed against
+    program, _, records, planned = run(text, config, chunk=53)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all()
     assert len(records) == planned
     monkeypatch.setattr(sections, "_blend_own_cap", lambda *args: 0.0)  # no gentle corner kept
-    _, _, without, planned_without = run(text, chunk=53)
+    _, _, without, planned_without = run(text, config, chunk=53)
     assert len(without) == planned_without
     if kerf_by_controller:
         assert len(records) <= len(without)

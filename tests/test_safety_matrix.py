@@ -94,6 +94,19 @@ def _corner_overlap(program: str) -> Callable[[Rig], None]:
     return enter
 
 
+# a lead-out turned back 135 degrees into a rapid (the comparison nest's, `bench/linuxcnc_compare.py`): passed
+# by a connection (`cnc/planner/connection.py`), both axes planned through the corner; no jet (it would close
+# at the lead-out's end, a stop there)
+CONNECTED_CORNER = "G21 G90 G64 P0.05\nG1 X120 Y100 F2400\nG1 X118 Y98\nG0 X175 Y97\nG1 Y100\nM2\n"
+
+
+def _corner_connection(rig: Rig) -> None:
+    """Moving through a connection's samples: the fault comes in the middle of them."""
+    rig.run_program(CONNECTED_CORNER)
+    rig.run_until(lambda: rig.feeder.runner is not None and rig.feeder.runner.connecting and rig.speed_mm_s() > 10.0,
+                  5000, "the head in the corner's connection")
+
+
 def _mdi_cut(rig: Rig) -> None:
     """Cutting by hand (MDI in MANUAL): the pressure floor holds, the barriers are not armed."""
     rig.set_command(pressure_floor_bar=FLOOR_BAR)
@@ -141,6 +154,7 @@ STATES = [
     State("in a corner's overlap at F30000", CONFIG, _corner_overlap(CORNER), True, cutting=True),
     State("in a moved corner's overlap at F30000", CONFIG, _corner_overlap(MOVED_CORNER), True, cutting=True),
     State("in a folded kerf corner's overlap at F30000", CONFIG, _corner_overlap(KERF_CORNER), True, cutting=True),
+    State("in a corner's connection (lead-out into a rapid)", CONFIG, _corner_connection, True),
     State("held", CONFIG, _held, False),
     State("jet test", CONFIG, _jet_test, False),
     State("jogging", CONFIG, _jogging, True),

@@ -29,6 +29,9 @@ choice from the same pieces; the streamed samples differ from them only by round
 far inside the margin the check keeps. Overlaps save the comparison nest of `bench/
 linuxcnc_compare.py` 7.7 s of its 205 s (`bench/overlap_estimate.py`, docs/benchmarks.md).
 
+Where a connection (`connection.py`: both axes planned in time from the last section's braking
+to the next one's speed-up) passes the corner sooner, `CornerOverlap.plan` takes it instead.
+
 Under way, an overlap's samples are committed: a hold, a stop or an override change made during
 one acts from the next section's first sample after it, at most `corner_overlap_ms` of that
 section's motion from rest, a lead like the setpoint FIFO's own. (The last section is then
@@ -43,11 +46,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import MachineConfig
+from .connection import CornerPlan, connection_plan, overlap_plan
 from .path import Element, distance_to
 from .sections import Section, flat, overlap_may_apply
 from .stream import SectionStream
 
 CONTEXT = 4  # samples either side of an overlap whose differences are checked too (a third difference spans 4)
+CONNECTION_REACH = 1.2  # a connection leaves and joins the sections up to this many times its longest before and after the corner
 LIMIT_MARGIN = 1e-7  # the summed samples keep each limit to within this share (the streamed ones differ by rounding)
 
 
@@ -60,6 +65,7 @@ class CornerOverlap:
     velocity: np.ndarray  # per axis X, Y, Z (inf for an axis the machine lacks), mm/s
     accel: np.ndarray  # mm/s^2
     jerk: np.ndarray  # mm/s^3
+    connection_samples: int = 0  # the longest connection (`connection.py`), in servo periods (0: none)
 
     @classmethod
     def of(cls, config: MachineConfig) -> "CornerOverlap":
@@ -69,7 +75,27 @@ class CornerOverlap:
 
         dt = config.timing.period_s
         return cls(dt, int(round(config.planner.corner_overlap_ms / 1000.0 / dt)),
-                   limit("max_velocity_mm_s"), limit("max_accel_mm_s2"), limit("max_jerk_mm_s3"))
+                   limit("max_velocity_mm_s"), limit("max_accel_mm_s2"), limit("max_jerk_mm_s3"),
+                   int(round(config.planner.corner_connection_ms / 1000.0 / dt)))
+
+    @property
+    def context(self) -> int:
+        """Samples either side of a corner's own whose differences are checked with them."""
+        return CONTEXT
+
+    @property
+    def connection_reach(self) -> int:
+        """How far before a section's end a connection may leave it, and after the next one's
+        start join it, in servo periods: a connection may replace more samples than it makes."""
+        return int(round(CONNECTION_REACH * self.connection_samples))
+
+    def plan(self, a: SectionStream, b: SectionStream, a_summed: int = 0) -> CornerPlan:
+        """How the corner from a into b is passed: a stop, an overlap (`samples`) or, where it saves
+        more, a connection (`connection.py`). `a` planned to its end, `a_summed` as for `samples`."""
+        overlap = overlap_plan(self.samples(a, b, a_summed))
+        if self.connection_samples < 1 or not a.final or a.k_end is None or not self.applies(a.section, b.section):
+            return overlap
+        return connection_plan(self, a, b, a_summed, overlap.saved) or overlap
 
     def applies(self, a: Section, b: Section) -> bool:
         """Whether the corner from section a into section b, next to each other, may be overlapped:
@@ -100,7 +126,7 @@ class CornerOverlap:
             return 0
         tolerance = min(e.tolerance_mm for e in near)
         summed = _candidates(tail - corner, head - corner, most)  # (most, width, 3), row k - 1: overlap k
-        fits = self._within_limits(summed)
+        fits = self.within_limits(summed)
         cap = _speed_cap(a, b)
         if math.isfinite(cap):
             fits &= _within_speed(summed, cap, self.dt)
@@ -114,8 +140,9 @@ class CornerOverlap:
                 return int(ks[np.flatnonzero(ok)[-1]])
         return 0
 
-    def _within_limits(self, summed: np.ndarray) -> np.ndarray:
-        """Per candidate: every axis within its velocity, acceleration and jerk limit."""
+    def within_limits(self, summed: np.ndarray) -> np.ndarray:
+        """Per candidate (rows of samples): every axis within its velocity, acceleration and jerk
+        limit on backward differences."""
         v = np.diff(summed, axis=1) / self.dt
         acc = np.diff(v, axis=1) / self.dt
         jerk = np.diff(acc, axis=1) / self.dt

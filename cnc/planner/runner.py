@@ -28,6 +28,7 @@ from gcode.program import Program
 
 from ..config import MachineConfig
 from ..data.fifo import SetpointFlag, setpoint_dtype
+from .connection import STOP, CornerPlan
 from .overlap import CornerOverlap
 from .sections import Section, Step, iter_steps
 from .steps import STEPS_AHEAD, ProgramTiming, StepSource
@@ -80,9 +81,10 @@ class ProgramRunner:
         self.dtype = setpoint_dtype(len(self.axes))
         self.close_on_hold = config.jet.close_on_hold
         self.corners = CornerOverlap.of(config)
-        self._overlap: tuple | None = None  # ((step, its plan's generation), next section's stream, samples) decided
-        self._queued: tuple | None = None  # an overlap's summed samples still to give (`_start_overlap`)
-        self._summed_head = 0  # how many of the current section's first samples an overlap added to the last one's
+        self._overlap: tuple | None = None  # ((step, its plan's generation), next section's stream, corner plan) decided
+        self._queued: tuple | None = None  # a corner's samples still to give (`_start_corner`)
+        self._queued_connection = False  # the queued samples are a connection's
+        self._summed_head = 0  # how many of the current section's first samples a corner took (added or replaced)
         self.state = RunState.RUNNING
         self.override = 1.0
         self.events: list[Event] = []
@@ -162,9 +164,14 @@ class ProgramRunner:
 
     @property
     def overlap_left(self) -> int:
-        """Samples of a corner's overlap still to give (`overlap.py`; 0: none under way): the
-        operator's controls act after them."""
+        """Samples of a corner's overlap or connection still to give (`overlap.py`,
+        `connection.py`; 0: none under way): the operator's controls act after them."""
         return len(self._queued[0]) if self._queued is not None else 0
+
+    @property
+    def connecting(self) -> bool:
+        """The corner's samples under way are a connection's (`connection.py`), not an overlap's."""
+        return self._queued is not None and self._queued_connection
 
     @property
     def finished(self) -> bool:
@@ -221,15 +228,16 @@ class ProgramRunner:
     def _from_stream(self, n: int):
         stream = self.stream
         section = stream.section
-        stream.plan_until(stream.k + n)  # (what the take commits anyway) so its end is known in time
-        overlap = self._corner_overlap(stream)
-        if overlap:
+        # what the take commits anyway, and as far as a corner may reach back: its end known in time
+        stream.plan_until(stream.k + n + self.corners.connection_reach)
+        corner = self._corner_plan(stream)
+        if corner.saved:
             left = stream.k_end - stream.k
-            if left == overlap:
-                self._start_overlap(overlap)
+            if left == corner.last_samples:
+                self._start_corner(corner)
                 return self._nothing()
-            if left > overlap:
-                n = min(n, left - overlap)  # up to where the next section's samples are added
+            if left > corner.last_samples:
+                n = min(n, left - corner.last_samples)  # up to where the corner's samples begin
             # (fewer left: the samples to add to were made before the overlap was known: a stop there)
         y, s = stream.take(n)
         if len(y):
@@ -252,41 +260,67 @@ class ProgramRunner:
             self._close_jet()
         return self._nothing()
 
-    def _corner_overlap(self, stream: SectionStream) -> int:
-        """How many of the section's last samples the next section's first ones are added to
-        (`overlap.py`; 0: it stops at the corner), decided once the section is planned to its end
-        and again after every replan of it."""
-        if self.state != RunState.RUNNING or stream.stopping or not stream.final or self.corners.max_samples < 1:
-            return 0
+    def _corner_plan(self, stream: SectionStream) -> CornerPlan:
+        """How the corner at the section's end is passed (`CornerOverlap.plan`: a stop, an overlap
+        or a connection), decided once the section is planned to its end and again after every
+        replan of it."""
+        if (self.state != RunState.RUNNING or stream.stopping or not stream.final
+                or max(self.corners.max_samples, self.corners.connection_samples) < 1):
+            return STOP
         key = (self.index, stream.generation)
         if self._overlap is not None and self._overlap[0] == key:
             return self._overlap[2]
         following = self.steps.get(self.index + 1)
-        nxt, samples = None, 0
-        if isinstance(following, Section):  # (`samples` says 0 at once where the corner does not qualify)
+        nxt, plan = None, STOP
+        if isinstance(following, Section):  # (`plan` says a stop at once where the corner does not qualify)
             nxt = self._ready.setdefault(self.index + 1, SectionStream(following, self.override, min(self.override, 1.0)))
-            samples = self.corners.samples(stream, nxt, self._summed_head)
-        self._overlap = (key, nxt, samples)
-        return samples
+            plan = self.corners.plan(stream, nxt, self._summed_head)
+        self._overlap = (key, nxt, plan)
+        return plan
 
-    def _start_overlap(self, samples: int) -> None:
-        """Take the section's last samples and the next one's first, added, and go on with the next
-        section: its stream takes the operator's controls from now on, acting after these samples."""
+    def _start_corner(self, plan: CornerPlan) -> None:
+        """Take the section's last samples and the next one's first, and queue what the corner makes
+        of them: the two added (an overlap) or the connection's own samples in their place. Then go
+        on with the next section: its stream takes the operator's controls from now on, acting after
+        the queued samples."""
         last, (_, nxt, _) = self.stream, self._overlap
-        y_last, s_last = last.take(samples)
-        y_next, s_next = nxt.take(samples)
+        y_last, s_last = last.take(plan.last_samples)
+        y_next, s_next = nxt.take(plan.next_samples)
         self._messages(last.section, s_last)
-        summed = y_last + y_next - np.asarray(last.section.end, dtype=float)
         self._ready.pop(self.index + 1, None)
         self._overlap = None
         self.index += 1
         self.steps.forget_before(self.index)
-        self.stream, self._message_index, self._summed_head = nxt, 0, samples
+        self.stream, self._message_index, self._summed_head = nxt, 0, plan.committed_next
+        self._queued_connection = plan.is_connection
         section = nxt.section
-        k = section.path.index_at(s_next)
         self._messages(section, s_next)
-        self.s_program = section.offset_mm + float(s_next[-1])
-        self._queued = (summed[:, self.axes], section.flags[k], section.segment[k], section.line[k], section.offset_mm + s_next)
+        if len(s_next):
+            self.s_program = section.offset_mm + float(s_next[-1])
+        if not plan.is_connection:
+            summed = y_last + y_next - np.asarray(last.section.end, dtype=float)
+            k = section.path.index_at(s_next)
+            self._queued = (summed[:, self.axes], section.flags[k], section.segment[k], section.line[k], section.offset_mm + s_next)
+            return
+        # a connection: each of its samples tagged as the replaced sample at the same share of the way
+        # (segment, line, outputs, program position), so that they advance as the head does; then
+        # the next section's own samples committed with it (`CornerPlan.committed_next`)
+        ka, kb = last.section.path.index_at(s_last), section.path.index_at(s_next)
+        tags = [np.concatenate((last.section.flags[ka], section.flags[kb])),
+                np.concatenate((last.section.segment[ka], section.segment[kb])),
+                np.concatenate((last.section.line[ka], section.line[kb])),
+                np.concatenate((last.section.offset_mm + s_last, section.offset_mm + s_next))]
+        m = len(plan.path) + 1
+        replaced = plan.last_samples + plan.next_samples
+        which = np.clip(np.arange(1, m) * (replaced + 1) // m - 1, 0, replaced - 1)
+        y_own, s_own = nxt.take(plan.committed_next - plan.next_samples)
+        k = section.path.index_at(s_own)
+        self._messages(section, s_own)
+        if len(s_own):
+            self.s_program = section.offset_mm + float(s_own[-1])
+        self._queued = (np.concatenate((plan.path[:, self.axes], y_own[:, self.axes])),
+                        *(np.concatenate((t[which], own)) for t, own in zip(
+                            tags, (section.flags[k], section.segment[k], section.line[k], section.offset_mm + s_own))))
 
     def _from_queue(self, n: int):
         """The next of an overlap's summed samples."""

@@ -166,11 +166,12 @@ class ProgramTiming:
                     continue
                 stream = SectionStream(step)
                 ticks.append(stream.planned_samples())
-                overlap = 0
+                taken = 0
                 if last is not None:
-                    overlap = self.overlap.samples(last, stream, summed)
-                    ticks[-2] -= overlap
-                last, summed = stream, overlap
+                    corner = self.overlap.plan(last, stream, summed)
+                    ticks[-2] -= corner.saved
+                    taken = corner.committed_next
+                last, summed = stream, taken
                 total_mm += step.length_mm
             if run is not None:
                 keep()
