@@ -142,3 +142,20 @@ def test_the_connection_is_a_machine_file_key_validated_by_name():
     assert machine_config().planner.corner_connection_ms == 60.0
     _, _, records, planned = run(SLOT, machine_config(**NO_CONNECTION), chunk=50)
     assert _turn_back_speed(records) < 20.0 and len(records) == planned, "0: the overlap, as before"
+
+
+def test_a_connection_is_searched_only_where_the_limits_or_the_cap_hold_the_overlap(monkeypatch):
+    """The search costs milliseconds a corner: it is made where the axis limits hold the overlap
+    short (the slot's turn back) or its cap does, not where P does (a right angle between two
+    cuts, the corners of a waterjet part): those corners are overlapped as before."""
+    from cnc.planner import overlap
+
+    searched = []
+    search = overlap.connection_plan
+    monkeypatch.setattr(overlap, "connection_plan", lambda *args: searched.append(args[1].section.end) or search(*args))
+    square = "G21 G90 G64 P0.05\nG1 X20 Y20 F2400\nG1 X60\nG1 Y60\nG1 X20\nG1 Y20\nM2\n"
+    _, _, records, planned = run(square, machine_config(), chunk=50)
+    _, _, overlapped, _ = run(square, machine_config(**NO_CONNECTION), chunk=50)
+    assert searched == [] and len(records) == planned == len(overlapped)
+    run(SLOT, machine_config(), chunk=50)
+    assert TURN_BACK in [tuple(float(c) for c in corner[:2]) for corner in searched]

@@ -91,9 +91,17 @@ class CornerOverlap:
 
     def plan(self, a: SectionStream, b: SectionStream, a_summed: int = 0) -> CornerPlan:
         """How the corner from a into b is passed: a stop, an overlap (`samples`) or, where it saves
-        more, a connection (`connection.py`). `a` planned to its end, `a_summed` as for `samples`."""
-        overlap = overlap_plan(self.samples(a, b, a_summed))
-        if self.connection_samples < 1 or not a.final or a.k_end is None or not self.applies(a.section, b.section):
+        more, a connection (`connection.py`). `a` planned to its end, `a_summed` as for `samples`.
+
+        A connection is searched for only where the axis limits, not P or the feed, hold the
+        overlap short (where the two motions' jerks add on an axis: a turn back, a turn so gentle
+        that both push the same way), or its cap (`corner_overlap_ms`) does: where P holds it, the connection's samples must keep P as
+        well, and none was found to save more (the comparison nest's 177 right angles and 45 degree
+        turns, docs/benchmarks.md), while the search costs several milliseconds a corner."""
+        samples, held_by_limits = self._overlap(a, b, a_summed)
+        overlap = overlap_plan(samples)
+        if (self.connection_samples < 1 or not (held_by_limits or samples >= self.max_samples)
+                or not a.final or a.k_end is None or not self.applies(a.section, b.section)):
             return overlap
         return connection_plan(self, a, b, a_summed, overlap.saved) or overlap
 
@@ -109,36 +117,42 @@ class CornerOverlap:
         `a_summed`: how many of a's first samples were added to the last ones of the section before
         it (an overlap at its start): the samples checked here keep clear of them, so that no sample
         is the sum of three motions and every one of a's checked is a's own."""
+        return self._overlap(a, b, a_summed)[0]
+
+    def _overlap(self, a: SectionStream, b: SectionStream, a_summed: int) -> tuple[int, bool]:
+        """`samples`, and whether the axis limits held it short (the longest overlap checked, or
+        one of the sections too short for any, rather than P or the feed)."""
         if not a.final or a.k_end is None or not self.applies(a.section, b.section):
-            return 0
+            return 0, False
         n_a = a.k_end
         most = min(self.max_samples, n_a - a_summed - CONTEXT - 1)
         b.plan_until(most + CONTEXT)  # planned this far, a section that ends sooner is planned to its end
         if b.final and b.k_end is not None:  # a short one: its samples, all of them, and its rest after
             most = min(most, b.k_end - CONTEXT - 1)
         if most < 1:
-            return 0
+            return 0, True
         corner = np.asarray(a.section.end, dtype=float)
         tail, a_from, _ = a.positions(n_a - most - CONTEXT, n_a)
         head, _, b_to = b.positions(1, most + CONTEXT)
         near = _near_corner(a.section, a_from, b.section, b_to)
         if not all(flat(e) for e in near):
-            return 0
+            return 0, False
         tolerance = min(e.tolerance_mm for e in near)
         summed = _candidates(tail - corner, head - corner, most)  # (most, width, 3), row k - 1: overlap k
         fits = self.within_limits(summed)
+        held_by_limits = not fits[-1]
         cap = _speed_cap(a, b)
         if math.isfinite(cap):
             fits &= _within_speed(summed, cap, self.dt)
         kept = np.flatnonzero(fits) + 1
         if not len(kept):
-            return 0
+            return 0, held_by_limits
         # within P: the longest overlap the limits allow first (the common answer), then the others at once
         for ks in (kept[-1:], kept[:-1]):
             ok = _within_p(summed[ks - 1], ks, corner, near, tolerance) if len(ks) else ks
             if ok.any():
-                return int(ks[np.flatnonzero(ok)[-1]])
-        return 0
+                return int(ks[np.flatnonzero(ok)[-1]]), held_by_limits
+        return 0, held_by_limits
 
     def within_limits(self, summed: np.ndarray) -> np.ndarray:
         """Per candidate (rows of samples): every axis within its velocity, acceleration and jerk
