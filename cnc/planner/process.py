@@ -274,6 +274,12 @@ class Planner:
                 with self.lock:
                     if self.runner is runner:
                         job.stream.accept(job)
+            with self.lock:  # the corner ahead decided now, the FIFO just refilled (`ProgramRunner.decide_corner`)
+                if self.runner is not None and self.runner is runner and hasattr(runner, "decide_corner"):
+                    try:
+                        runner.decide_corner()
+                    except Exception:  # the main loop meets the same failure when it reaches that corner
+                        log.exception("planner: deciding the corner ahead failed")
 
     def close(self) -> None:
         if self.loaded is not None and self.loaded.timing_job is not None:

@@ -471,6 +471,14 @@ class ProgramRunner:
             left -= step.seconds
         return None
 
+    def decide_corner(self) -> None:
+        """Decide now how the corner at the end of the section under way is passed, once it is
+        planned to its end (`_corner_plan`: a connection's search takes milliseconds). The planner's
+        worker does it after each refill, with the FIFO full, so that the next refill, when it
+        reaches the corner, finds the decision made."""
+        if self.stream is not None and not self.repierce:
+            self._corner_plan(self.stream)
+
     def build_ahead(self) -> None:
         """Make the steps after the one under way (`STEPS_AHEAD`), away from the refills."""
         if not self.finished:
