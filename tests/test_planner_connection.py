@@ -21,6 +21,7 @@ from cnc.planner.runner import ProgramRunner, RunState
 
 from .conftest import machine_config
 from .test_planner_motion import DT, LIMITS, run, speed, within_limits, within_tolerance
+from .test_planner_overlap import CONTROLS, control_to_the_end, shared_records
 
 pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
@@ -85,10 +86,6 @@ def test_a_connection_is_the_same_whatever_the_take_size_and_only_where_nothing_
     assert _turn_back_speed(records) == 0.0, "at rest where the jet closes"
 
 
-CONTROLS = {"hold": lambda r: r.hold(), "stop": lambda r: r.stop(), "override 0": lambda r: r.set_override(0.0),
-            "override 200": lambda r: r.set_override(2.0), "override 10": lambda r: r.set_override(0.1)}
-
-
 @pytest.mark.parametrize("into", [2, 20])
 @pytest.mark.parametrize("control", list(CONTROLS))
 def test_a_control_in_a_connection_acts_when_it_ends_and_every_limit_holds(control, into):
@@ -107,18 +104,10 @@ def test_a_control_in_a_connection_acts_when_it_ends_and_every_limit_holds(contr
     assert left > 0 and runner.connecting
     # the ETA to the record (the newest sample made waits for the next one, as everywhere)
     assert runner.remaining_s() == pytest.approx((len(undisturbed) - given - 1) * DT, abs=1e-9)
-    CONTROLS[control](runner)
-    while not runner.finished:
-        recs, _ = runner.take(50)
-        made.append(recs)
-        if not len(recs) and runner.idle:
-            break
-    records = np.concatenate(made)
+    records = control_to_the_end(runner, control, made)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all()
-    n = min(len(undisturbed), len(records))
-    differs = np.flatnonzero(np.abs(undisturbed["position"][:n] - records["position"][:n]).max(axis=1) > 1e-12)
-    shared = int(differs[0]) if len(differs) else n
+    shared = shared_records(undisturbed, records)
     assert shared >= given + left - 1, "the connection's samples are the undisturbed run's (records leave one late)"
     v = speed(records)
     if control in ("hold", "stop", "override 0"):

@@ -120,16 +120,10 @@ def test_a_control_in_an_overlap_acts_when_it_ends_and_every_limit_holds(control
     made.append(runner.take(3)[0])  # three samples into the overlap
     given, left = sum(len(m) for m in made), runner.overlap_left
     assert left > 0
-    CONTROLS[control](runner)
-    while not runner.finished:
-        recs, _ = runner.take(50)
-        made.append(recs)
-        if not len(recs) and runner.idle:
-            break
-    records = np.concatenate(made)
+    records = control_to_the_end(runner, control, made)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all()
-    shared = _shared(undisturbed, records)
+    shared = shared_records(undisturbed, records)
     assert shared >= given + left - 1, "the overlap's samples are the undisturbed run's (records leave one late)"
     v = speed(records)
     if control in ("hold", "stop", "override 0"):
@@ -147,6 +141,18 @@ def test_a_control_in_an_overlap_acts_when_it_ends_and_every_limit_holds(control
         assert runner.state == RunState.DONE and records["position"][-1] == pytest.approx([0.0, 0.0], abs=1e-9)
 
 
+def control_to_the_end(runner: ProgramRunner, control: str, made: list) -> np.ndarray:
+    """Press `control` (`CONTROLS`), then take records until the run ends or waits for the
+    operator: every record, `made` (those before) first."""
+    CONTROLS[control](runner)
+    while not runner.finished:
+        recs, _ = runner.take(50)
+        made.append(recs)
+        if not len(recs) and runner.idle:
+            break
+    return np.concatenate(made)
+
+
 @functools.lru_cache(maxsize=None)
 def _undisturbed_square(feed: float):  # noqa: ANN202 - (program, records)
     """The square run without a control, a record at a time: made once per feed for the five controls."""
@@ -155,7 +161,7 @@ def _undisturbed_square(feed: float):  # noqa: ANN202 - (program, records)
     return program, records
 
 
-def _shared(undisturbed, records) -> int:
+def shared_records(undisturbed, records) -> int:
     """How many records, from the first, two runs have alike."""
     n = min(len(undisturbed), len(records))
     same = np.all(np.abs(undisturbed["position"][:n] - records["position"][:n]) <= 1e-12, axis=1)
