@@ -323,7 +323,7 @@ class ProgramRunner:
                             tags, (section.flags[k], section.segment[k], section.line[k], section.offset_mm + s_own))))
 
     def _from_queue(self, n: int):
-        """The next of an overlap's summed samples."""
+        """The next of a corner's queued samples (an overlap's sums, a connection's own)."""
         m = min(n, len(self._queued[0]))
         out = tuple(x[:m] for x in self._queued)
         self._queued = tuple(x[m:] for x in self._queued) if m < len(self._queued[0]) else None
