@@ -9,11 +9,7 @@ from pathlib import Path
 
 import pytest
 
-# Pure computation, but in `make test`'s main lane (tests/lanes.py), not marked `computes`: its
-# mixed-integer programmes take half a minute of CPU, which the main lane, waiting on controllers,
-# has to spare, while the computes lane at idle priority ran them in about a minute and ended last
-# (the suite's time is the computes lane's plus the demo's). Nothing else runs in the main lane
-# while they do.
+pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
 sys.path.append(str(Path(__file__).resolve().parent.parent / "bench"))  # linuxcnc_compare imports its neighbours by name
 
