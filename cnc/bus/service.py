@@ -251,15 +251,18 @@ class CommandService:
     def _finish(self, request: Request, answer: Any) -> None:
         route, query = request._route, request._query
         reply = Reply(False, answer.text) if isinstance(answer, _Declined) else answer
-        if route.read and isinstance(answer, _Declined):
-            self.send(lambda: _reply_err(query, answer.text))
-        else:
-            self.send(lambda: _reply(query, reply))
+        # the audit row handed over before the reply goes out (a queue's put: the disk is written by
+        # the trail's own thread): once the asker has its answer and sends the next command, from
+        # a thread of this process that may run first, this one's row is already in line before it
         if route.audit and self.audit is not None and isinstance(reply, Reply):
             try:
                 self.audit(request, reply)
             except Exception:
                 log.exception("%s: could not record %s in the audit trail", self.process, request.what)
+        if route.read and isinstance(answer, _Declined):
+            self.send(lambda: _reply_err(query, answer.text))
+        else:
+            self.send(lambda: _reply(query, reply))
 
 
 class _Declined:

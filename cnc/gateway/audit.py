@@ -5,8 +5,10 @@ one row: when, the user (from the command key the router let only that user send
 the verb, the command as sent (its JSON, a program upload by name and size only), ok or not and
 the reason. A jog's refreshes (the dead-man, many a second) are left out; its start and stop are
 in. The gateway owns the file (`audit.sqlite` beside the alarm history, WAL mode) and writes it
-from a thread of its own, after the reply: no command waits for the disk. `<root>/audit/history`
-answers pages of it (`offset`, `limit`, `user`, `order`).
+from a thread of its own: no command waits for the disk. A command's row is handed over before
+its reply goes out, so the rows keep the order in which the commands were answered (handed over
+after it, the next command of the same station, answered on another thread, could come first).
+`<root>/audit/history` answers pages of it (`offset`, `limit`, `user`, `order`).
 """
 
 from __future__ import annotations
