@@ -21,7 +21,7 @@ from cnc.planner.runner import ProgramRunner, RunState
 
 from .conftest import machine_config
 from .test_planner_motion import DT, LIMITS, run, speed, within_limits, within_tolerance
-from .test_planner_overlap import CONTROLS, control_to_the_end, shared_records
+from .test_planner_overlap import CONTROLS, control_after_committed
 
 pytestmark = pytest.mark.computes  # pure computation: `make test` runs it beside the rest (tests/lanes.py)
 
@@ -104,11 +104,7 @@ def test_a_control_in_a_connection_acts_when_it_ends_and_every_limit_holds(contr
     assert left > 0 and runner.connecting
     # the ETA to the record (the newest sample made waits for the next one, as everywhere)
     assert runner.remaining_s() == pytest.approx((len(undisturbed) - given - 1) * DT, abs=1e-9)
-    records = control_to_the_end(runner, control, made)
-    within_limits(records)
-    assert (within_tolerance(program, records) <= 1e-9).all()
-    shared = shared_records(undisturbed, records)
-    assert shared >= given + left - 1, "the connection's samples are the undisturbed run's (records leave one late)"
+    records, shared = control_after_committed(runner, control, made, program, undisturbed, given + left)
     v = speed(records)
     if control in ("hold", "stop", "override 0"):
         assert v[-1] == 0.0

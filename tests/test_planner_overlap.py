@@ -120,11 +120,7 @@ def test_a_control_in_an_overlap_acts_when_it_ends_and_every_limit_holds(control
     made.append(runner.take(3)[0])  # three samples into the overlap
     given, left = sum(len(m) for m in made), runner.overlap_left
     assert left > 0
-    records = control_to_the_end(runner, control, made)
-    within_limits(records)
-    assert (within_tolerance(program, records) <= 1e-9).all()
-    shared = shared_records(undisturbed, records)
-    assert shared >= given + left - 1, "the overlap's samples are the undisturbed run's (records leave one late)"
+    records, shared = control_after_committed(runner, control, made, program, undisturbed, given + left)
     v = speed(records)
     if control in ("hold", "stop", "override 0"):
         assert v[-1] == 0.0 and not records["flags"][-1] & JET
@@ -141,16 +137,24 @@ def test_a_control_in_an_overlap_acts_when_it_ends_and_every_limit_holds(control
         assert runner.state == RunState.DONE and records["position"][-1] == pytest.approx([0.0, 0.0], abs=1e-9)
 
 
-def control_to_the_end(runner: ProgramRunner, control: str, made: list) -> np.ndarray:
-    """Press `control` (`CONTROLS`), then take records until the run ends or waits for the
-    operator: every record, `made` (those before) first."""
+def control_after_committed(runner: ProgramRunner, control: str, made: list, program, undisturbed,  # noqa: ANN001
+                            committed: int) -> tuple[np.ndarray, int]:
+    """Press `control` (`CONTROLS`) with `committed` samples given or queued (a corner's), then
+    take records until the run ends or waits for the operator: every record (`made`, those before,
+    first) keeps every axis's limits and P, and the committed ones are the undisturbed run's.
+    The records, and how many from the first the two runs share."""
     CONTROLS[control](runner)
     while not runner.finished:
         recs, _ = runner.take(50)
         made.append(recs)
         if not len(recs) and runner.idle:
             break
-    return np.concatenate(made)
+    records = np.concatenate(made)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    shared = shared_records(undisturbed, records)
+    assert shared >= committed - 1, "the corner's samples are the undisturbed run's (records leave one late)"
+    return records, shared
 
 
 @functools.lru_cache(maxsize=None)
