@@ -93,15 +93,15 @@ class CornerOverlap:
         """How the corner from a into b is passed: a stop, an overlap (`samples`) or, where it saves
         more, a connection (`connection.py`). `a` planned to its end, `a_summed` as for `samples`.
 
-        A connection is searched for only where the axis limits, not P or the feed, hold the
-        overlap short (where the two motions' jerks add on an axis: a turn back, a turn so gentle
-        that both push the same way), or its cap (`corner_overlap_ms`) does: where P holds it, the connection's samples must keep P as
-        well, and none was found to save more (the comparison nest's 177 right angles and 45 degree
-        turns, docs/benchmarks.md), while the search costs several milliseconds a corner."""
-        samples, held_by_limits = self._overlap(a, b, a_summed)
+        A connection is searched for only where the axis limits or the overlap's cap
+        (`corner_overlap_ms`), not P or the feed, hold the overlap short (where the two motions'
+        jerks add on an axis: a turn back, a turn so gentle that both push the same way): where P
+        holds it, the connection's samples must keep P as well, and none was found to save more (the
+        comparison nest's 177 right angles and 45 degree turns, docs/benchmarks.md), while the
+        search costs several milliseconds a corner."""
+        samples, could_grow = self._overlap(a, b, a_summed)
         overlap = overlap_plan(samples)
-        if (self.connection_samples < 1 or not (held_by_limits or samples >= self.max_samples)
-                or not a.final or a.k_end is None or not self.applies(a.section, b.section)):
+        if self.connection_samples < 1 or not could_grow:
             return overlap
         return connection_plan(self, a, b, a_summed, overlap.saved) or overlap
 
@@ -120,8 +120,9 @@ class CornerOverlap:
         return self._overlap(a, b, a_summed)[0]
 
     def _overlap(self, a: SectionStream, b: SectionStream, a_summed: int) -> tuple[int, bool]:
-        """`samples`, and whether the axis limits held it short (the longest overlap checked, or
-        one of the sections too short for any, rather than P or the feed)."""
+        """`samples`, and whether a longer one could have passed the corner sooner: the corner
+        qualifies and the axis limits (on the longest overlap checked, or a section too short for
+        any) or the cap held it, rather than P or the feed."""
         if not a.final or a.k_end is None or not self.applies(a.section, b.section):
             return 0, False
         n_a = a.k_end
@@ -151,7 +152,8 @@ class CornerOverlap:
         for ks in (kept[-1:], kept[:-1]):
             ok = _within_p(summed[ks - 1], ks, corner, near, tolerance) if len(ks) else ks
             if ok.any():
-                return int(ks[np.flatnonzero(ok)[-1]]), held_by_limits
+                k = int(ks[np.flatnonzero(ok)[-1]])
+                return k, held_by_limits or k >= self.max_samples
         return 0, held_by_limits
 
     def within_limits(self, summed: np.ndarray) -> np.ndarray:
