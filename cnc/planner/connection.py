@@ -107,6 +107,25 @@ def connection_plan(corners: "CornerOverlap", a: "SectionStream", b: "SectionStr
     """The connection that passes the corner a -> b soonest, if it saves more than `beat` periods.
     `a` is planned to its end and the corner qualifies (`CornerOverlap.applies`); `a_summed` of a's
     first samples belong to the corner before it."""
+    window = corner_window(corners, a, b, a_summed)
+    if window is None:
+        return None
+    corner, most_p, most_j = window
+    search = _Search(corners, corner)
+    best = search.best(range(FIRST, most_p + 1, COARSE), range(FIRST, most_j + 1, COARSE), beat)
+    if best is None:
+        return None
+    p0, j0 = best.last_samples, best.next_samples + 1
+    around = search.best(range(max(FIRST, p0 - REFINE), min(most_p, p0 + REFINE) + 1),
+                         range(max(FIRST, j0 - REFINE), min(most_j, j0 + REFINE) + 1), best.saved)
+    return around or best
+
+
+def corner_window(corners: "CornerOverlap", a: "SectionStream", b: "SectionStream",
+                  a_summed: int) -> tuple[_Corner, int, int] | None:
+    """What a connection at the corner a -> b may join: both sections' samples as far as it reaches
+    (`CornerOverlap.connection_reach`), and how far that is before a's end and after b's start
+    (`most_p`, `most_j`); None where it cannot be passed by one (too short, or not flat)."""
     from .overlap import _near_corner, _speed_cap, flat
     reach = corners.connection_reach
     n_a = int(a.k_end)
@@ -121,15 +140,7 @@ def connection_plan(corners: "CornerOverlap", a: "SectionStream", b: "SectionStr
     near = _near_corner(a.section, a_from, b.section, b_to)
     if not all(flat(e) for e in near):
         return None
-    corner = _Corner(tail, head, near, min(e.tolerance_mm for e in near), _speed_cap(a, b))
-    search = _Search(corners, corner)
-    best = search.best(range(FIRST, most_p + 1, COARSE), range(FIRST, most_j + 1, COARSE), beat)
-    if best is None:
-        return None
-    p0, j0 = best.last_samples, best.next_samples + 1
-    around = search.best(range(max(FIRST, p0 - REFINE), min(most_p, p0 + REFINE) + 1),
-                         range(max(FIRST, j0 - REFINE), min(most_j, j0 + REFINE) + 1), best.saved)
-    return around or best
+    return _Corner(tail, head, near, min(e.tolerance_mm for e in near), _speed_cap(a, b)), most_p, most_j
 
 
 class _Search:
@@ -207,17 +218,24 @@ class _Search:
         path = np.repeat(c.tail[-1:], m - 1, axis=0)  # Z (and any axis not connected) as at the corner
         at = self.trajectory.at_time
         path[:, self.axes] = [at(q * self.dt)[0] for q in range(1, m)] if m > 1 else path[:, self.axes]
+        return path if self.keeps_rules(p, j, path) else None
+
+    def keeps_rules(self, p: int, j: int, path: np.ndarray) -> bool:
+        """Whether the samples `path` between the last section's sample n_a - p and the next one's
+        sample j keep every rule of a connection (the module's docstring)."""
+        c = self.corner
+        i = self.n_tail - p
         k = self.corners.context
         joined = np.concatenate((c.tail[max(0, i - k):i + 1], path, c.head[j:j + k + 1]))
         if not self.corners.within_limits(joined[None])[0]:
-            return None
+            return False
         if not len(path):
-            return path
+            return True
         if (distance_to(path[:, :2], c.near) > c.tolerance_mm).any():
-            return None
+            return False
         if math.isfinite(c.cap_mm_s):
             into = np.concatenate((c.tail[i:i + 1, :2], path[:, :2], c.head[j:j + 1, :2]))
             speed = np.hypot(*np.diff(into, axis=0).T) / self.dt  # into each of the path's samples and into the join
             if (speed > c.cap_mm_s * (1.0 + 1e-7)).any():
-                return None
-        return path
+                return False
+        return True
