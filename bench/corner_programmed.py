@@ -43,7 +43,7 @@ LinuxCNC 2.9 on the same programs in the same run (`linuxcnc_compare.run_theirs`
 bench and not the planner: a corner takes 1 to 3 s of solving (tens of programmes of 30 to 50 ms
 each), where the planner's worker has the time of one leg, 100 to 250 ms at these feeds, to decide
 it; decided late, the refill would wait for it and the setpoint FIFO run dry. From the
-repository root (about 6 minutes):
+repository root (about 4 minutes):
 
     .venv/bin/python bench/corner_programmed.py [--only zigzag] [--json OUT]
 """
@@ -80,7 +80,9 @@ SPEED_SIDES = 8  # corners of the speed's polygon all round, besides those along
 TURN_STEP_DEG = 10.0  # ... which are this far apart at most (the speed's direction turns from one to the other)
 HULL_SIDES = 16  # sides of the polygon around both rectangles where k is not yet chosen
 PROGRAMMES = 200  # linear programmes at most per corner (a count: the same choice in the run and the timing)
-PATH_MS = 120.0
+PATH_MS = 120.0  # the longest programmed connection (`--path-ms`)
+SOLVES: list[dict] = []  # each programmed corner's search: programmes, wall seconds, periods saved
+_PROGRAMMES = [0]  # linear programmes solved so far
 
 
 def programmed_connection(corners: CornerOverlap, corner: _Corner, p: int, j: int, beat: int,
@@ -113,7 +115,7 @@ class _Problem:
     """The linear programmes of one corner's window, for any number of periods m."""
 
     def __init__(self, corners: CornerOverlap, corner: _Corner, i: int, j: int) -> None:
-        self.corners, self.corner, self.i, self.j = corners, corner, i, j
+        self.corners, self.corner = corners, corner
         self.dt = corners.dt
         ctx = corners.context
         self.origin = corner.tail[-1, :2].copy()  # the corner: the numbers near zero
@@ -254,8 +256,6 @@ class _Problem:
         return result.x if result.status == 0 else None
 
 
-SOLVES: list[dict] = []  # each programmed corner's search: programmes, wall seconds, periods saved
-_PROGRAMMES = [0]  # linear programmes solved so far
 
 
 @dataclasses.dataclass(frozen=True)
