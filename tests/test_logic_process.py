@@ -207,7 +207,7 @@ def test_door_opened_during_a_cut_closes_the_jet_in_the_tick_then_the_servo_stop
     events.close()
 
 
-def test_a_late_plc_answer_costs_one_exchange_but_a_lost_link_is_an_alarm_within_three_cycles_and_a_safe_stop(plc_controller, tmp_path):
+def test_a_late_plc_answer_costs_one_exchange_but_a_lost_link_is_an_alarm_after_its_lost_cycles_and_a_safe_stop(plc_controller, tmp_path):
     sup = plc_controller
     events = Events(sup)
     # the part at F300: half a minute of cut, so that it is still cutting when the link (which
@@ -228,7 +228,7 @@ def test_a_late_plc_answer_costs_one_exchange_but_a_lost_link_is_an_alarm_within
     sup.plc_sim.inject("link_dead", True)
     sup.wait_until(lambda: sup.area.reader("plc").read_dict()["state"] == LinkState.LOST, 5.0, "the link to be lost")
     plc = sup.area.reader("plc").read_dict()
-    assert plc["failed"] - before["failed"] == sup.config.plc.lost_after_cycles, "lost after exactly 3 failed exchanges"
+    assert plc["failed"] - before["failed"] == sup.config.plc.lost_after_cycles, "lost after exactly lost_after_cycles failed exchanges"
     sup.wait_until(lambda: 1020 in events.codes(), 5.0, "alarm 1020 PLC link lost")
     sup.wait_until(lambda: sup.motion()["state"] == PlannerState.IDLE and sup.servo()["state"] == ServoState.FAULT
                    and logic(sup)["state"] == MachineState.FAULT, 30.0, "the safe stop")  # the logic's next scan says so
