@@ -188,7 +188,7 @@ def hosts(network, tmp_path_factory):
                           "--connect", SHOP, "--history", str(tmp / "history.sqlite"),
                           "--set", 'cycle.transport_procedure=""', "--set", "sim.axes.x.start_position_mm=30",
                           "--set", "sim.axes.y.start_position_mm=30", "--set", "plc.cycle_ms=100", "--set", "plc.timeout_ms=400",
-                          "--set", "plc.lost_after_cycles=5",  # the PLC link as patient as in tests/conftest.py NEAR_HOME
+                          "--set", "plc.lost_after_cycles=8",  # the PLC link as patient as in tests/conftest.py NEAR_HOME
                           # the network is under test, not the host's timer: a busy host may not trip the watchdog,
                           # nor stop the cut for ticks it ran late (tests/test_overruns.py tests that), nor let
                           # the FIFO run dry while the planner waits for a CPU (the shipped 20 ms lead did, once
