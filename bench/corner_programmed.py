@@ -272,6 +272,8 @@ class ProgrammedCorners(CornerOverlap):
         return cls(**fields, path_samples=int(round(path_ms / 1000.0 / base.dt)))
 
     def plan(self, a, b, a_summed: int = 0) -> CornerPlan:  # noqa: ANN001 - SectionStreams
+        # the planner's own choice first, untouched; the overlap's check and the window are made again
+        # here (milliseconds, against seconds of solving) rather than reaching into `plan`
         plan = super().plan(a, b, a_summed)
         _, could_grow = self._overlap(a, b, a_summed)
         if self.connection_samples < 1 or not could_grow:
