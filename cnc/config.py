@@ -243,6 +243,13 @@ class PlannerConfig:
         "within the axis limits, the feeds and P; a hold or override change in a connection acts when it ends "
         "(0: overlaps only)", 0.0, 200.0,
     )
+    corner_programme_ms: float = opt(
+        120.0, "ms", "where two long straight moves meet at such a corner, the samples through it may also be solved "
+        "for at once (a linear programme: the path drifts out within P, then crosses the corner), lasting at most "
+        "this, within the axis limits, the feeds and P, taken where it passes sooner than the connection; a hold or "
+        "override change in one acts when it ends (0: none; needs corner_connection_ms, whose reach it shares)",
+        0.0, 200.0,
+    )
     corner_move_share: float = opt(
         0.5, "", "share of P by which such a corner is moved outward first, where a straight move alone meets it at "
         "up to 90 degrees, so that the overlap uses the tolerance on both sides of the corner and passes faster "

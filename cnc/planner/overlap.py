@@ -30,7 +30,9 @@ far inside the margin the check keeps. Overlaps save the comparison nest of `ben
 linuxcnc_compare.py` 7.7 s of its 205 s (`bench/overlap_estimate.py`, docs/benchmarks.md).
 
 Where a connection (`connection.py`: both axes planned in time from the last section's braking
-to the next one's speed-up) passes the corner sooner, `CornerOverlap.plan` takes it instead.
+to the next one's speed-up) passes the corner sooner, `CornerOverlap.plan` takes it instead; where
+two long straight moves meet, also a programmed connection (`programme.py`: the samples through the
+corner solved for as a linear programme).
 
 Under way, an overlap's samples are committed: a hold, a stop or an override change made during
 one acts from the next section's first sample after it, at most `corner_overlap_ms` of that
@@ -46,9 +48,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import MachineConfig
+from . import programme
 from .connection import CornerPlan, connection_plan, overlap_plan
 from .path import Element, distance_to
 from .sections import Section, flat, overlap_may_apply
+from .programme import ProgrammeBook
 from .stream import SectionStream
 
 CONTEXT = 4  # samples either side of an overlap whose differences are checked too (a third difference spans 4)
@@ -66,6 +70,7 @@ class CornerOverlap:
     accel: np.ndarray  # mm/s^2
     jerk: np.ndarray  # mm/s^3
     connection_samples: int = 0  # the longest connection (`connection.py`), in servo periods (0: none)
+    programme_samples: int = 0  # the longest programmed connection (`programme.py`), in servo periods (0: none)
 
     @classmethod
     def of(cls, config: MachineConfig) -> "CornerOverlap":
@@ -76,7 +81,8 @@ class CornerOverlap:
         dt = config.timing.period_s
         return cls(dt, int(round(config.planner.corner_overlap_ms / 1000.0 / dt)),
                    limit("max_velocity_mm_s"), limit("max_accel_mm_s2"), limit("max_jerk_mm_s3"),
-                   int(round(config.planner.corner_connection_ms / 1000.0 / dt)))
+                   int(round(config.planner.corner_connection_ms / 1000.0 / dt)),
+                   int(round(config.planner.corner_programme_ms / 1000.0 / dt)))
 
     @property
     def context(self) -> int:
@@ -89,9 +95,12 @@ class CornerOverlap:
         start join it, in servo periods: a connection may replace more samples than it makes."""
         return int(round(CONNECTION_REACH * self.connection_samples))
 
-    def plan(self, a: SectionStream, b: SectionStream, a_summed: int = 0) -> CornerPlan:
+    def plan(self, a: SectionStream, b: SectionStream, a_summed: int = 0, book: ProgrammeBook | None = None,
+             index: int = -1) -> CornerPlan:
         """How the corner from a into b is passed: a stop, an overlap (`samples`) or, where it saves
-        more, a connection (`connection.py`). `a` planned to its end, `a_summed` as for `samples`.
+        more, a connection (`connection.py`) or a programmed one (`programme.py`: from `book`, the
+        corner after step `index`, where one is given; else solved here). `a` planned to its end,
+        `a_summed` as for `samples`.
 
         A connection is searched for only where the axis limits or the overlap's cap
         (`corner_overlap_ms`), not P or the feed, hold the overlap short (where the two motions'
@@ -100,10 +109,23 @@ class CornerOverlap:
         comparison nest's 177 right angles and 45 degree turns, docs/benchmarks.md), while the
         search costs several milliseconds a corner."""
         samples, could_grow = self._overlap(a, b, a_summed)
-        overlap = overlap_plan(samples)
+        best = overlap_plan(samples)
         if self.connection_samples < 1 or not could_grow:
-            return overlap
-        return connection_plan(self, a, b, a_summed, overlap.saved) or overlap
+            return best
+        best = connection_plan(self, a, b, a_summed, best.saved) or best
+        found = programme.window(self, a, b)
+        if found is not None:
+            corner, p, j = found
+            programmed = (book.plan(self, index, corner, p, j) if book is not None
+                          else programme.programmed_plan(self, corner, p, j))  # (no memo: every corner solved)
+            if programmed is not None and programmed.saved > best.saved:
+                best = programmed
+        return best
+
+    def overlap_held(self, a: SectionStream, b: SectionStream, a_summed: int = 0) -> tuple[int, bool]:
+        """The longest overlap (`samples`) and whether the axis limits or its cap, not P or the
+        feed, held it short (where `plan` searches connections)."""
+        return self._overlap(a, b, a_summed)
 
     def applies(self, a: Section, b: Section) -> bool:
         """Whether the corner from section a into section b, next to each other, may be overlapped:

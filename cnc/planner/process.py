@@ -274,6 +274,11 @@ class Planner:
                 with self.lock:
                     if self.runner is runner:
                         job.stream.accept(job)
+            if runner is not None and self.runner is runner and hasattr(runner, "solve_ahead"):
+                try:  # a programmed corner ahead (`programme.py`): tens of ms, outside the lock
+                    runner.solve_ahead()
+                except Exception:  # the refill solves the same corner itself and meets the same failure
+                    log.exception("planner: solving a corner ahead failed")
             with self.lock:  # the corner ahead decided now, the FIFO just refilled (`ProgramRunner.decide_corner`)
                 if self.runner is not None and self.runner is runner and hasattr(runner, "decide_corner"):
                     try:
@@ -778,6 +783,8 @@ class Planner:
         self.restart = None
         if kind in _PROGRAMS:
             runner.set_override(self.override)
+        if hasattr(runner, "solves_ahead"):
+            runner.solves_ahead = True  # the worker solves the programmed corners ahead (`_plan_ahead`)
         self.runner, self.runner_kind = runner, kind
         self.motion_epoch = self.servo_r.read_dict()["motion_epoch"]
         self.jog_continuous = False

@@ -30,6 +30,7 @@ from ..config import MachineConfig
 from ..data.fifo import SetpointFlag, setpoint_dtype
 from .connection import STOP, CornerPlan
 from .overlap import CornerOverlap
+from .programme import ProgrammeBook
 from .sections import Section, Step, iter_steps
 from .steps import STEPS_AHEAD, ProgramTiming, StepSource
 from .stream import SectionStream, WindowJob
@@ -85,6 +86,8 @@ class ProgramRunner:
         self._queued: tuple | None = None  # a corner's samples still to give (`_start_corner`)
         self._queued_connection = False  # the queued samples are a connection's
         self._summed_head = 0  # how many of the current section's first samples a corner took (added or replaced)
+        self.book = ProgrammeBook()  # programmed connections solved ahead (`solve_ahead`)
+        self.solves_ahead = False  # a worker solves them (`solve_ahead`): a corner not yet solved is decided late
         self.state = RunState.RUNNING
         self.override = 1.0
         self.events: list[Event] = []
@@ -230,7 +233,7 @@ class ProgramRunner:
         section = stream.section
         # what the take commits anyway, and as far as a corner may reach back: its end known in time
         stream.plan_until(stream.k + n + self.corners.connection_reach)
-        corner = self._corner_plan(stream)
+        corner = STOP if self._waits_for_programme(stream, n) else self._corner_plan(stream)
         if corner.saved:
             left = stream.k_end - stream.k
             if left == corner.last_samples:
@@ -260,6 +263,37 @@ class ProgramRunner:
             self._close_jet()
         return self._nothing()
 
+    def _waits_for_programme(self, stream: SectionStream, n: int) -> bool:
+        """Whether the corner at the section's end is left undecided for now: the worker has yet to
+        solve its programme (`solve_ahead`) and these n samples stop short of wherever any corner's
+        samples may begin, so that the refill need not solve it itself."""
+        if not self.solves_ahead or self.corners.programme_samples < 1 or not stream.final:
+            return False
+        if self._overlap is not None and self._overlap[0] == (self.index, stream.generation):
+            return False  # decided
+        reach_back = max(self.corners.max_samples, self.corners.connection_reach)
+        return stream.k_end - stream.k - n > reach_back and not self.book.solved(self.index, self.override)
+
+    def solve_ahead(self, most: int = 1) -> int:
+        """Solve up to `most` programmed connections of the corners ahead (`programme.py`) that
+        the book lacks, on sections of their own, at the override now: the planner's worker does
+        it, away from the refills, so that a refill finds them solved. How many it solved."""
+        if self.corners.programme_samples < 1 or self.finished:
+            return 0
+        done, override = 0, self.override
+        i = max(self.index, 0)
+        while done < most and i + 1 < self.steps.made:
+            if not self.book.solved(i, override):
+                a, b = self.steps.peek(i), self.steps.peek(i + 1)
+                if a is None or b is None:  # forgotten meanwhile: the head moved on
+                    return done
+                if isinstance(a, Section) and isinstance(b, Section):
+                    done += self.book.solve_ahead(self.corners, i, a, b, override)
+                else:
+                    self.book.mark(i, override)  # a pause on either side: no corner
+            i += 1
+        return done
+
     def _corner_plan(self, stream: SectionStream) -> CornerPlan:
         """How the corner at the section's end is passed (`CornerOverlap.plan`: a stop, an overlap
         or a connection), decided once the section is planned to its end and again after every
@@ -274,7 +308,7 @@ class ProgramRunner:
         nxt, plan = None, STOP
         if isinstance(following, Section):  # (`plan` says a stop at once where the corner does not qualify)
             nxt = self._ready.setdefault(self.index + 1, SectionStream(following, self.override, min(self.override, 1.0)))
-            plan = self.corners.plan(stream, nxt, self._summed_head)
+            plan = self.corners.plan(stream, nxt, self._summed_head, self.book, self.index)
         self._overlap = (key, nxt, plan)
         return plan
 
@@ -291,6 +325,7 @@ class ProgramRunner:
         self._overlap = None
         self.index += 1
         self.steps.forget_before(self.index)
+        self.book.forget_before(self.index)
         self.stream, self._message_index, self._summed_head = nxt, 0, plan.committed_next
         self._queued_connection = plan.is_connection
         section = nxt.section
@@ -334,6 +369,7 @@ class ProgramRunner:
         self.index += 1
         step = self.steps.get(self.index)
         self.steps.forget_before(self.index)  # what the head has left
+        self.book.forget_before(self.index)
         if step is None:
             self.state = RunState.DONE
             return

@@ -29,6 +29,7 @@ from gcode.program import Program
 from ..config import MachineConfig
 from ..runtime.child import die_with
 from .overlap import CornerOverlap
+from .programme import ProgrammeBook
 from .sections import KnownRun, Pause, RunMemo, RunStart, Section, Step, iter_steps, pierce_boundaries
 from .stream import SectionStream
 
@@ -143,6 +144,7 @@ class ProgramTiming:
             ticks, total_mm = array("q"), 0.0
             last, summed = None, 0  # the stream of the section just timed (when a section), and how
             # many of its first samples are added to the one before it
+            book = ProgrammeBook()  # the programmed corners (`programme.py`), solved here as the run meets them
             run: RunStart | None = None  # the run being timed for the memo, its first step and path before it
             run_from, run_mm = 0, 0.0
 
@@ -168,7 +170,7 @@ class ProgramTiming:
                 ticks.append(stream.planned_samples())
                 taken = 0
                 if last is not None:
-                    corner = self.overlap.plan(last, stream, summed)
+                    corner = self.overlap.plan(last, stream, summed, book)
                     ticks[-2] -= corner.saved
                     taken = corner.committed_next
                 last, summed = stream, taken
