@@ -42,7 +42,10 @@ straight lines meeting where the axis limits held the overlap short), run by the
 LinuxCNC 2.9 on the same programs in the same run (`linuxcnc_compare.run_theirs`). Why it is a
 bench and not the planner: a corner takes 1 to 3 s of solving (tens of programmes of 30 to 50 ms
 each), where the planner's worker has the time of one leg, 100 to 250 ms at these feeds, to decide
-it; decided late, the refill would wait for it and the setpoint FIFO run dry. From the
+it; decided late, the refill would wait for it and the setpoint FIFO run dry. The planner now
+makes such connections itself, on a spline's control points in tens of milliseconds
+(`cnc/planner/programme.py`): its own corners, which this bench's "ours" column runs, include
+them, and the per-sample programme here is the reference that spline is measured against. From the
 repository root (about 4 minutes):
 
     .venv/bin/python bench/corner_programmed.py [--only zigzag] [--json OUT]
@@ -271,10 +274,10 @@ class ProgrammedCorners(CornerOverlap):
         fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(CornerOverlap)}
         return cls(**fields, path_samples=int(round(path_ms / 1000.0 / base.dt)))
 
-    def plan(self, a, b, a_summed: int = 0) -> CornerPlan:  # noqa: ANN001 - SectionStreams
+    def plan(self, a, b, a_summed: int = 0, book=None, index: int = -1) -> CornerPlan:  # noqa: ANN001 - SectionStreams, a ProgrammeBook
         # the planner's own choice first, untouched; the overlap's check and the window are made again
         # here (milliseconds, against seconds of solving) rather than reaching into `plan`
-        plan = super().plan(a, b, a_summed)
+        plan = super().plan(a, b, a_summed, book, index)
         _, could_grow = self._overlap(a, b, a_summed)
         if self.connection_samples < 1 or not could_grow:
             return plan
