@@ -21,7 +21,7 @@ and the next one's sample j (the furthest a connection reaches on either side,
   which lies within its P-neighbourhood);
 - the path speed into every sample, and into the join, keeps the overlap's cap
   (`overlap._speed_cap`), in a polygon inscribed in its circle with corners along both lines'
-  steps at the joins and every `TURN_STEP_DEG` between (the sections' own speed at the joins is
+  steps at the joins and between (`programme.speed_sides`) (the sections' own speed at the joins is
   within it);
 
 each limit kept `LP_MARGIN` inside the connection's own check, which checks the result again
@@ -73,14 +73,13 @@ import linuxcnc_compare as lc  # noqa: E402
 from cnc.config import load_machine  # noqa: E402
 from cnc.planner.connection import CornerPlan, _Corner, _Search, corner_window  # noqa: E402
 from cnc.planner.overlap import CornerOverlap  # noqa: E402
+from cnc.planner.programme import _Programme, fewest, speed_sides  # noqa: E402
 from cnc.planner.runner import ProgramRunner  # noqa: E402
 from cnc.planner.sections import iter_steps  # noqa: E402
 from cnc.planner.steps import ProgramTiming  # noqa: E402
 from gcode.canon import LINE, RAPID  # noqa: E402
 
 LP_MARGIN = 1e-6  # each limit kept this share inside its check's (`connection._Search.keeps_rules`)
-SPEED_SIDES = 8  # corners of the speed's polygon all round, besides those along the joins' steps and between
-TURN_STEP_DEG = 10.0  # ... which are this far apart at most (the speed's direction turns from one to the other)
 HULL_SIDES = 16  # sides of the polygon around both rectangles where k is not yet chosen
 PROGRAMMES = 200  # linear programmes at most per corner (a count: the same choice in the run and the timing)
 PATH_MS = 120.0  # the longest programmed connection (`--path-ms`)
@@ -97,50 +96,27 @@ def programmed_connection(corners: CornerOverlap, corner: _Corner, p: int, j: in
     if len(near) != 2 or any(e.kind not in (LINE, RAPID) or e.length_mm <= 0.0 for e in near):
         return None
     problem = _Problem(corners, corner, len(corner.tail) - 1 - p, j)
-    hi = min(max_periods, p + j - beat - 1)  # a connection of m periods saves p + j - m
-    lo = problem.fewest_periods()
-    if hi < lo:
+    found = fewest(problem, problem.fewest_periods(), min(max_periods, p + j - beat - 1), PROGRAMMES)
+    if found is None:
         return None
-    best = problem.solve(hi)
-    if best is None:
-        return None
-    while hi - lo > 0 and problem.count < PROGRAMMES:  # hi feasible; lo - 1 known (or taken) infeasible
-        mid = (lo + hi) // 2
-        path = problem.solve(mid)
-        if path is not None:
-            hi, best = mid, path
-        else:
-            lo = mid + 1
-    return CornerPlan(p + j - hi, p, j - 1, best)
+    m, path = found
+    return CornerPlan(p + j - m, p, j - 1, path)  # a connection of m periods saves p + j - m
 
 
-class _Problem:
-    """The linear programmes of one corner's window, for any number of periods m."""
+class _Problem(_Programme):
+    """The linear programmes of one corner's window over every sample, for any number of periods m
+    (the planner's `programme._Programme` solves for a spline's control points instead: its window,
+    joins and lines are these)."""
 
     def __init__(self, corners: CornerOverlap, corner: _Corner, i: int, j: int) -> None:
-        self.corners, self.corner = corners, corner
-        self.dt = corners.dt
-        ctx = corners.context
-        self.origin = corner.tail[-1, :2].copy()  # the corner: the numbers near zero
-        self.before = corner.tail[max(0, i - ctx):i + 1, :2] - self.origin
-        self.after = corner.head[j:j + ctx + 1, :2] - self.origin
+        super().__init__(corners, corner, i, j)
         self.legs = []  # (u, n, along-from, along-to, across) of each programmed line, relative to the origin
         for e in corner.near:
             s, t = np.array(e.start[:2]) - self.origin, np.array(e.end[:2]) - self.origin
             u = (t - s) / np.linalg.norm(t - s)
             n = np.array([-u[1], u[0]])
             self.legs.append((u, n, float(u @ s), float(u @ t), float(n @ s)))
-        self.count = 0  # programmes solved
         self.hint: float | None = None  # where the last feasible one switched lines, as a share of its samples
-
-    def fewest_periods(self) -> int:
-        """No connection takes fewer periods: the straight line between the joins at the cap, or at
-        the axes' velocities."""
-        gap = self.after[0] - self.before[-1]
-        steps = [abs(gap[a]) / (self.corners.velocity[a] * self.dt) for a in range(2)]
-        if math.isfinite(self.corner.cap_mm_s):
-            steps.append(float(np.hypot(*gap)) / (self.corner.cap_mm_s * self.dt))
-        return max(2, math.ceil(max(steps) - 1e-9))
 
     def solve(self, m: int) -> np.ndarray | None:
         """The connection's m - 1 samples (X, Y, Z) if the programme is feasible for some k: those
@@ -201,14 +177,7 @@ class _Problem:
         cap = self.corner.cap_mm_s
         if math.isfinite(cap):
             radius = cap * self.dt * margin
-            step_in, step_out = self.before[-1] - self.before[-2], self.after[1] - self.after[0]
-            q_in, q_out = (math.atan2(d[1], d[0]) % (2.0 * math.pi) for d in (step_in, step_out))
-            turn = (q_out - q_in + math.pi) % (2.0 * math.pi) - math.pi  # signed, the shorter way round
-            fine = max(1, math.ceil(abs(turn) / math.radians(TURN_STEP_DEG)))
-            corners_at = sorted({2.0 * math.pi * q / SPEED_SIDES for q in range(SPEED_SIDES)}
-                                | {(q_in + turn * q / fine) % (2.0 * math.pi) for q in range(fine + 1)})
-            sides = [(q0, q1) for q0, q1 in zip(corners_at, corners_at[1:] + [corners_at[0] + 2.0 * math.pi])
-                     if q1 - q0 > 1e-12]
+            sides = speed_sides(self.before[-1] - self.before[-2], self.after[1] - self.after[0])
             for t in range(nb, nb + n + 1):  # the step into each unknown, and into the join
                 for q0, q1 in sides:
                     mid, reach = (q0 + q1) / 2.0, radius * math.cos((q1 - q0) / 2.0)

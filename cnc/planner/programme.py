@@ -168,23 +168,61 @@ def _key(corners: "CornerOverlap", corner: _Corner, p: int, j: int) -> bytes:
 
 def _solved(corners: "CornerOverlap", corner: _Corner, p: int, j: int) -> CornerPlan | None:
     problem = _Programme(corners, corner, len(corner.tail) - 1 - p, j)
-    hi = min(corners.programme_samples + 1, p + j - 1)  # a connection of m periods saves p + j - m
-    lo = problem.fewest_periods()
+    found = fewest(problem, problem.fewest_periods(), min(corners.programme_samples + 1, p + j - 1), PROGRAMMES)
+    if found is None:
+        return None
+    m, path = found
+    if not _Search(corners, corner).keeps_rules(p, j, path):
+        return None
+    return CornerPlan(p + j - m, p, j - 1, path)  # a connection of m periods saves p + j - m
+
+
+def fewest(problem, lo: int, hi: int, most: int) -> tuple[int, np.ndarray] | None:  # noqa: ANN001 - has solve(m), count
+    """The fewest periods m in lo..hi for which `problem.solve(m)` finds a path, and that path, by
+    bisection (hi first: None where even it has none), until `problem.count` reaches `most`."""
     if hi < lo:
         return None
     best = problem.solve(hi)
     if best is None:
         return None
-    while hi > lo and problem.count < PROGRAMMES:  # hi feasible; lo - 1 infeasible
+    while hi > lo and problem.count < most:  # hi feasible; lo - 1 infeasible
         mid = (lo + hi) // 2
         path = problem.solve(mid)
         if path is not None:
             hi, best = mid, path
         else:
             lo = mid + 1
-    if not _Search(corners, corner).keeps_rules(p, j, best):
-        return None
-    return CornerPlan(p + j - hi, p, j - 1, best)
+    return hi, best
+
+
+def fewest_periods(corners: "CornerOverlap", corner: _Corner, before: np.ndarray, after: np.ndarray) -> int:
+    """No connection from the sample `before[-1]` to `after[0]` (X, Y) takes fewer periods: the
+    straight line between them at the corner's cap, or at the axes' velocities."""
+    gap = after[0] - before[-1]
+    steps = [abs(gap[a]) / (corners.velocity[a] * corners.dt) for a in range(2)]
+    if math.isfinite(corner.cap_mm_s):
+        steps.append(float(np.hypot(*gap)) / (corner.cap_mm_s * corners.dt))
+    return max(2, math.ceil(max(steps) - 1e-9))
+
+
+def speed_sides(step_in: np.ndarray, step_out: np.ndarray, fan_deg: float = 180.0) -> list[tuple[float, float]]:
+    """The sides (from and to angle, radians) of a polygon inscribed in the speed's circle, with
+    corners all round (`SPEED_SIDES`) and along both joins' steps and between them (every
+    `TURN_STEP_DEG` at most, the shorter way round); only those facing within `fan_deg` of the
+    two steps' directions or of the way between them."""
+    q_in, q_out = (math.atan2(d[1], d[0]) % (2.0 * math.pi) for d in (step_in, step_out))
+    turn = (q_out - q_in + math.pi) % (2.0 * math.pi) - math.pi  # signed, the shorter way round
+    fine = max(1, math.ceil(abs(turn) / math.radians(TURN_STEP_DEG)))
+    corners_at = sorted({2.0 * math.pi * q / SPEED_SIDES for q in range(SPEED_SIDES)}
+                        | {(q_in + turn * q / fine) % (2.0 * math.pi) for q in range(fine + 1)})
+    fan = math.radians(fan_deg)
+    sides = []
+    for q0, q1 in zip(corners_at, corners_at[1:] + [corners_at[0] + 2.0 * math.pi]):
+        mid = (q0 + q1) / 2.0
+        facing = min(abs((mid - r + math.pi) % (2.0 * math.pi) - math.pi) for r in (q_in, q_out, q_in + turn / 2.0))
+        if q1 - q0 > 1e-12 and facing <= fan:
+            sides.append((q0, q1))
+    return sides
 
 
 def _basis(m: int, intervals: int) -> np.ndarray:
@@ -231,13 +269,7 @@ class _Programme:
         self.count = 0  # programmes solved
 
     def fewest_periods(self) -> int:
-        """No connection takes fewer periods: the straight line between the joins at the cap, or at
-        the axes' velocities."""
-        gap = self.after[0] - self.before[-1]
-        steps = [abs(gap[a]) / (self.corners.velocity[a] * self.dt) for a in range(2)]
-        if math.isfinite(self.corner.cap_mm_s):
-            steps.append(float(np.hypot(*gap)) / (self.corner.cap_mm_s * self.dt))
-        return max(2, math.ceil(max(steps) - 1e-9))
+        return fewest_periods(self.corners, self.corner, self.before, self.after)
 
     def solve(self, m: int) -> np.ndarray | None:
         """The connection's m - 1 samples (X, Y, Z) if the programme for m periods is feasible with
@@ -307,20 +339,9 @@ class _Programme:
                     add(on_axis(d @ seq_rows, axis), -step - const, step - const)
         cap = self.corner.cap_mm_s
         if math.isfinite(cap):
-            step_in, step_out = self.before[-1] - self.before[-2], self.after[1] - self.after[0]
-            q_in, q_out = (math.atan2(d[1], d[0]) % (2.0 * math.pi) for d in (step_in, step_out))
-            turn = (q_out - q_in + math.pi) % (2.0 * math.pi) - math.pi  # signed, the shorter way round
-            fine = max(1, math.ceil(abs(turn) / math.radians(TURN_STEP_DEG)))
-            corners_at = sorted({2.0 * math.pi * q / SPEED_SIDES for q in range(SPEED_SIDES)}
-                                | {(q_in + turn * q / fine) % (2.0 * math.pi) for q in range(fine + 1)})
-            fan = math.radians(FAN_DEG)
             diff = _differences(1, nc - 1, nc)
-            for q0, q1 in zip(corners_at, corners_at[1:] + [corners_at[0] + 2.0 * math.pi]):
+            for q0, q1 in speed_sides(self.before[-1] - self.before[-2], self.after[1] - self.after[0], FAN_DEG):
                 mid = (q0 + q1) / 2.0
-                facing = min(abs((mid - r + math.pi) % (2.0 * math.pi) - math.pi)
-                             for r in (q_in, q_out, q_in + turn / 2.0))
-                if q1 - q0 <= 1e-12 or facing > fan:
-                    continue
                 reach = cap * h * margin * math.cos((q1 - q0) / 2.0)  # on differences of control points
                 add(np.hstack((math.cos(mid) * diff, math.sin(mid) * diff)), -np.inf, reach)
         tol = self.corner.tolerance_mm * margin
