@@ -219,3 +219,39 @@ def test_corner_programme_ms_is_checked_and_zero_turns_programmes_off():
     assert machine_config().planner.corner_programme_ms == 120.0
     _, runner, _, _ = _run(GENTLE, False)
     assert runner.book.solved_here == 0
+
+
+def _random_polyline(seed: int) -> tuple[str, float]:
+    """Long straight legs at random turns, feeds and tolerances: where corners are programmed."""
+    rng = np.random.default_rng(seed)
+    feed, p = float(rng.choice([6000.0, 12000.0, 18000.0, 30000.0])), float(rng.choice([0.01, 0.02, 0.05, 0.1]))
+    x, y, heading = 600.0, 500.0, float(rng.uniform(0.0, 2.0 * math.pi))
+    lines = [f"G21 G90 G17 G64 P{p:g}", f"G0 X{x:.4f} Y{y:.4f}", f"F{feed:g}"]
+    for _ in range(6):
+        length = float(rng.uniform(30.0, 120.0))
+        x, y = x + length * math.cos(heading), y + length * math.sin(heading)
+        lines.append(f"G1 X{x:.4f} Y{y:.4f}")
+        heading += float(rng.choice([-1.0, 1.0]) * math.radians(rng.uniform(10.0, 170.0)))
+    return "\n".join(lines + ["M2", ""]), p
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_random_polylines_keep_every_limit_and_p_and_time_exactly_with_programmed_corners(seed):
+    """Random long-legged polylines (turns of 10 to 170 degrees, 100 to 500 mm/s, P 0.01 to 0.1):
+    wherever corners are programmed, every axis keeps its limits, every record P, the run ends at
+    the program's end and takes the planned periods, and never longer than without programmes."""
+    text, _ = _random_polyline(seed)
+    program, _, records, planned = _run(text, True)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned
+    assert records["position"][-1, :2] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9)
+    _, _, plain, _ = _run(text, False)
+    assert len(records) <= len(plain)
+
+
+def test_some_random_polylines_are_programmed():
+    """The random polylines above do meet programmed corners (the property is not vacuous)."""
+    faster = sum(len(_run(_random_polyline(seed)[0], False)[2]) > len(_run(_random_polyline(seed)[0], True)[2])
+                 for seed in range(8))
+    assert faster >= 4
