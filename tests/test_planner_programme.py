@@ -211,6 +211,22 @@ def test_a_hold_before_a_corner_falls_back_to_the_planners_own_plan_there():
     assert records["position"][-1, :2] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9)
 
 
+@pytest.mark.parametrize("control", ["override 0", "hold", "stop"])
+def test_nothing_is_solved_ahead_while_the_motion_stands_or_ends(control):
+    """At 0 % override, held or stopping, the worker solves nothing (a section planned at 0 %
+    would never end) and makes no mark: the corners are solved once the motion goes on."""
+    config = machine_config()
+    runner = ProgramRunner(interpret(GENTLE, dialect_for(config)), config)
+    runner.take(10)
+    runner.build_ahead()
+    CONTROLS[control](runner)
+    assert runner.solve_ahead(5) == 0
+    assert not runner.book.solved(runner.index, runner.override)
+    if control == "override 0":
+        runner.set_override(1.0)
+        assert runner.solve_ahead(5) == 2  # the rapid into the first line, and the turn
+
+
 def test_corner_programme_ms_is_checked_and_zero_turns_programmes_off():
     with pytest.raises(ConfigError, match=r"corner_programme_ms"):
         machine_config(**{"planner.corner_programme_ms": -1.0})

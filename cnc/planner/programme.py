@@ -390,7 +390,7 @@ class ProgrammeBook:
         plan: CornerPlan | None = None
         tail = head = np.zeros((0, 3))
         solved = False
-        if corners.applies(a, b) and _straight(a) and _straight(b):
+        if override > 0.0 and corners.applies(a, b) and _straight(a) and _straight(b):
             sa, sb = SectionStream(a, override, min(override, 1.0)), SectionStream(b, override, min(override, 1.0))
             sa.planned_samples()
             _, could_grow = corners.overlap_held(sa, sb)

@@ -278,8 +278,8 @@ class ProgramRunner:
         """Solve up to `most` programmed connections of the corners ahead (`programme.py`) that
         the book lacks, on sections of their own, at the override now: the planner's worker does
         it, away from the refills, so that a refill finds them solved. How many it solved."""
-        if self.corners.programme_samples < 1 or self.finished:
-            return 0
+        if self.corners.programme_samples < 1 or self.state != RunState.RUNNING or self.override <= 0.0:
+            return 0  # (at 0 % nothing moves: a section planned at it would never end)
         done, override = 0, self.override
         i = max(self.index, 0)
         while done < most and i + 1 < self.steps.made:
