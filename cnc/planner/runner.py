@@ -284,7 +284,7 @@ class ProgramRunner:
         i = max(self.index, 0)
         while done < most and i + 1 < self.steps.made:
             if not self.book.solved(i, override):
-                a, b = self.steps.peek(i), self.steps.peek(i + 1)
+                a, b = self.steps.peek_from_another_thread(i), self.steps.peek_from_another_thread(i + 1)
                 if a is None or b is None:  # forgotten meanwhile: the head moved on
                     return done
                 if isinstance(a, Section) and isinstance(b, Section):

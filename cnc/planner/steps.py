@@ -58,6 +58,12 @@ class StepSource:
         made = self._made
         return made[k] if 0 <= k < len(made) else None
 
+    def peek_from_another_thread(self, i: int) -> Step | None:
+        """`peek` for a thread that runs beside the one forgetting steps (the planner's worker):
+        under the lock, so that step i is not read while the window moves."""
+        with self._lock:
+            return self.peek(i)
+
     def get(self, i: int) -> Step | None:
         """Step i, made now when needed; None past the program's end."""
         step = self.peek(i)
