@@ -52,7 +52,6 @@ from . import programme
 from .connection import CornerPlan, connection_plan, overlap_plan
 from .path import Element, distance_to
 from .sections import Section, flat, overlap_may_apply
-from .programme import ProgrammeBook
 from .stream import SectionStream
 
 CONTEXT = 4  # samples either side of an overlap whose differences are checked too (a third difference spans 4)
@@ -95,7 +94,7 @@ class CornerOverlap:
         start join it, in servo periods: a connection may replace more samples than it makes."""
         return int(round(CONNECTION_REACH * self.connection_samples))
 
-    def plan(self, a: SectionStream, b: SectionStream, a_summed: int = 0, book: ProgrammeBook | None = None,
+    def plan(self, a: SectionStream, b: SectionStream, a_summed: int = 0, book: "programme.ProgrammeBook | None" = None,
              index: int = -1) -> CornerPlan:
         """How the corner from a into b is passed: a stop, an overlap (`samples`) or, where it saves
         more, a connection (`connection.py`) or a programmed one (`programme.py`: from `book`, the
