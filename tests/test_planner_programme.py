@@ -153,7 +153,7 @@ def test_a_control_in_a_programmed_connection_acts_when_it_ends_and_every_limit_
     """A programmed connection's samples are committed, as any connection's: they come out as in a
     run without the control, then the next line's motion obeys it: a hold, a stop or 0 % bring the
     head to rest on that line within the braking distance of its speed from the connection's end
-    on; 10 % and 200 % go on to the program's end."""
+    on; 10 % and 200 % go on to the program's end. The ETA counts the connection's samples left."""
     program, _, undisturbed, _ = _run(GENTLE, True, chunk=1)
     config = machine_config()
     runner = ProgramRunner(interpret(GENTLE, dialect_for(config)), config)
@@ -164,6 +164,8 @@ def test_a_control_in_a_programmed_connection_acts_when_it_ends_and_every_limit_
     given, left = sum(len(m) for m in made), runner.overlap_left
     assert left > 0 and runner.connecting
     assert into + left > 60, "a programmed connection: longer than the planner's own (60 ms)"
+    # the ETA to the record (the newest sample made waits for the next one, as everywhere)
+    assert runner.remaining_s() == pytest.approx((len(undisturbed) - given - 1) * 0.001, abs=1e-9)
     records, shared = control_after_committed(runner, control, made, program, undisturbed, given + left)
     v = speed(records)
     end_of_program = program.segments["end"][-1][:2]
