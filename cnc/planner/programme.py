@@ -44,9 +44,10 @@ A corner is programmed only where
 corner takes tens of milliseconds (about 7 programmes of 4-6 ms), more than the FIFO's slack, so
 the planner's worker thread solves the corners ahead of the motion, on sections of its own
 (`ProgrammeBook.solve_ahead`), and the refill takes the result; a corner the worker has not
-reached is left undecided while the refill can wait, then solved where it is needed, with the same
-result; where the motion was replanned since it was solved (a hold, a resume, an override
-change), the planner's own plan passes it. The program's timing (`steps.ProgramTiming`) solves
+reached is left undecided while the refill can wait, and passed by the planner's own plan if the
+worker is still not there when it must be decided (the refill never solves one: a FIFO run dry
+trips the servo), as is one the motion reaches replanned since it was solved (a hold, a resume,
+an override change). Without a worker (tests, benches) a corner is solved where it is needed. The program's timing (`steps.ProgramTiming`) solves
 every one where it meets it: the same programmes from the same samples, so the planned cycle time
 stays the run's. A corner met again (a nest's parts, the same lead-in after each rapid) is taken
 from the first one, moved there and checked again (`ProgrammeMemo`, one per walk of the
@@ -362,16 +363,23 @@ class ProgrammeBook:
         self._solved: dict[int, tuple[float, np.ndarray, np.ndarray, CornerPlan | None]] = {}
         self._lock = threading.Lock()
         self.memo = ProgrammeMemo()
-        self.solved_here = 0  # corners the refill solved itself, the worker not there yet (a figure for tests)
+        self.solves_late = True  # a corner not solved ahead is solved where it is needed (no worker: tests, timing)
+        self.solved_here = 0  # corners solved where they were needed (figures for tests and benches)
+        self.late = 0  # corners the worker had not solved when needed, passed by the planner's own plan
 
     def plan(self, corners: "CornerOverlap", index: int, corner: _Corner, p: int, j: int) -> CornerPlan | None:
         """The programmed connection of the corner after step `index` for this window: the one
-        solved ahead for the same samples; solved now where the worker has not reached the corner;
-        None where it was solved for other samples (the motion was replanned since: a hold, a
-        resume, an override change), and the planner's own plan passes the corner."""
+        solved ahead for the same samples; None where it was solved for other samples (the motion
+        was replanned since: a hold, a resume, an override change), and the planner's own plan
+        passes the corner. One not solved ahead is solved now where `solves_late`; where a worker
+        solves them (`solves_late` False) the refill never does (tens of milliseconds against the
+        FIFO's slack of 20: a FIFO run dry trips the servo), and the planner's own plan passes it."""
         with self._lock:
             known = self._solved.get(index)
         if known is None:
+            if not self.solves_late:
+                self.late += 1
+                return None
             self.solved_here += 1
             return programmed_plan(corners, corner, p, j, self.memo)
         _, tail, head, plan = known

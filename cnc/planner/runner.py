@@ -87,7 +87,6 @@ class ProgramRunner:
         self._queued_connection = False  # the queued samples are a connection's
         self._summed_head = 0  # how many of the current section's first samples a corner took (added or replaced)
         self.book = ProgrammeBook()  # programmed connections solved ahead (`solve_ahead`)
-        self.solves_ahead = False  # a worker solves them (`solve_ahead`): a corner not yet solved is decided late
         self.state = RunState.RUNNING
         self.override = 1.0
         self.events: list[Event] = []
@@ -262,6 +261,17 @@ class ProgramRunner:
             self.state = RunState.ABORTED if self.state == RunState.STOPPING else RunState.HELD
             self._close_jet()
         return self._nothing()
+
+    @property
+    def solves_ahead(self) -> bool:
+        """Whether a worker solves the programmed corners ahead (`solve_ahead`, the planner
+        process's): then a corner it has not solved is decided as late as the refill can, and if
+        still unsolved passed by the planner's own plan, never solved in the refill."""
+        return not self.book.solves_late
+
+    @solves_ahead.setter
+    def solves_ahead(self, on: bool) -> None:
+        self.book.solves_late = not on
 
     def _waits_for_programme(self, stream: SectionStream, n: int) -> bool:
         """Whether the corner at the section's end is left undecided for now: the worker has yet to
