@@ -47,9 +47,9 @@ the planner's worker thread solves the corners ahead of the motion, on sections 
 reached is left undecided while the refill can wait, and passed by the planner's own plan if the
 worker is still not there when it must be decided (the refill never solves one: a FIFO run dry
 trips the servo), as is one the motion reaches replanned since it was solved (a hold, a resume,
-an override change). Without a worker (tests, benches) a corner is solved where it is needed. The program's timing (`steps.ProgramTiming`) solves
-every one where it meets it: the same programmes from the same samples, so the planned cycle time
-stays the run's. A corner met again (a nest's parts, the same lead-in after each rapid) is taken
+an override change). Without a worker (tests, benches) a corner is solved where it is needed. The
+program's timing (`steps.ProgramTiming`) solves every one where it meets it: the same programmes
+from the same samples, so the planned cycle time stays the run's. A corner met again (a nest's parts, the same lead-in after each rapid) is taken
 from the first one, moved there and checked again (`ProgrammeMemo`, one per walk of the
 program). Under way a programmed connection is committed like any connection: a hold, a stop or
 an override change made during one acts when it ends, at most `corner_programme_ms` later (the
