@@ -121,10 +121,21 @@ def matrix_table(cells: list) -> list[str]:
     return lines
 
 
+# The simulated PLC's CNC watchdog stops a moving transport when the CNC's heartbeat, written over
+# the PLC link, has not changed for `watchdog_s` of wall time (1 s: a real PLC's). The controller tests
+# give the link 3.2 s of failed exchanges (NEAR_HOME); with the watchdog at 1 s, a host that did not
+# run the link's process for a second during an unload (the 1M-line upload of test_load.py being
+# checked beside the cut) stopped the cycle with "PLC alarm 1". The tests' plant waits as long as
+# their link does; the watchdog's own test (test_plc_sim.py) keeps its second.
+PATIENT_WATCHDOG_S = 4.0
+
+
 def fast_plant():
+    import dataclasses
+
     from cnc.sim.faultinject import FAST_PLANT
 
-    return FAST_PLANT
+    return dataclasses.replace(FAST_PLANT, watchdog_s=PATIENT_WATCHDOG_S)
 
 
 @contextmanager
