@@ -98,7 +98,7 @@ class CornerOverlap:
              index: int = -1) -> CornerPlan:
         """How the corner from a into b is passed: a stop, an overlap (`samples`) or, where it saves
         more, a connection (`connection.py`) or a programmed one (`programme.py`: from `book`, the
-        corner after step `index`, where one is given; else solved here). `a` planned to its end,
+        corner after step `index`; without one, solved here). `a` planned to its end,
         `a_summed` as for `samples`.
 
         A connection is searched for only where the axis limits or the overlap's cap
@@ -115,8 +115,7 @@ class CornerOverlap:
         found = programme.window(self, a, b)
         if found is not None:
             corner, p, j = found
-            programmed = (book.plan(self, index, corner, p, j) if book is not None
-                          else programme.programmed_plan(self, corner, p, j))  # (no memo: every corner solved)
+            programmed = (book or programme.ProgrammeBook()).plan(self, index, corner, p, j)
             if programmed is not None and programmed.saved > best.saved:
                 best = programmed
         return best

@@ -110,15 +110,12 @@ def _straight(section: Section) -> bool:
     return len(section.elements) == 1 and section.elements[0].kind in (LINE, RAPID)
 
 
-def programmed_plan(corners: "CornerOverlap", corner: _Corner, p: int, j: int,
-                    memo: "ProgrammeMemo | None" = None) -> CornerPlan | None:
+def programmed_plan(corners: "CornerOverlap", corner: _Corner, p: int, j: int, memo: "ProgrammeMemo") -> CornerPlan | None:
     """The programmed connection from the last section's sample n_a - p to the next one's sample j
     that takes the fewest periods (at most `corners.programme_samples` + 1), if one keeps every rule;
     None where none does. A corner `memo` has met before is not solved again."""
     if any(e.kind not in (LINE, RAPID) or e.length_mm <= 0.0 for e in corner.near):
         return None
-    if memo is None:
-        return _solved(corners, corner, p, j)
     origin = corner.tail[-1].copy()
     key = _key(corners, corner, p, j)
     known = memo.get(key)
