@@ -65,6 +65,7 @@ from ..machine_dialect import dialect_for
 from ..params import registry, with_values
 from ..programs import read_program
 from ..runtime.rt import collector_paused, give_back_memory, leave_realtime
+from . import programme
 from .overlap import CornerOverlap
 from .preflight import PreflightError, preflight
 from .runner import ProgramRunner, RunState
@@ -151,6 +152,8 @@ class Planner:
 
     def __init__(self, config: MachineConfig, area: SharedArea, fifo: SetpointFifo, session: zenoh.Session, timer) -> None:
         self.config, self.fifo, self.timer = config, fifo, timer
+        if config.planner.corner_programme_ms > 0.0:
+            programme.load_solver()  # now, not in the worker's first programmed corner (it would be late)
         self.dt = config.timing.period_s
         self.n = len(config.axis_names)
         self.low = max(1, round(config.planner.fifo_low_ms / 1000.0 / self.dt))

@@ -63,8 +63,6 @@ import threading
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import sparse
-from scipy.optimize import LinearConstraint, milp
 
 from gcode.canon import LINE, RAPID
 
@@ -74,7 +72,19 @@ from .sections import Section
 from .stream import SectionStream
 
 if TYPE_CHECKING:  # (overlap.py imports this module)
+    from scipy import sparse
+
     from .overlap import CornerOverlap
+
+def load_solver() -> tuple:
+    """HiGHS through scipy (`milp`, `LinearConstraint`), imported when first needed: scipy's
+    optimiser takes a third of a second to import, which `waterjet check` of a program without a
+    programmed corner need not pay. The planner process loads it at its start (`process.py`), so
+    that the worker's first corner is not late for it."""
+    from scipy.optimize import LinearConstraint, milp
+
+    return milp, LinearConstraint
+
 
 SPAN = 4  # servo periods per interval of the spline
 LP_MARGIN = 1e-6  # each limit kept this share inside its check's (`connection._Search.keeps_rules`)
@@ -276,7 +286,8 @@ class _Programme:
         n = m - 1
         k = min(max(round(self.share * n), 0), n)
         a, low, high, samples = self._rows(m, k)
-        result = milp(np.zeros(a.shape[1]), constraints=LinearConstraint(a, low, high), bounds=(-np.inf, np.inf))
+        milp, constraint = load_solver()
+        result = milp(np.zeros(a.shape[1]), constraints=constraint(a, low, high), bounds=(-np.inf, np.inf))
         if result.status != 0:
             return None
         self.share = k / n if n else 0.0
@@ -347,6 +358,8 @@ class _Programme:
         for (normal, offset), rows in ((self.normals[0], samples[:k]), (self.normals[1], samples[k:])):
             if len(rows):
                 add(np.hstack((normal[0] * rows, normal[1] * rows)), offset - tol, offset + tol)
+        from scipy import sparse  # loaded with the solver (`load_solver`)
+
         a = sparse.csr_matrix(np.vstack(blocks))
         return a, np.concatenate(lows), np.concatenate(highs), samples
 
