@@ -135,3 +135,19 @@ def test_a_numbered_output_the_machine_lacks_is_an_error_at_its_line(tmp_path):
     res = check(str(prog))
     assert res.returncode == 1
     assert f"{prog}:3:" in res.stderr and "output number P7 must be a whole number 0 to 3" in res.stderr
+
+
+def test_a_check_without_programmed_corners_does_not_load_the_lp_solver(tmp_path):
+    """scipy's optimiser takes a third of a second to import: `waterjet check` of a program whose
+    corners are not programmed does not pay it; one with such a corner (a gentle turn between two
+    long lines at speed) loads it and solves."""
+    plain = tmp_path / "plain.ngc"
+    plain.write_text("G21 G90 G64 P0.05\nF3000\nG1 X10 Y0\nG1 X10 Y10\nG1 X0 Y10\nM2\n")
+    gentle = tmp_path / "gentle.ngc"
+    gentle.write_text("G21 G90 G64 P0.05\nF12000\nG1 X200 Y0\nG1 X400 Y60\nM2\n")
+    probe = ("import sys; from cnc.cli import main; code = main(['check', sys.argv[1], '--machine', sys.argv[2]]); "
+             "print(code, 'scipy.optimize' in sys.modules)")
+    for path, loaded in ((plain, "False"), (gentle, "True")):
+        res = subprocess.run([sys.executable, "-c", probe, str(path), str(MACHINE_FILE)], cwd=REPO,
+                             capture_output=True, text=True, timeout=120)
+        assert res.stdout.split()[-2:] == ["0", loaded], res.stdout + res.stderr

@@ -277,19 +277,3 @@ def test_some_random_polylines_are_programmed():
                  for seed in range(8))
     assert faster >= 4
 
-
-def test_a_check_without_programmed_corners_does_not_load_the_solver(tmp_path):
-    """scipy's optimiser takes a third of a second to import: `waterjet check` of a program whose
-    corners are not programmed does not pay it; one with such a corner loads it and solves."""
-    import subprocess
-    import sys
-
-    plain = tmp_path / "plain.ngc"
-    plain.write_text("G21 G90 G64 P0.05\nF3000\nG1 X10 Y0\nG1 X10 Y10\nG1 X0 Y10\nM2\n")
-    zigzag = tmp_path / "zigzag.ngc"
-    zigzag.write_text("G21 G90 G64 P0.05\nF12000\nG1 X200 Y0\nG1 X400 Y60\nM2\n")
-    probe = ("import sys; from cnc.cli import main; code = main(['check', sys.argv[1]]); "
-             "print(code, 'scipy.optimize' in sys.modules)")
-    for path, loaded in ((plain, "False"), (zigzag, "True")):
-        out = subprocess.run([sys.executable, "-c", probe, str(path)], capture_output=True, text=True, check=True)
-        assert out.stdout.split()[-2:] == ["0", loaded], out.stdout + out.stderr
