@@ -277,3 +277,45 @@ def test_some_random_polylines_are_programmed():
                  for seed in range(8))
     assert faster >= 4
 
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_a_worker_lagging_at_random_and_controls_at_random_times_keep_every_limit_and_p(seed):
+    """The random polylines with the worker solving ahead only now and then (a busy host) and holds,
+    stops and overrides of 0 to 200 % pressed at random records (the operator resuming whatever
+    waits): each run ends, every axis within its limits and every record within P, whether a
+    corner was solved ahead, reached replanned or late."""
+    rng = np.random.default_rng(1000 + seed)
+    text, _ = _random_polyline(seed)
+    config = machine_config()
+    program = interpret(text, dialect_for(config))
+    runner = ProgramRunner(program, config)
+    runner.solves_ahead = True
+    lag = float(rng.uniform(0.0, 1.0))  # the share of turns the worker misses
+    presses = sorted(int(k) for k in rng.integers(1, 2500, size=int(rng.integers(0, 5))))
+    made, n, solved, turns = [], 0, 0, 0
+    while not runner.finished:
+        turns += 1
+        assert turns < 100_000, "the run ends"
+        runner.build_ahead()
+        if rng.uniform() >= lag:
+            solved += runner.solve_ahead()
+        while presses and presses[0] <= n:
+            presses.pop(0)
+            press = rng.choice(["hold", "stop", "0", "10", "100", "200"])
+            if press == "hold":
+                runner.hold()
+            elif press == "stop":
+                runner.stop()
+            else:
+                runner.set_override(int(press) / 100.0)
+        records, _ = runner.take(int(rng.choice([1, 3, 7, 20, 50])))
+        made.append(records)
+        n += len(records)
+        if not len(records) and runner.idle and not runner.finished:  # held, or at 0 %: the operator resumes
+            runner.set_override(1.0)
+            runner.resume()
+    records = np.concatenate(made)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert runner.book.solved_here == 0, "the refill never solves a corner"
