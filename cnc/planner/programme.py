@@ -76,6 +76,7 @@ if TYPE_CHECKING:  # (overlap.py imports this module)
 
     from .overlap import CornerOverlap
 
+
 def load_solver() -> tuple:
     """HiGHS through scipy (`milp`, `LinearConstraint`), imported when first needed: scipy's
     optimiser takes a third of a second to import, which `waterjet check` of a program without a
