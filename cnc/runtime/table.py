@@ -57,7 +57,8 @@ START_STAGES = tuple(tuple(p.name for p in PROCESSES if p.stage == s) for s in s
 PRELOAD = tuple(dict.fromkeys(
     [p.entry.partition(":")[0] for p in PROCESSES]
     + ["cnc.hw.clock", "cnc.hw.server", "cnc.servo", "cnc.planner.process", "cnc.logic.process", "cnc.gateway.process",
-       "cnc.logger.process", "plc_link.sim_server"]
+       "cnc.logger.process", "plc_link.sim_server",
+       "scipy.optimize", "scipy.sparse"]  # the planner's LP solver (`programme.load_solver`): loaded once, shared
 ))
 
 
