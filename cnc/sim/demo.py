@@ -138,7 +138,27 @@ def print_status(endpoint: str, prefix: str, machine: str, stop, ready, counter,
     session.close()
 
 
+HOST_LATE_ALARMS = (1013, 1016)  # the drive watchdog, too many servo ticks late: the host did not run the servo in time
+
+
 def run_demo(machine_path: str, clock: str = "realtime") -> int:
+    """The demo on `clock`. On the real-time clock, where the host did not run the servo every
+    period (a virtual machine, a kernel without PREEMPT_RT, a busy CPU: the controller then stops
+    the cut safely, as it must, alarm 1013 or 1016), it says so and runs again on the virtual clock,
+    whose ticks wait for the processes: what failed was the host, and the demo still shows the
+    controller end to end. 0 when it behaved."""
+    code, host_late = _demo(machine_path, clock)
+    if code and host_late and clock == "realtime":
+        print("demo: this host did not run the servo every millisecond (alarm 1013 or 1016 above): the controller "
+              "stopped safely, as it must on a machine; it is not a real-time host (a PREEMPT_RT kernel and an idle "
+              "CPU are: README, Faults, networks and bad input). The demo runs again on the virtual clock, whose ticks wait for every "
+              "process.", flush=True)
+        code, _ = _demo(machine_path, "virtual")
+    return code
+
+
+def _demo(machine_path: str, clock: str) -> tuple[int, bool]:
+    """One run of the demo: its exit code, and whether the host ran the servo late enough to stop it."""
     from plc_link.sim_model import PlantTimes
 
     port = free_port()
@@ -197,6 +217,7 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
                 screen.terminate()
                 screen.wait(10.0)
             sup.stop()
+        host_late = bool(errors) and _raised(history, HOST_LATE_ALARMS)
     left = [n for n in names if os.path.exists(f"/dev/shm/{n}")]
     if left:
         errors.append(f"shared memory left behind: {', '.join(left)}")
@@ -205,7 +226,15 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
     if not errors:
         print("demo: OK: homed, automatic cycles cut, the door fault handled and reset, alarms stored and seen over Zenoh, "
               "shared memory freed", flush=True)
-    return 1 if errors else 0
+    return (1 if errors else 0), host_late
+
+
+def _raised(path: Path, codes: tuple[int, ...]) -> bool:
+    """Whether the history holds one of these alarms raised."""
+    if not path.exists():
+        return False
+    with AlarmHistory(path, readonly=True) as history:
+        return any(e.code in codes and e.action == "raised" for e in history.after(0, 1000).entries)
 
 
 HOMING_ATTEMPTS = 3
