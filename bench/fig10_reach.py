@@ -125,7 +125,6 @@ class Contour:
     def __init__(self, pieces: list[Piece]) -> None:
         self.pieces = pieces
         self.ends = np.array([p.s0 + p.length for p in pieces])
-        self.total = float(self.ends[-1])
 
     def index(self, s: float) -> int:
         return int(min(np.searchsorted(self.ends, s), len(self.pieces) - 1))
@@ -158,15 +157,15 @@ class Problem:
     path: ProgrammedPath | None = None  # the program's geometry, for exact distances
 
 
-def _limit_rows(n: int, order: int, scale: float, prob: Problem) -> tuple[sparse.coo_matrix, np.ndarray, np.ndarray]:
-    """Rows |difference of `order` of each axis| <= scale, over samples 1..n+2 (0 and before: the
-    start, n and after: the end, both fixed), as (matrix over [x_1..x_{n-1}, y_1..y_{n-1}], lo, hi)."""
+def _limit_rows(n: int, order: int, cap: float, start: np.ndarray, end: np.ndarray) -> tuple[sparse.coo_matrix, np.ndarray, np.ndarray]:
+    """Rows |difference of `order` of each axis| <= cap, over samples 1..n+2 (0 and before: `start`,
+    n and after: `end`, both fixed), as (matrix over [x_1..x_{n-1}, y_1..y_{n-1}, slacks], lo, hi)."""
     coef = {1: (1.0, -1.0), 2: (1.0, -2.0, 1.0), 3: (1.0, -3.0, 3.0, -1.0)}[order]
     m = n - 1  # free samples per axis
     rows, cols, vals, lo, hi = [], [], [], [], []
     r = 0
     for axis in range(2):
-        fixed_start, fixed_end = prob.start[axis], prob.end[axis]
+        fixed_start, fixed_end = start[axis], end[axis]
         for k in range(1, n + 3):
             const = 0.0
             for back, c in enumerate(coef):
@@ -175,15 +174,16 @@ def _limit_rows(n: int, order: int, scale: float, prob: Problem) -> tuple[sparse
                     rows.append(r), cols.append(axis * m + i - 1), vals.append(c)
                 else:
                     const += c * (fixed_start if i <= 0 else fixed_end)
-            lo.append(-scale - const), hi.append(scale - const)
+            lo.append(-cap - const), hi.append(cap - const)
             r += 1
     return sparse.coo_matrix((vals, (rows, cols)), shape=(r, 3 * m)), np.array(lo), np.array(hi)
 
 
-def _feed_rows(n: int, prob: Problem) -> tuple[sparse.coo_matrix, np.ndarray, np.ndarray]:
-    """|d . (p_k - p_{k-1})| <= F dt cos(pi / sides) for FEED_SIDES / 2 directions d: the polygon inside the feed's circle."""
+def _feed_rows(n: int, step: float, start: np.ndarray, end: np.ndarray) -> tuple[sparse.coo_matrix, np.ndarray, np.ndarray]:
+    """|d . (p_k - p_{k-1})| <= step cos(pi / sides) for FEED_SIDES / 2 directions d (`step`: the feed
+    times dt): the polygon inside the feed's circle."""
     m = n - 1
-    cap = prob.feed * prob.dt * math.cos(math.pi / FEED_SIDES) * LIMIT_SHARE
+    cap = step * math.cos(math.pi / FEED_SIDES) * LIMIT_SHARE
     rows, cols, vals, lo, hi = [], [], [], [], []
     r = 0
     for side in range(FEED_SIDES // 2):
@@ -195,7 +195,7 @@ def _feed_rows(n: int, prob: Problem) -> tuple[sparse.coo_matrix, np.ndarray, np
                     if 1 <= i <= n - 1:
                         rows.append(r), cols.append(axis * m + i - 1), vals.append(c * d[axis])
                     else:
-                        const += c * d[axis] * (prob.start[axis] if i <= 0 else prob.end[axis])
+                        const += c * d[axis] * (start[axis] if i <= 0 else end[axis])
             lo.append(-cap - const), hi.append(cap - const)
             r += 1
     return sparse.coo_matrix((vals, (rows, cols)), shape=(r, 3 * m)), np.array(lo), np.array(hi)
@@ -250,12 +250,12 @@ def _band_rows(n: int, guess: np.ndarray, prob: Problem) -> tuple[sparse.coo_mat
 def solve(n: int, guess: np.ndarray, prob: Problem) -> tuple[float, np.ndarray] | None:
     """The least total stray over the samples' pieces at N = n, and the samples (n + 1, 2)."""
     scale = prob.j * prob.dt**3  # positions in units of J dt^3: the jerk rows read |third difference| <= 1
-    sc = Problem(prob.contour, prob.start / scale, prob.end / scale, prob.dt, prob.v, prob.a, prob.j, prob.feed, prob.p)  # scaled ends
+    start, end = prob.start / scale, prob.end / scale
     blocks = [
-        _limit_rows(n, 1, prob.v * prob.dt / scale * LIMIT_SHARE, sc),
-        _limit_rows(n, 2, prob.a * prob.dt**2 / scale * LIMIT_SHARE, sc),
-        _limit_rows(n, 3, LIMIT_SHARE, sc),
-        _feed_rows(n, Problem(prob.contour, sc.start, sc.end, prob.dt, prob.v, prob.a, prob.j, prob.feed / scale, prob.p)),
+        _limit_rows(n, 1, prob.v * prob.dt / scale * LIMIT_SHARE, start, end),
+        _limit_rows(n, 2, prob.a * prob.dt**2 / scale * LIMIT_SHARE, start, end),
+        _limit_rows(n, 3, LIMIT_SHARE, start, end),
+        _feed_rows(n, prob.feed * prob.dt / scale, start, end),
     ]
     band, blo, bhi = _band_rows(n, guess, prob)
     m = n - 1
@@ -315,20 +315,17 @@ def stretched(xy: np.ndarray, n: int, prob: Problem) -> np.ndarray:
     return np.interp(np.linspace(0.0, 1.0, n + 1), t_old, s)[1:n]
 
 
-def check(xy: np.ndarray, program, prob: Problem) -> dict:  # noqa: ANN001 - a Program
+def check(xy: np.ndarray, prob: Problem) -> dict:
     """The comparison's own measures of a trajectory: peaks per axis, path speed, distance to the contour."""
     records = np.concatenate((np.repeat(xy[:1], 3, axis=0), xy, np.repeat(xy[-1:], 3, axis=0)))
     pk = peaks(np.c_[records, np.zeros(len(records))], prob.dt)
-    path = ProgrammedPath(program.segments)
-    segs = np.zeros(len(records), dtype=np.int64)
-    distance = path.distance(np.c_[records, np.zeros(len(records))], segs, len(program.segments))
     speed = np.hypot(*np.diff(records, axis=0).T) / prob.dt
     along = prob.contour.project_run(xy, monotone=False)
     inside = (along[1:] > prob.contour.ends[0]) & (along[1:] <= prob.contour.ends[-2])  # past the first piece, before the last
     return {"backward_mm": float(max(0.0, -np.diff(along).min())),
             "slowest_inside_mm_s": float(speed[3:-3][inside].min()),
             "v": pk["velocity"][:2].tolist(), "a": pk["acceleration"][:2].tolist(), "j": pk["jerk"][:2].tolist(),
-            "speed": float(speed.max()), "deviation_mm": float(distance.max())}
+            "speed": float(speed.max()), "deviation_mm": deviation_mm(records, prob)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -362,15 +359,14 @@ def main(argv: list[str] | None = None) -> int:
             step //= 2
         else:
             n, best_xy = n - step, xy
-    hi, lo = n, n - 1
     log(f"tried (N, reached): {tried}")
-    measures = check(best_xy, program, prob)
+    measures = check(best_xy, prob)
     try:  # the peer, in the same run
         linuxcnc_s, peer = float(run_linuxcnc_like_ours(FIG10_FILE, start, config)["cycle_time_s"]), "run here"
     except (linuxcnc_sim.LinuxCNCUnavailable, linuxcnc_sim.LinuxCNCRunError) as exc:
         linuxcnc_s, peer = LINUXCNC_S, f"not run here ({exc}): its time of earlier runs"
-    result = {"periods": hi, "seconds": hi * prob.dt, "ours_s": n_ours * prob.dt, "linuxcnc_s": linuxcnc_s, "linuxcnc": peer,
-              "closed_form_bound_s": jerk_bound_s(program, config), "not_reached_s": lo * prob.dt, "checks": measures,
+    result = {"periods": n, "seconds": n * prob.dt, "ours_s": n_ours * prob.dt, "linuxcnc_s": linuxcnc_s, "linuxcnc": peer,
+              "closed_form_bound_s": jerk_bound_s(program, config), "not_reached_s": (n - 1) * prob.dt, "checks": measures,
               "limits": {"v": prob.v, "a": prob.a, "j": prob.j, "feed": prob.feed, "p": prob.p},
               "wall_s": time.monotonic() - wall}
     print()

@@ -151,8 +151,8 @@ def run_demo(machine_path: str, clock: str = "realtime") -> int:
     if code and host_late and clock == "realtime":
         print("demo: this host did not run the servo every millisecond (alarm 1013 or 1016 above): the controller "
               "stopped safely, as it must on a machine; it is not a real-time host (a PREEMPT_RT kernel and an idle "
-              "CPU are: README, Faults, networks and bad input). The demo runs again on the virtual clock, whose ticks wait for every "
-              "process.", flush=True)
+              "CPU are: README, Faults, networks and bad input). The demo runs again on the virtual clock, whose "
+              "ticks wait for every process.", flush=True)
         code, _ = _demo(machine_path, "virtual")
     return code
 
