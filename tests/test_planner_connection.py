@@ -144,3 +144,45 @@ def test_a_connection_is_searched_only_where_the_limits_or_the_cap_hold_the_over
     assert searched == [] and len(records) == planned == len(overlapped)
     run(SLOT, machine_config(), chunk=50)
     assert TURN_BACK in [tuple(float(c) for c in corner[:2]) for corner in searched]
+
+
+def test_an_override_raised_over_100_percent_just_before_a_connection_acts_from_the_next_section():
+    """A first raise over 100 % takes effect in steps (`SectionStream.set_override`), the next one
+    some 30 samples later. Raised just before a connection begins, that step fell among the samples
+    the connection replaces: it replanned them, fewer came than the connection was planned for, and
+    the runner failed (an index out of range). Now the connection's samples are taken as planned
+    and the raise acts from the next section on, which starts with it: raised 5 to 45 samples
+    before each connection of a CAM part's lead-in and contour (a random part, seed 267 of
+    `_random_cam_parts`), the program runs to its end, every axis within its limits, every record
+    within P."""
+    from cnc.planner import runner as runner_module
+
+    from .test_planner_overlap import _random_cam_parts
+
+    text, _ = _random_cam_parts(267)
+    begins = []  # records made when each connection began
+    made = [0]
+
+    class Counting(runner_module.ProgramRunner):
+        def take(self, n: int):
+            out = super().take(n)
+            made[0] += len(out[0])
+            return out
+
+        def _start_corner(self, plan):
+            if plan.is_connection:
+                begins.append(made[0])
+            return super()._start_corner(plan)
+
+    config = machine_config()
+    program = interpret(text, dialect_for(config))
+    plain = Counting(program, config)
+    while not plain.finished:
+        plain.take(7)
+    assert len(begins) >= 2
+    for begin in begins[:2]:
+        for before in (5, 15, 45):
+            program, _, records, _ = run(text, actions={begin - before: lambda r: r.set_override(1.5)}, chunk=5)
+            assert records["position"][-1] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9)
+            within_limits(records)
+            assert (within_tolerance(program, records) <= 1e-9).all()

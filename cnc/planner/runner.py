@@ -328,6 +328,10 @@ class ProgramRunner:
         on with the next section: its stream takes the operator's controls from now on, acting after
         the queued samples."""
         last, (_, nxt, _) = self.stream, self._overlap
+        # the corner's samples are committed as planned: a raise over 100 % still to take a step in
+        # them acts from the next section on, which starts with it (as any override change made
+        # during a corner; its step would replan the samples the corner adds to or replaces)
+        last.leave_raise()
         y_last, s_last = last.take(plan.last_samples)
         y_next, s_next = nxt.take(plan.next_samples)
         self._messages(last.section, s_last)

@@ -144,6 +144,11 @@ class SectionStream:
         if not self.holding:
             self._replan()
 
+    def leave_raise(self) -> None:
+        """Take no further step of a raise over 100 % (`set_override`) in this section: its last
+        samples are committed to a corner (`runner.py`), and the next section starts with the raise."""
+        self._raise = None
+
     def raise_after_samples(self) -> int:
         """How long the rest of a first raise over 100 % waits after the section is planned for it
         (`set_override`): until no average mixes in a sample of the motion planned before
