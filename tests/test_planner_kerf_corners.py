@@ -83,6 +83,11 @@ def _lowest_speed_near(records, point: tuple[float, float], within_mm: float = 1
     return float(moving[moving > 0.0].min())
 
 
+def _time_near(records, point: tuple[float, float], within_mm: float = 1.0) -> int:
+    """Servo periods the head spends within `within_mm` of the point."""
+    return int(np.sum(np.hypot(*(records["position"][:, :2] - np.asarray(point)).T) < within_mm))
+
+
 @pytest.mark.parametrize("side,heading,feed", [("G41", 90.0, 2400.0), ("G42", 30.0, 2400.0), ("G41", 200.0, 12000.0),
                                                ("G42", 315.0, 30000.0)])
 def test_the_kerf_arc_at_a_part_s_entry_is_folded_into_a_corner_passed_faster_within_p(side, heading, feed):
@@ -104,7 +109,7 @@ def test_the_kerf_arc_at_a_part_s_entry_is_folded_into_a_corner_passed_faster_wi
     assert len(crawled) == planned_kept
     corner = program.segments[program.segments["kind"] == ARC][0]["center"]
     assert _lowest_speed_near(crawled, corner) < 12.0, "the arc's crawl"
-    assert _lowest_speed_near(records, corner) > 1.5 * _lowest_speed_near(crawled, corner)
+    assert _time_near(records, corner) < 0.8 * _time_near(crawled, corner), "through the corner sooner"
     assert len(crawled) - len(records) >= 40, "sooner by tens of milliseconds"
 
 
@@ -219,7 +224,9 @@ def test_a_curve_in_chords_compensated_on_its_outside_runs_as_fast_as_on_its_ins
     assert len(crawled) > 2.0 * len(records), "kept, the arcs were crawled through"
 
 
-@pytest.mark.parametrize("turn_deg,faster_than_kept_s", [(30.0, 0.8), (45.0, 0.3), (60.0, 0.25), (90.0, 0.15)])
+# (kept, the arcs' sections take a longer axis average, `sections._longer_averages`: 55-60 ms sooner than
+# with their own, 0.354 / 0.269 / 0.179 s behind the folded corners at 45 / 60 / 90 degrees before it)
+@pytest.mark.parametrize("turn_deg,faster_than_kept_s", [(30.0, 0.8), (45.0, 0.25), (60.0, 0.18), (90.0, 0.1)])
 def test_a_polygon_compensated_on_its_outside_passes_its_corners_in_overlaps(turn_deg, faster_than_kept_s):
     """Compensated on the outside, every corner of a polygon is an arc of the kerf's radius; it is
     folded into one corner, where the two edges meet (turns up to about 70 degrees at P 0.05 with

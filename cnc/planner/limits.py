@@ -137,9 +137,12 @@ class SectionLimits:
 def smoothing_for(
     config: MachineConfig, tolerance_mm: float, has_curves: bool, has_kinks: bool, blended: bool,
     geometry_share: float = GEOMETRY_JERK_SHARE, top_speed_mm_s: float = math.inf, jerk_reserve: float = 0.0,
+    n_axis: int | None = None,
 ) -> Smoothing:
     """The averages of a section whose tightest corner tolerance is `tolerance_mm`; a section with
-    curves or kinks keeps `geometry_share` of the jerk for them.
+    curves or kinks keeps `geometry_share` of the jerk for them, and averages its axis positions
+    over `n_axis` samples (None: `axis_average_samples`; a section whose curves are held back by
+    their curvature steps may take a longer one, `sections._section`).
 
     `top_speed_mm_s`: the fastest the section may ever run (any override). A speed change dv
     at acceleration a through the path average (a/J long) takes dv/a + a/J, least at
@@ -155,7 +158,10 @@ def smoothing_for(
     dt = config.timing.period_s
     a_min, j_min = _axis_min(config, "max_accel_mm_s2"), _axis_min(config, "max_jerk_mm_s3")
     geometry = has_curves or has_kinks
-    n_axis = axis_average_samples(config, tolerance_mm) if geometry else 1  # a straight path has nothing to smooth
+    if not geometry:
+        n_axis = 1  # a straight path has nothing to smooth
+    elif n_axis is None or tolerance_mm <= 0.0:
+        n_axis = axis_average_samples(config, tolerance_mm)
     share = geometry_share if geometry else 0.0
     jerk_path = j_min * (1.0 - jerk_reserve) * (1.0 - share)
     a_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if has_kinks else a_min
@@ -195,20 +201,22 @@ def axis_average_samples(config: MachineConfig, tolerance_mm: float) -> int:
     return int(min(max(round(t_f / config.timing.period_s), 1), MAX_SMOOTHING_SAMPLES))
 
 
-def arc_pieces_for_caps(elements: list[Element], config: MachineConfig) -> tuple[list[Element], np.ndarray]:
+def arc_pieces_for_caps(elements: list[Element], config: MachineConfig,
+                        n_axis: int | None = None) -> tuple[list[Element], np.ndarray]:
     """The section's elements with each long arc cut into pieces, and the element each piece is
     cut from: a head and a tail as long as the stretch a window of the axis average spans at
     the fastest the arc could run (its feed at 200 %, the axes, its normal acceleration), and
     the middle. Caps are counted per element (`_curvature_caps`): whole, an arc between two
     lines takes the curvature steps at both its ends over all its length; in pieces only its
     head and tail do, and its middle runs at what its curvature alone allows. Arcs shorter
-    than two such stretches, blends, arcs of several turns and sections under G61 stay whole."""
+    than two such stretches, blends, arcs of several turns and sections under G61 stay whole.
+    `n_axis`: the samples of the section's axis average (None: `axis_average_samples`)."""
     if not any(e.kind == ARC and not e.blend and not e.turns for e in elements):
         return elements, np.arange(len(elements))
     tolerance = min(e.tolerance_mm for e in elements)
     if tolerance <= 0.0:
         return elements, np.arange(len(elements))
-    span_s = (axis_average_samples(config, tolerance) + 2) * config.timing.period_s
+    span_s = ((n_axis or axis_average_samples(config, tolerance)) + 2) * config.timing.period_s
     v_axes = _axis_min(config, "max_velocity_mm_s")
     a_normal = config.planner.arc_normal_share * _axis_min(config, "max_accel_mm_s2")
     out, origin = [], []
@@ -249,9 +257,11 @@ def path_caps(path: PathArrays, config: MachineConfig) -> PathCaps:
 def section_limits(
     path: PathArrays, feed_mm_s: np.ndarray, rapid: np.ndarray, tolerance_mm: float, blended: bool, config: MachineConfig,
     geometry_share: float = GEOMETRY_JERK_SHARE, caps: PathCaps | None = None, jerk_reserve: float = 0.0,
+    n_axis: int | None = None,
 ) -> SectionLimits:
     """Caps for every element and junction of one section (`caps`: its path's, when made already;
-    `jerk_reserve`: the share of the jerk it leaves unused, `smoothing_for`)."""
+    `jerk_reserve`: the share of the jerk it leaves unused, and `n_axis` its axis average's
+    samples, `smoothing_for`)."""
     n = len(path)
     caps = caps or path_caps(path, config)
     kinks, kink = caps.kinks, caps.kink
@@ -263,7 +273,7 @@ def section_limits(
     v_fast = np.minimum(v_axis, np.where(rapid, np.inf, 2.0 * v_feed))
     v_top = float(v_fast.max()) if n else math.inf
     sm = smoothing_for(config, tolerance_mm, bool(curved.any()), bool(kink.any()), blended, geometry_share, v_top,
-                       jerk_reserve)
+                       jerk_reserve, n_axis)
     a_cap = a_min * (1.0 - KINK_ACCEL_SHARE) if kink.any() else a_min
     if sm.geometry_share > 0.0:
         # the curves' and kinks' share of the jerk binds only where a window of the averages

@@ -26,8 +26,8 @@ from ..config import MachineConfig
 from ..data.fifo import SetpointFlag
 from .geometry import PathArrays
 from .limits import (
-    GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, SectionLimits, arc_pieces_for_caps, path_caps, section_limits,
-    section_zones, smoothing_for,
+    GEOMETRY_JERK_SHARE, GEOMETRY_JERK_SHARES, KINK_MAX_RAD, MAX_SMOOTHING_SAMPLES, SectionLimits, arc_pieces_for_caps,
+    path_caps, section_limits, section_zones, smoothing_for,
 )
 from .profile import Zones, rough_duration_s
 from .path import Element, blend_corners, blends, distance_to, iter_elements
@@ -56,6 +56,10 @@ RAMP_TRIED_CAPS = 1.5  # ... tried where neither ramp takes longer than this man
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
 
+AXIS_AVERAGE_STEPS = 8  # a section held back by its curves tries axis averages longer by this share of its own ...
+AXIS_AVERAGE_MOST = 2  # ... in turn, up to this many times its own (`_longer_averages`)
+CURVE_BINDS = 1.0 - 1e-9  # a curve's cap under this share of its feed and axis speed holds the section back
+
 MEMO_RUNS = 1024  # runs a program's timing remembers (`RunMemo`): a nest of up to this many different parts
 MEMO_DECIMALS = 6  # a remembered run's coordinates, relative to its start, rounded to this many decimals of a mm
 MEMO_SHORTEST_MM = 1e-3  # a run with an element shorter than this is never remembered (its direction is rounding)
@@ -82,6 +86,9 @@ class Section:
     # the share of its acceleration it ramps at next to its start and its end, where a sharp corner
     # overlap joins it to its neighbour (`_eased_sharp_corners`; 1: its own)
     eased_ends: tuple[float, float] = (1.0, 1.0)
+    # the elements as the run gave them, before long arcs were cut into pieces for their caps
+    # (`arc_pieces_for_caps`), while its limits are still being chosen (`_sections_of`)
+    whole: list[Element] | None = None
 
     def zones(self, holding: bool, override: float, rapid_override: float, over_feed: bool) -> Zones:
         """The whole section's caps and accelerations under these controls, made once per setting
@@ -414,13 +421,23 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
             stops |= again
             out = _split(blend_corners(run, frozenset(stops), corners), config, offset, notes, cut=cut, folds=folds)
     else:
-        out = first
-        for section in first:  # the same path and sections: only the share of jerk is still to choose
-            section.limits = _fastest_limits(
+        out = []
+        for section in first:  # the same sections: only the share of jerk (and the axis average) still to choose
+            limits, seconds = _fastest(
                 section.path, section.limits.v_feed, section.limits.rapid, min(e.tolerance_mm for e in section.elements),
                 any(e.blend for e in section.elements), config, known=section.limits,
             )
+            elements, path, limits = _longer_averages(section.whole, config, cut, section.elements, section.path, limits,
+                                                      seconds)
+            if path is section.path:
+                section.limits = limits
+            else:
+                ends = section.end_cap_mm_s
+                section = _assembled(elements, path, limits, section.offset_mm, notes)
+                section.end_cap_mm_s = ends
+            out.append(section)
     for section in out:  # chosen: what the limits were made from is not kept in the window ahead
+        section.whole = None
         if section.limits.caps is not None:
             section.limits = dataclasses.replace(section.limits, caps=None)
     _eased_sharp_corners(out, config)  # with the limits the sections run with
@@ -513,16 +530,25 @@ def _whole_length(elements: list[Element], k: int, step: int) -> float:
 
 def _fastest_limits(
     path: PathArrays, feed, rapid, tolerance: float, blended: bool, config: MachineConfig, choose: bool = True,
-    known: SectionLimits | None = None, jerk_reserve: float = 0.0,
+    known: SectionLimits | None = None, jerk_reserve: float = 0.0, n_axis: int | None = None,
 ) -> SectionLimits:
     """The section's limits under the share of jerk for curvature that runs it soonest: curves
     want more of it (higher speeds on arcs), speed changes want less (shorter ramps). The
     estimate ranks the candidates by the profile over the elements' own caps (unwidened).
     `known`: the limits under the default share, already made (a straight section's answer);
-    `jerk_reserve`: the share of the jerk the section leaves unused (`_jerk_reserves`)."""
+    `jerk_reserve`: the share of the jerk the section leaves unused (`_jerk_reserves`); `n_axis`:
+    its axis average's samples (`smoothing_for`)."""
+    return _fastest(path, feed, rapid, tolerance, blended, config, choose, known, jerk_reserve, n_axis)[0]
+
+
+def _fastest(
+    path: PathArrays, feed, rapid, tolerance: float, blended: bool, config: MachineConfig, choose: bool = True,
+    known: SectionLimits | None = None, jerk_reserve: float = 0.0, n_axis: int | None = None,
+) -> tuple[SectionLimits, float]:
+    """`_fastest_limits`, and its estimate of the section's time (inf where no share was chosen)."""
     if known is not None:
         if known.smoothing.geometry_share == 0.0:
-            return known  # straight: no share to choose
+            return known, math.inf  # straight: no share to choose
         jerk_reserve = known.smoothing.jerk_reserve
     best, best_s = None, math.inf
     caps = known.caps if known is not None else None
@@ -531,15 +557,15 @@ def _fastest_limits(
             lim = known
         else:
             caps = caps or path_caps(path, config)
-            lim = section_limits(path, feed, rapid, tolerance, blended, config, share, caps, jerk_reserve)
+            lim = section_limits(path, feed, rapid, tolerance, blended, config, share, caps, jerk_reserve, n_axis)
         if not choose or lim.smoothing.geometry_share == 0.0:  # straight: no share to choose
-            return lim
+            return lim, math.inf
         sm = lim.smoothing
         zones = Zones(path.s0, lim.v_hard, lim.v_feed, lim.accel_for(False))  # as timed: at 100 %
         seconds = rough_duration_s(zones) + (sm.n_path + sm.n_axis) * sm.dt
         if seconds < best_s:
             best, best_s = lim, seconds
-    return best
+    return best, best_s
 
 
 def _split(path: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True,
@@ -1085,7 +1111,20 @@ def _z_rate(e: Element) -> float:
 def _section(elements: list[Element], config: MachineConfig, offset: float, notes: dict, choose_jerk: bool = True,
              cut=None, jerk_reserve: float = 0.0) -> Section:  # noqa: ANN001 - a CutPlan
     whole = elements
-    elements, origin = arc_pieces_for_caps(whole, config)
+    elements, path, feed, rapid, tolerance, blended = _capped_path(whole, config, cut)
+    limits, seconds = _fastest(path, feed, rapid, tolerance, blended, config, choose_jerk, jerk_reserve=jerk_reserve)
+    if choose_jerk:
+        elements, path, limits = _longer_averages(whole, config, cut, elements, path, limits, seconds)
+    section = _assembled(elements, path, limits, offset, notes)
+    section.whole = whole
+    return section
+
+
+def _capped_path(whole: list[Element], config: MachineConfig, cut, n_axis: int | None = None) -> tuple:  # noqa: ANN001
+    """A section's elements as its caps are counted (long arcs in pieces for an axis average of
+    `n_axis` samples, `arc_pieces_for_caps`), their path, feeds (the cutting model's where lower),
+    rapids, tightest tolerance and whether any is a blend."""
+    elements, origin = arc_pieces_for_caps(whole, config, n_axis)
     path = PathArrays.of(elements)
     feed = np.array([e.feed_mm_s for e in elements])
     if cut is not None:  # the cutting model: F is only an upper bound, set by the whole elements
@@ -1093,7 +1132,55 @@ def _section(elements: list[Element], config: MachineConfig, offset: float, note
     rapid = np.array([e.kind == RAPID for e in elements])
     tolerance = min(e.tolerance_mm for e in elements)
     blended = any(e.blend for e in elements)
-    limits = _fastest_limits(path, feed, rapid, tolerance, blended, config, choose_jerk, jerk_reserve=jerk_reserve)
+    return elements, path, feed, rapid, tolerance, blended
+
+
+def _longer_averages(whole: list[Element], config: MachineConfig, cut, elements: list[Element], path: PathArrays,
+                     limits: SectionLimits, seconds: float) -> tuple[list[Element], PathArrays, SectionLimits]:  # noqa: ANN001
+    """A section whose curves hold it back (a curve capped under its feed and the axes' speed)
+    with the axis average its tolerance gives (`limits.axis_average_samples`: the balance of a
+    curvature step's jerk and an arc's deviation) tries longer ones in turn, while the longer
+    runs it sooner. A longer average spreads the curvature steps where arcs meet lines over more
+    samples, so an arc's head may run faster, at the cost of a smaller deviation budget over the
+    arc's middle and a longer settling at the section's ends; which wins depends on the arcs'
+    lengths and radii (the Fig. 10 contour at P 0.005: 8 samples of its own, 2.96 s; 12 samples,
+    2.69 s). The rough estimate that ranks the shares of jerk (`_fastest`) misses both (it
+    counts no cap widened by the averages' span), so the candidates are ranked by their planned
+    samples (`SectionStream.planned_samples`, what the runner makes of them). The search ends
+    where a longer average would hold the path's jerk another way than the section's own
+    (`smoothing_for`: with the axis average alone, or no longer so): with the axis average alone
+    and a longer one, the acceleration grows with it, and a window mixing a blend's short arc
+    with the faster line before it passed P (by 0.01 mm at P 0.05, a random CAM part). `seconds`:
+    the estimate of the limits given (inf: a section with no share to choose, kept as it is)."""
+    from .stream import SectionStream  # (stream.py imports this module)
+
+    sm = limits.smoothing
+    if sm.n_axis <= 1 or not math.isfinite(seconds) or not _curves_bind(path, limits):
+        return elements, path, limits
+    step, most = max(1, round(sm.n_axis / AXIS_AVERAGE_STEPS)), min(MAX_SMOOTHING_SAMPLES, AXIS_AVERAGE_MOST * sm.n_axis)
+    best = SectionStream(_assembled(elements, path, limits, 0.0, {})).planned_samples()
+    n = sm.n_axis + step
+    while n <= most:
+        tried, tried_path, *rest = _capped_path(whole, config, cut, n)
+        lim = _fastest(tried_path, *rest, config, jerk_reserve=sm.jerk_reserve, n_axis=n)[0]
+        if (lim.smoothing.n_path == 1) != (sm.n_path == 1):
+            break  # the path's jerk held another way (`smoothing_for`): not a longer average of the same motion
+        samples = SectionStream(_assembled(tried, tried_path, lim, 0.0, {})).planned_samples()
+        if samples >= best:
+            break
+        elements, path, limits, best = tried, tried_path, lim, samples
+        n += step
+    return elements, path, limits
+
+
+def _curves_bind(path: PathArrays, limits: SectionLimits) -> bool:
+    """Whether a curve of the section is capped under its feed (at 100 %) and the axes' speed."""
+    v_run = limits.v_feed if limits.caps is None else np.minimum(limits.v_feed, limits.caps.v_axis)
+    return bool(np.any(path.arc & (limits.v_hard < CURVE_BINDS * v_run)))
+
+
+def _assembled(elements: list[Element], path: PathArrays, limits: SectionLimits, offset: float, notes: dict) -> Section:
+    """The section of these elements, path and limits, with its messages (`notes`: per segment)."""
     messages = []
     seen = set()
     for k, e in enumerate(elements):
