@@ -186,3 +186,18 @@ def test_an_override_raised_over_100_percent_just_before_a_connection_acts_from_
             assert records["position"][-1] == pytest.approx(program.segments["end"][-1][:2], abs=1e-9)
             within_limits(records)
             assert (within_tolerance(program, records) <= 1e-9).all()
+
+
+def test_a_connection_next_to_a_blended_corner_keeps_p_of_the_lines_as_programmed():
+    """A connection's samples were kept within P of the elements near its corner, a blend among
+    them: but a blend lies up to P / 2 off the corner it rounds, so a sample near it could be 1.5 P
+    from the lines as programmed (0.211 mm at P 0.2: a random CAM part, seed 135 of
+    `_random_cam_parts`, whose contour's first corner after the lead-in is blended). Near a blend
+    the check now counts that too (`path.distance_to_programmed`): every record within P."""
+    from .test_planner_overlap import _random_cam_parts
+
+    text, chunk = _random_cam_parts(135)
+    program, _, records, planned = run(text, chunk=chunk)
+    within_limits(records)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned

@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
-from .path import Element, distance_to
+from .path import Element, distance_to_programmed
 
 if TYPE_CHECKING:  # (overlap.py imports this module)
     from .overlap import CornerOverlap
@@ -231,7 +231,7 @@ class _Search:
             return False
         if not len(path):
             return True
-        if (distance_to(path[:, :2], c.near) > c.tolerance_mm).any():
+        if (distance_to_programmed(path[:, :2], c.near) > c.tolerance_mm).any():
             return False
         if math.isfinite(c.cap_mm_s):
             into = np.concatenate((c.tail[i:i + 1, :2], path[:, :2], c.head[j:j + 1, :2]))

@@ -50,7 +50,7 @@ import numpy as np
 from ..config import MachineConfig
 from . import programme
 from .connection import CornerPlan, connection_plan, overlap_plan
-from .path import Element, distance_to
+from .path import Element, distance_to_programmed
 from .sections import Section, flat, overlap_may_apply
 from .stream import SectionStream
 
@@ -217,7 +217,7 @@ def _within_p(summed: np.ndarray, ks: np.ndarray, corner: np.ndarray, near: list
     most + CONTEXT - k + 1 .. most + CONTEXT."""
     most = summed.shape[1] - 2 * CONTEXT - 1
     block = summed[:, CONTEXT + 1:most + CONTEXT + 1, :2] + corner[:2]  # the columns any overlap sums
-    distance = distance_to(block.reshape(-1, 2), near).reshape(len(ks), most)
+    distance = distance_to_programmed(block.reshape(-1, 2), near).reshape(len(ks), most)
     summed_here = np.arange(most)[None, :] >= (most - ks)[:, None]
     return (np.where(summed_here, distance, 0.0) <= tolerance).all(axis=1)
 

@@ -443,6 +443,21 @@ def distance_to(pts: np.ndarray, programmed: list[Element]) -> np.ndarray:
     return best
 
 
+def distance_to_programmed(pts: np.ndarray, near: list[Element]) -> np.ndarray:
+    """How far each XY point (m, 2) may be from the path as programmed near a corner: its distance
+    to the nearest of the elements `near` (`overlap._near_corner`), where that is a blend (an arc the
+    planner put into a corner, `blend_corners`) plus the most the blend strays from the
+    corner's own elements (its share of P, `BLEND_SHARE`). A point within P of a blend may
+    lie half as far again from the programmed lines: a connection through a corner next to a
+    blended one passed P so (by 0.011 mm at P 0.2, a random CAM part)."""
+    plain = [e for e in near if not e.blend]
+    best = distance_to(pts, plain) if plain else np.full(len(pts), np.inf)
+    for e in near:
+        if e.blend:
+            best = np.minimum(best, distance_to(pts, [e]) + e.tolerance_mm * BLEND_SHARE)
+    return best
+
+
 def _distance_to_segment(pts: np.ndarray, a, b) -> np.ndarray:
     a, b = np.asarray(a), np.asarray(b)
     ab = b - a
