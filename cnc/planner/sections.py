@@ -423,7 +423,7 @@ def _sections_of(run: list[Element], config: MachineConfig, offset: float, notes
     else:
         out = []
         for section in first:  # the same sections: only the share of jerk (and the axis average) still to choose
-            limits, seconds = _fastest(
+            limits, seconds = _fastest_limits(
                 section.path, section.limits.v_feed, section.limits.rapid, min(e.tolerance_mm for e in section.elements),
                 any(e.blend for e in section.elements), config, known=section.limits,
             )
@@ -531,21 +531,14 @@ def _whole_length(elements: list[Element], k: int, step: int) -> float:
 def _fastest_limits(
     path: PathArrays, feed, rapid, tolerance: float, blended: bool, config: MachineConfig, choose: bool = True,
     known: SectionLimits | None = None, jerk_reserve: float = 0.0, n_axis: int | None = None,
-) -> SectionLimits:
+) -> tuple[SectionLimits, float]:
     """The section's limits under the share of jerk for curvature that runs it soonest: curves
     want more of it (higher speeds on arcs), speed changes want less (shorter ramps). The
-    estimate ranks the candidates by the profile over the elements' own caps (unwidened).
+    estimate ranks the candidates by the profile over the elements' own caps (unwidened); it is
+    returned with them (inf where no share was chosen).
     `known`: the limits under the default share, already made (a straight section's answer);
     `jerk_reserve`: the share of the jerk the section leaves unused (`_jerk_reserves`); `n_axis`:
     its axis average's samples (`smoothing_for`)."""
-    return _fastest(path, feed, rapid, tolerance, blended, config, choose, known, jerk_reserve, n_axis)[0]
-
-
-def _fastest(
-    path: PathArrays, feed, rapid, tolerance: float, blended: bool, config: MachineConfig, choose: bool = True,
-    known: SectionLimits | None = None, jerk_reserve: float = 0.0, n_axis: int | None = None,
-) -> tuple[SectionLimits, float]:
-    """`_fastest_limits`, and its estimate of the section's time (inf where no share was chosen)."""
     if known is not None:
         if known.smoothing.geometry_share == 0.0:
             return known, math.inf  # straight: no share to choose
@@ -1112,7 +1105,7 @@ def _section(elements: list[Element], config: MachineConfig, offset: float, note
              cut=None, jerk_reserve: float = 0.0) -> Section:  # noqa: ANN001 - a CutPlan
     whole = elements
     elements, path, feed, rapid, tolerance, blended = _capped_path(whole, config, cut)
-    limits, seconds = _fastest(path, feed, rapid, tolerance, blended, config, choose_jerk, jerk_reserve=jerk_reserve)
+    limits, seconds = _fastest_limits(path, feed, rapid, tolerance, blended, config, choose_jerk, jerk_reserve=jerk_reserve)
     if choose_jerk:
         elements, path, limits = _longer_averages(whole, config, cut, elements, path, limits, seconds)
     section = _assembled(elements, path, limits, offset, notes)
@@ -1144,7 +1137,7 @@ def _longer_averages(whole: list[Element], config: MachineConfig, cut, elements:
     samples, so an arc's head may run faster, at the cost of a smaller deviation budget over the
     arc's middle and a longer settling at the section's ends; which wins depends on the arcs'
     lengths and radii (the Fig. 10 contour at P 0.005: 8 samples of its own, 2.96 s; 12 samples,
-    2.69 s). The rough estimate that ranks the shares of jerk (`_fastest`) misses both (it
+    2.69 s). The rough estimate that ranks the shares of jerk (`_fastest_limits`) misses both (it
     counts no cap widened by the averages' span), so the candidates are ranked by their planned
     samples (`SectionStream.planned_samples`, what the runner makes of them). The search ends
     where a longer average would hold the path's jerk another way than the section's own
@@ -1162,7 +1155,7 @@ def _longer_averages(whole: list[Element], config: MachineConfig, cut, elements:
     n = sm.n_axis + step
     while n <= most:
         tried, tried_path, *rest = _capped_path(whole, config, cut, n)
-        lim = _fastest(tried_path, *rest, config, jerk_reserve=sm.jerk_reserve, n_axis=n)[0]
+        lim = _fastest_limits(tried_path, *rest, config, jerk_reserve=sm.jerk_reserve, n_axis=n)[0]
         if (lim.smoothing.n_path == 1) != (sm.n_path == 1):
             break  # the path's jerk held another way (`smoothing_for`): not a longer average of the same motion
         samples = SectionStream(_assembled(tried, tried_path, lim, 0.0, {})).planned_samples()
