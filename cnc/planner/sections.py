@@ -56,7 +56,7 @@ RAMP_TRIED_CAPS = 1.5  # ... tried where neither ramp takes longer than this man
 CORNER_MOVE_SHORTEST = 4.0  # a corner is moved (`_move_stop_corners`) only where both lines are at least
 # this many times as long as the move
 
-AXIS_AVERAGE_STEPS = 8  # a section held back by its curves tries axis averages longer by this share of its own ...
+AXIS_AVERAGE_STEPS = 8  # a section held back by its curves tries axis averages longer by 1/this of its own ...
 AXIS_AVERAGE_MOST = 2  # ... in turn, up to this many times its own (`_longer_averages`)
 CURVE_BINDS = 1.0 - 1e-9  # a curve's cap under this share of its feed and axis speed holds the section back
 
