@@ -450,10 +450,12 @@ def test_a_gentle_corner_kept_beside_a_sharp_one_is_weighed_again_and_never_slow
         assert len(without) - len(records) >= (20 if feed == 4800 else 1)
 
 
-def _random_cam_parts(seed: int) -> tuple[str, int]:
+def _random_cam_parts(seed: int, jet: bool = False) -> tuple[str, int]:
     """One to three round parts as CAM writes them: a lead-in at a random heading, the contour
     starting up to 17 degrees off square to it in chords and arcs (R3-20), a lead-out, a rapid to
-    the next; a random feed (5-200 mm/s) and P; and the take size to run it with."""
+    the next; a random feed (5-200 mm/s) and P; and the take size to run it with. `jet`: each part
+    cut with the jet (opened and pierced before its lead-in, closed before the rapid); the same
+    geometry."""
     rng = random.Random(seed)
     feed = rng.choice([300, 1200, 2400, 6000, 12000])
     lines = [f"G21 G90 G64 P{rng.choice([0.005, 0.05, 0.2]):g}", "G0 X0 Y0"]
@@ -461,6 +463,7 @@ def _random_cam_parts(seed: int) -> tuple[str, int]:
     for _ in range(rng.randint(1, 3)):
         heading, lead = rng.uniform(0.0, 2.0 * math.pi), rng.uniform(1.0, 5.0)
         x, y = x + lead * math.cos(heading), y + lead * math.sin(heading)
+        lines += ["M3", "G4 P0.1"] if jet else []
         lines.append(f"G1 X{x:.4f} Y{y:.4f} F{feed}")
         radius, chords, side = rng.uniform(3.0, 20.0), rng.randint(12, 60), rng.choice([-1, 1])
         outward = heading + side * math.pi / 2 + rng.uniform(-0.3, 0.3) + math.pi  # from the centre to the lead-in's end
@@ -474,6 +477,7 @@ def _random_cam_parts(seed: int) -> tuple[str, int]:
         x, y = x + rng.uniform(1.0, 3.0) * math.cos(out), y + rng.uniform(1.0, 3.0) * math.sin(out)
         lines.append(f"G1 X{x:.4f} Y{y:.4f}")
         x, y = x + rng.uniform(-40.0, 40.0), y + rng.uniform(-40.0, 40.0)
+        lines += ["M5"] if jet else []
         lines.append(f"G0 X{x:.4f} Y{y:.4f}")
     return "\n".join(lines + ["M2"]) + "\n", rng.choice([1, 7, 50, 997])
 
@@ -485,6 +489,29 @@ def test_random_cam_parts_with_lead_ins_off_square_keep_every_limit_and_time_exa
     this generator run clean."""
     text, chunk = _random_cam_parts(seed)
     runs_clean(text, chunk, seed if seed % 3 == 0 else None)
+
+
+@pytest.mark.parametrize("seed", [10, 12, 17, 23])  # F2400-F12000, P0.005-0.05
+def test_random_cam_parts_on_machines_of_other_limits_keep_them_and_time_exactly(seed):
+    """The same parts on machines whose X and Y limits differ (`_machine_at_random`: speeds 100-1000
+    mm/s, accelerations 500-10000 mm/s², jerks 2e4-1e6 mm/s³ per axis): every axis keeps its own
+    limits and every record P, plain and under the operator's controls at random, and the program's
+    timing (`ProgramTiming`, as `waterjet check` makes it) is the run's to the servo period. 380
+    seeds of this ran clean (2026-12-07)."""
+    from cnc.planner.steps import ProgramTiming
+
+    from .test_planner_motion import _machine_at_random
+
+    text, chunk = _random_cam_parts(seed)
+    overrides, limits = _machine_at_random(seed + 100000)
+    config = machine_config(**overrides)
+    program, _, records, planned = run(text, config, chunk=chunk)
+    within_limits(records, limits)
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    assert len(records) == planned == ProgramTiming.of(program, config).total_ticks
+    program, records, _, events = _operator_at_random(seed, config, text=text)
+    within_limits(records, limits)
+    assert (within_tolerance(program, records) <= 1e-9).all(), events
 
 
 def _part_turned_back(feed: int) -> str:
