@@ -105,6 +105,40 @@ def test_the_overlap_backs_up_across_segments_but_never_past_the_pierce():
         continue_at(prog, 0, (20.0, 20.0), 5.0, HEAD)
 
 
+def test_a_cut_stopped_while_piercing_pierces_again_and_cuts_the_whole_part():
+    """A fault during a pierce (the jet open, the head standing in the pierce dwell) leaves the cut
+    point on the dwell. "continue" pierces there again and cuts the part from its start, every
+    millimetre of it, rather than refusing and sending the operator to the next part (a random
+    CAM part stopped in its pierce by the sweep of this test's generator was refused so)."""
+    prog = program()
+    seg = prog.segments
+    second = cut_starts(prog)[1]  # the second square's pierce dwell (G4 P0.5 after M3)
+    assert int(seg[second]["kind"]) == DWELL and seg[second]["jet"]
+    r = continue_at(prog, second, tuple(seg[second]["start"][:2]), 5.0, HEAD)
+    assert (r.segment, r.into_mm) == (second, 0.0) and "pierce again" in r.description
+    first = r.program.segments[0]
+    assert int(first["kind"]) == RAPID and not first["jet"] and r.at == pytest.approx(tuple(seg[second]["start"]))
+    assert int(r.program.segments[1]["kind"]) == DWELL and r.program.segments[1]["jet"], "the pierce dwell again"
+    rest = sum(segment_length(s) for s in seg[second:] if s["jet"] and int(s["kind"]) not in (RAPID, DWELL))
+    assert cut_length(r.program) == pytest.approx(rest), "the part cut whole, and the parts after it"
+    assert r.program.stats.pierces == len(cut_starts(prog)) - 1, "this part's pierce and the ones after it"
+
+
+def test_a_cut_stopped_in_a_dwell_inside_it_continues_from_where_the_head_stood():
+    """A dwell with the jet open inside a cut (the head standing at a corner): the cut stopped at the
+    end of the move before the dwell, and continues from there, backed up by the overlap."""
+    text = NEST.replace("G1 Y60\nG3 X70 Y70 R10", "G1 Y60\nG4 P0.3\nG3 X70 Y70 R10", 1)
+    prog = program(text)
+    seg = prog.segments
+    dwell = next(i for i, s in enumerate(seg) if int(s["kind"]) == DWELL and s["jet"] and int(seg[i - 1]["kind"]) != RAPID
+                 and seg[i - 1]["jet"] and int(seg[i - 1]["kind"]) != DWELL)
+    before = seg[dwell - 1]
+    r = continue_at(prog, dwell, tuple(before["end"][:2]), 5.0, HEAD)
+    assert r.segment == dwell - 1 and r.into_mm == pytest.approx(segment_length(before) - 5.0)
+    assert r.at == pytest.approx(point_at(before, segment_length(before) - 5.0))
+    assert "continue the cut" in r.description
+
+
 @settings(max_examples=80, deadline=None)
 @given(where=st.floats(0.0, 1.0), overlap=st.floats(0.0, 30.0))
 @example(where=0.9999999999999999, overlap=0.0)  # a hair before the end of two turns: one turn is left

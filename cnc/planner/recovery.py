@@ -151,18 +151,37 @@ def _cut_short(s: np.void, into_mm: float) -> np.void:
 
 
 # -- the restarts -----------------------------------------------------------------------------
+def _cuts(s: np.void) -> bool:
+    """Whether the segment is a cutting move: the jet open on a feed move (not a rapid or a dwell)."""
+    return bool(s["jet"]) and int(s["kind"]) not in (RAPID, DWELL)
+
+
 def continue_at(program: Program, segment: int, point: tuple[float, ...], overlap_mm: float,
                 head: tuple[float, float, float], segment_mm: float = -1.0) -> Restart:
     """Continue a cut stopped at `point` on `segment` (where the jet was last open), backed up by
     `overlap_mm` along the cut (not past its pierce); the head now at `head`. `segment_mm`: roughly
-    how far into the segment the jet stopped (-1 unknown), which turn of an arc of several."""
+    how far into the segment the jet stopped (-1 unknown), which turn of an arc of several.
+
+    The jet may also stop while the head stands with it open, in a dwell: while piercing (the
+    dwell opens the cut) the restart pierces there again and cuts the part from its start; in a
+    dwell inside a cut, the cut stopped at the end of the move before it, and continues from there."""
     seg = program.segments
     if not 0 <= segment < len(seg):
         raise RecoveryError(f"segment {segment} is not in {_name(program)} (it has {len(seg)})")
     if not (math.isfinite(overlap_mm) and overlap_mm >= 0.0):
         raise RecoveryError(f"overlap {overlap_mm!r} mm must be 0 or more")
     s = seg[segment]
-    if not s["jet"] or int(s["kind"]) in (RAPID, DWELL):
+    if s["jet"] and int(s["kind"]) == DWELL:  # the jet stopped while the head stood with it open
+        cut = segment
+        while cut > 0 and seg[cut - 1]["jet"] and int(seg[cut - 1]["kind"]) == DWELL:
+            cut -= 1
+        if cut == 0 or not _cuts(seg[cut - 1]):  # piercing: pierce again, and cut the part from its start
+            line = int(seg[cut]["line"])
+            return _from(program, cut, 0.0, head, f"pierce again at line {line} (the jet stopped while piercing) "
+                                                  "and cut from there")
+        segment, point, segment_mm = cut - 1, tuple(seg[cut - 1]["end"]), segment_length(seg[cut - 1])
+        s = seg[segment]  # a dwell inside a cut: the cut stopped where the head stood, at the move's end
+    if not _cuts(s):
         raise RecoveryError(f"{_name(program)}:{int(s['line'])}: the jet was not cutting there; start at the next part instead")
     k, into = segment, locate(s, point, segment_mm)
     back = overlap_mm
@@ -172,7 +191,7 @@ def continue_at(program: Program, segment: int, point: tuple[float, ...], overla
             break
         back -= into
         prev = seg[k - 1] if k > 0 else None
-        if prev is None or not prev["jet"] or int(prev["kind"]) in (RAPID, DWELL):
+        if prev is None or not _cuts(prev):
             into = 0.0  # the cut's pierce: the overlap ends here
             break
         k -= 1
