@@ -106,6 +106,39 @@ def test_a_cut_stopped_by_a_door_or_the_e_stop_continues_an_overlap_back_from_wh
         assert "no interrupted cut" in refusal(sup, Recover("continue"))
 
 
+# the second part pierces with a dwell, as CAM posts write it (M3, G4): the door opens while it pierces
+PIERCED = LONG.replace("G0 X100 Y150\nM3\n", "G0 X100 Y150\nM3\nG4 P0.5\n")
+
+
+def test_a_cut_stopped_while_piercing_continues_by_piercing_there_again(plc_controller, tmp_path):
+    """A door opened while the second part pierces (the jet open, the head standing in its G4
+    dwell): the job record keeps that dwell as where the jet last was, and "continue" pierces
+    there again and cuts the whole part, where it used to refuse ("the jet was not cutting there")."""
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, PIERCED)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 250.0, 60.0, "the first cut under way")
+    sup.pause_virtual_clock()  # the door opens in the tick asked for, however late the host looks
+    step_until(sup, lambda: jet_open(sup) and head_xy(sup) == pytest.approx((100.0, 150.0)), 20000,
+               "the second part's pierce")
+    sup.run_ticks(100)  # into the pierce
+    assert jet_open(sup) and head_xy(sup) == pytest.approx((100.0, 150.0))
+    sup.set_sim(doors_open=1)
+    step_until(sup, lambda: not jet_open(sup), 50, "the jet to close at the fault")
+    sup.resume_virtual_clock()
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] == MachineState.FAULT, 30.0,
+                   "the fault")
+    sup.wait_until(lambda: (p := _stored(sup)) is not None and p.line == 9, 10.0, "the pierce, in the job record")
+    sup.set_sim(doors_open=0)
+    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
+    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
+    at = continue_and_pierce(sup, "continuing nest.ngc at line 9")
+    assert at == pytest.approx((100.0, 150.0)), "pierced again where it was piercing"
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
+                   "the part cut whole, and the unload")
+    assert sup.motion()["run_result"] == RunResult.DONE
+
+
 # three turns of R20 around (220, 100): every point of the circle is cut three times
 TURNS = """(an arc of three turns)
 G21 G90 G64 P0.05 F6000
