@@ -93,7 +93,7 @@ def test_a_cut_stopped_by_a_door_or_the_e_stop_continues_an_overlap_back_from_wh
         sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
         sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
         assert "overlap_mm 500 is out of range" in refusal(sup, Recover("continue", overlap_mm=500.0))
-        resumed_at = continue_and_pierce(sup, "continuing nest.ngc at line 5, 2 mm back")
+        resumed_at = continue_and_pierce(sup, "nest.ngc: continue the cut of line 5, 2 mm back")
         overlap = sup.config.cycle.recovery_overlap_mm
         assert abs(resumed_at[1] - 100.0) < 1e-6 and abs(resumed_at[0] - (stored.x_mm - overlap)) < 1e-6, resumed_at
         sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.UNLOAD or logic(sup)["phase"] == CyclePhase.NONE, 120.0,
@@ -132,7 +132,7 @@ def test_a_cut_stopped_while_piercing_continues_by_piercing_there_again(plc_cont
     sup.set_sim(doors_open=0)
     sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
     sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
-    at = continue_and_pierce(sup, "continuing nest.ngc at line 9")
+    at = continue_and_pierce(sup, "nest.ngc: pierce again at line 9")
     assert at == pytest.approx((100.0, 150.0)), "pierced again where it was piercing"
     sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
                    "the part cut whole, and the unload")
@@ -176,7 +176,7 @@ def test_an_arc_of_several_turns_stopped_beyond_its_first_turn_continues_in_the_
     sup.set_sim(doors_open=0)
     sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
     sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
-    at = continue_and_pierce(sup, "continuing nest.ngc at line 5, 2 mm back")
+    at = continue_and_pierce(sup, "nest.ngc: continue the cut of line 5, 2 mm back")
     assert math.hypot(at[0] - 220.0, at[1] - 100.0) == pytest.approx(20.0, abs=0.01)
     overlap = sup.config.cycle.recovery_overlap_mm
     into = sup.motion()["segment_mm"]  # where the continued run is in the arc: the second turn, 2 mm back
@@ -254,7 +254,7 @@ def test_after_a_power_loss_the_job_record_continues_the_cut_once_the_program_is
         press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.PRESSURE, 60.0, "the material in place")
         command(sup, Stop())
         sup.wait_until(lambda: logic(sup)["state"] == MachineState.STOPPED and not jet_open(sup), 30.0, "stopped")
-        resumed_at = continue_and_pierce(sup, "continuing nest.ngc at line 5")
+        resumed_at = continue_and_pierce(sup, "nest.ngc: continue the cut of line 5")
         assert abs(resumed_at[1] - 100.0) < 1e-6
         assert abs(resumed_at[0] - (stored.x_mm - config.cycle.recovery_overlap_mm)) < 1e-6, (resumed_at, stored)
         sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY,

@@ -378,12 +378,10 @@ class Logic:
                                      "cut): start at a part or from a line instead")
             restart = RestartAt("continue", segment=point.segment, x_mm=point.x_mm, y_mm=point.y_mm, overlap_mm=overlap,
                                 segment_mm=point.segment_mm)
-            what = f"continuing {m['program_name']} at line {point.line}, {overlap:g} mm back"
         else:
             if msg.number < 1:
                 raise CommandRefused(f"number {msg.number} must be the part (from 1) or the line to start at")
             restart = RestartAt(msg.kind, number=msg.number)
-            what = f"starting {m['program_name']} at {msg.kind} {msg.number}"
         signals = self.reader.signals(snap, self.state.name, self.mode.name)
         if signals.get("plc.material_in_place") is False:
             raise CommandRefused("the PLC reports no material in place: a cut inside the program needs the material "
@@ -403,7 +401,10 @@ class Logic:
                 self.jet_test = False
                 self.inhibit_release = True
                 self.cycle.start(1, self.now, restart)
-                reply = Reply(True, what + ": pressure, then the cut (no transport: the material is in place)")
+                # the planner's account of the restart (`recovery.Restart.description`): where it
+                # starts, and how (backed up by the overlap, or pierced again where it was piercing)
+                reply = Reply(True, f"{m['program_name']}: {reply.reason}; pressure, then the cut (no transport: the "
+                                    "material is in place)")
             else:
                 self._note(f"recover refused: {reply.reason}")
             request.answer(reply)
