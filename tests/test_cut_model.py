@@ -406,32 +406,6 @@ def test_a_corner_passed_in_an_overlap_keeps_the_model_s_cap_for_its_turn(tmp_pa
     assert summed.any() and speed[summed].max() <= straight * (1.0 + 1e-6)
 
 
-def _run_cut(program, config, plan, chunk: int, event=None) -> np.ndarray:  # noqa: ANN001
-    """Every record of the program's run under its cutting job, taken `chunk` at a time; `event`:
-    (after how many records, what the operator does: "hold" then resumes once held, an override
-    ratio, or "stop")."""
-    from cnc.planner.runner import ProgramRunner, RunState
-
-    runner = ProgramRunner(None, config, steps=iter_steps(program, config, plan), pierce_s=pierce_dwell_s(config, plan))
-    out, made = [], 0
-    while not runner.finished:
-        if event is not None and made >= event[0]:
-            if event[1] == "hold":
-                runner.hold()
-            elif event[1] == "stop":
-                runner.stop()
-            else:
-                runner.set_override(event[1])
-            event = None
-        if runner.idle and runner.state in (RunState.HELD, RunState.PAUSED):
-            runner.resume()
-        records, _ = runner.take(chunk)
-        out.append(records)
-        made += len(records)
-    out.append(runner.take(0)[0])
-    return np.concatenate(out)
-
-
 @pytest.mark.parametrize("seed", [7, 10, 29, 38])  # a hold, a raise to 200 %, a stop, a hold; F2400-F12000
 def test_random_cam_parts_cut_under_the_model_keep_its_caps_the_limits_p_and_their_timing(tmp_path, seed):
     """Round CAM parts with lead-ins off square (`test_planner_overlap._random_cam_parts`, each cut
@@ -441,7 +415,7 @@ def test_random_cam_parts_cut_under_the_model_keep_its_caps_the_limits_p_and_the
     at a random moment, the limits and P still hold. 300 seeds of this ran clean (2026-12-07)."""
     import random
 
-    from .test_planner_motion import within_limits, within_tolerance
+    from .test_planner_motion import records_of, within_limits, within_tolerance
     from .test_planner_overlap import _random_cam_parts
 
     rng = random.Random(seed)
@@ -451,11 +425,11 @@ def test_random_cam_parts_cut_under_the_model_keep_its_caps_the_limits_p_and_the
     program = interpret(text, config)
     plan, _ = cut_plan_for(program, None, config, "parts.ngc")
     assert _stream_speeds_against_caps(program, config, plan) <= 1.0 + 1e-6
-    records = _run_cut(program, config, plan, chunk)
+    records = records_of(program, config, chunk, cut=plan)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all()
     assert len(records) == ProgramTiming.of(program, config, plan).total_ticks
     event = (rng.randint(20, len(records) - 20), rng.choice(["hold", 0.3, 1.5, 2.0, "stop"]))
-    records = _run_cut(program, config, plan, chunk, event)
+    records = records_of(program, config, chunk, event, plan)
     within_limits(records)
     assert (within_tolerance(program, records) <= 1e-9).all(), event

@@ -56,6 +56,32 @@ def run(text: str, config=None, actions: dict[int, Callable[[ProgramRunner], Non
     return program, runner, records, planned
 
 
+def records_of(program, config, chunk: int, event=None, cut=None) -> np.ndarray:  # noqa: ANN001
+    """Every record of the program's run (under the cutting job's plan `cut`, when one), taken
+    `chunk` at a time; `event`: (after how many records, what the operator does: "hold", then
+    resumes once held; an override ratio; or "stop", as a fault stops it: the jet closes at once)."""
+    from cnc.planner.sections import iter_steps, pierce_dwell_s
+
+    runner = ProgramRunner(None, config, steps=iter_steps(program, config, cut), pierce_s=pierce_dwell_s(config, cut))
+    out, made = [], 0
+    while not runner.finished:
+        if event is not None and made >= event[0]:
+            if event[1] == "hold":
+                runner.hold()
+            elif event[1] == "stop":
+                runner.stop()
+            else:
+                runner.set_override(event[1])
+            event = None
+        if runner.idle and runner.state in (RunState.HELD, RunState.PAUSED):
+            runner.resume()
+        records, _ = runner.take(chunk)
+        out.append(records)
+        made += len(records)
+    out.append(runner.take(0)[0])
+    return np.concatenate(out)
+
+
 def within_limits(records, limits: dict | None = None) -> None:
     """Every axis within the velocity, acceleration and jerk limits (each a number or one per axis)."""
     pk = peaks(records["position"], DT)

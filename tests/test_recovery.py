@@ -240,21 +240,6 @@ def test_a_restarted_programs_figures_are_counted_as_the_interpreter_counts_them
         assert getattr(st, name) == pytest.approx(getattr(prog.stats, name)), name
 
 
-def _records(runner, chunk: int, stop_at: int | None = None) -> np.ndarray:
-    """Every record of a run, taken `chunk` at a time; stopped (as a fault stops it: the jet closes
-    at once) once `stop_at` records are made."""
-    out, made = [], 0
-    while not runner.finished:
-        if stop_at is not None and made >= stop_at:
-            runner.stop()
-            stop_at = None
-        records, _ = runner.take(chunk)
-        out.append(records)
-        made += len(records)
-    out.append(runner.take(0)[0])
-    return np.concatenate(out)
-
-
 @pytest.mark.parametrize("seed", [3, 6, 12, 29])  # 6 stops on an arc, 29 while piercing
 def test_random_cam_parts_stopped_anywhere_continue_within_the_overlap_and_cut_the_rest(seed):
     """Random CAM parts (`test_planner_overlap._random_cam_parts`, cut with the jet) run by the
@@ -264,22 +249,20 @@ def test_random_cam_parts_stopped_anywhere_continue_within_the_overlap_and_cut_t
     of the program, keeping the limits and P. 380 seeds of this ran clean (2026-12-07)."""
     import random
 
-    from cnc.planner.runner import ProgramRunner
-
-    from .test_planner_motion import JET, within_limits, within_tolerance
+    from .test_planner_motion import JET, records_of, within_limits, within_tolerance
     from .test_planner_overlap import _random_cam_parts
 
     rng = random.Random(seed * 31 + 7)
     text, chunk = _random_cam_parts(seed, jet=True)
     prog = Interpreter(dialect_for(CONFIG), "parts.ngc").run(text.encode())
     seg = prog.segments
-    plain = _records(ProgramRunner(prog, CONFIG), 64)
-    stopped = _records(ProgramRunner(prog, CONFIG), 64, int(rng.choice(np.flatnonzero(plain["flags"] & JET))))
+    plain = records_of(prog, CONFIG, 64)
+    stopped = records_of(prog, CONFIG, 64, (int(rng.choice(np.flatnonzero(plain["flags"] & JET))), "stop"))
     last = np.flatnonzero(stopped["flags"] & JET)[-1]
     k, point = int(stopped["segment"][last]), tuple(stopped["position"][last])
     overlap = rng.choice([0.5, 2.0, 5.0, 30.0])
     r = continue_at(prog, k, point, overlap, (*stopped["position"][-1], 0.0))
-    again = _records(ProgramRunner(r.program, CONFIG), chunk)
+    again = records_of(r.program, CONFIG, chunk)
     within_limits(again)
     assert (within_tolerance(r.program, again) <= 1e-9).all()
     start = r.segment  # the cut's pierce: the first of its jet-on segments

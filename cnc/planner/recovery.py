@@ -236,7 +236,7 @@ def cut_starts(program: Program) -> list[int]:
         on = bool(seg[k]["jet"]) and int(seg[k]["kind"]) != RAPID
         if on and run_start is None:
             run_start, cuts = k, False
-        if on and int(seg[k]["kind"]) != DWELL:
+        if _cuts(seg[k]):
             cuts = True
         if not on and run_start is not None:
             if cuts:
