@@ -234,6 +234,7 @@ class Servo:
             v[I["jet_on_ticks"]] += 1
             v[I["jet_on_mm"]] = list(v[I["commanded_mm"]])  # a copy: a homing reference shifts commanded in place
             v[I["jet_on_segment"]], v[I["jet_on_line"]] = v[I["setpoint_segment"]], v[I["setpoint_line"]]
+            v[I["jet_on_tick"]] = tick
         v[I["stop_causes"]] = causes
         v[I["state"]] = state
         v[I["tick"]] = tick

@@ -11,7 +11,7 @@ import signal
 
 import pytest
 
-from cnc.bus.messages import CycleStart, Recover, Reset, Stop
+from cnc.bus.messages import CycleStart, JetTest, Pump, Recover, Reset, SetMode, Stop
 from cnc.data.layout import PlannerState, RunResult, ServoState
 from cnc.gateway.jobs import CutPoints, jobs_path
 from cnc.logic.states import CyclePhase, MachineState
@@ -19,6 +19,7 @@ from cnc.runtime.supervisor import Supervisor
 
 from .conftest import logic, press_button_when_asked
 from .test_logic_process import command, jet_open, ready_in_auto, refusal
+from .test_mdi import run_mdi
 
 # one long straight cut along X at Y100 (100 mm/s), then a second part: the door opens on the first
 LONG = """(two parts)
@@ -220,6 +221,70 @@ def _stored(sup: Supervisor):
         return points.get(sup.motion()["program_hash"])
     finally:
         points.close()
+
+
+def test_a_cut_stopped_by_the_logics_death_continues_an_overlap_back_from_where_the_jet_stopped(plc_controller, tmp_path):
+    """The control logic killed mid-cut: the servo cuts on until the logic's silence trips it, ticks
+    the dead logic never saw, so its job record keeps a point up to `recovery_save_mm` short. The
+    restarted logic takes the exact last cut point from the servo's block (within the run's
+    ticks), and "continue" backs up only the overlap from where the jet last cut."""
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, LONG)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 200.0, 60.0, "the first cut under way")
+    sup.pause_virtual_clock()
+    # killed a millimetre or more past the point last written (every recovery_save_mm of cut)
+    step_until(sup, lambda: head_xy(sup)[0] - _stored_x(sup) >= 1.0, 2000, "a millimetre past the point written")
+    os.kill(sup.children["logic"].process.pid, signal.SIGKILL)
+    written = _stored_x(sup)
+    last_cut = [head_xy(sup)]
+    step_until(sup, lambda: not jet_open(sup) or last_cut.append(head_xy(sup)), 20000, "the jet to close at the logic's silence")
+    sup.resume_virtual_clock()
+    assert last_cut[-1][0] - written >= 1.0
+    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.FAULT, MachineState.IDLE) and not sup.motion()["state"],
+                   60.0, "the logic back, the planner at rest")
+    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
+    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
+    command(sup, SetMode("AUTO"))  # a restarted logic starts in MANUAL
+    assert logic(sup)["cut_point_line"] == 5
+    resumed_at = continue_and_pierce(sup, "nest.ngc: continue the cut of line 5, 2 mm back")
+    overlap = sup.config.cycle.recovery_overlap_mm
+    # the board's read-back of the valve lags the servo by a tick: its last jet-on setpoint is one before
+    assert abs(resumed_at[1] - 100.0) < 1e-6 and 0.0 <= last_cut[-1][0] - overlap - resumed_at[0] <= 0.1 + 1e-6, (
+        resumed_at, last_cut[-1])
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
+                   "the rest of the program and the unload")
+    assert sup.motion()["run_result"] == RunResult.DONE
+
+
+def test_a_restarted_logic_does_not_take_a_jet_test_after_the_run_for_the_programs_cut(plc_controller, tmp_path):
+    """The servo notes every tick the jet is open, a jet test's too: a logic restarted after one
+    keeps the program's interrupted cut (the job record's), not where the jet was tested."""
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, LONG)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: jet_open(sup) and 150.0 < head_xy(sup)[0] < 250.0, 60.0, "the first cut under way")
+    command(sup, Stop())
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and not sup.motion()["state"], 30.0, "stopped")
+    sup.wait_until(lambda: _stored(sup) is not None and not jet_open(sup), 10.0, "where the jet closed, in the job record")
+    stored = _stored(sup)
+    command(sup, SetMode("MANUAL"))
+    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "the stop reset")
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 20.0, "ready in MANUAL")
+    run_mdi(sup, "G0 X250 Y250")
+    command(sup, Pump(True, pressure_bar=2000.0))
+    sup.wait_until(lambda: sup.logic.request(JetTest(True)).ok, 30.0, "the jet test at pressure")
+    sup.wait_until(lambda: jet_open(sup), 5.0, "the jet to open")
+    command(sup, JetTest(False))
+    sup.wait_until(lambda: not jet_open(sup), 5.0, "the jet to close")
+    assert sup.servo()["jet_on_mm"][1] == pytest.approx(250.0)
+    killed = sup.children["logic"].process.pid
+    os.kill(killed, signal.SIGKILL)
+    sup.wait_until(lambda: (child := sup.children.get("logic")) is not None and child.process.pid != killed
+                   and sup.logic.request(SetMode("MANUAL")).ok, 30.0, "the logic back, scanning")
+    sup.wait_until(lambda: logic(sup)["cut_point_line"] == 5, 10.0, "the program's cut point shown")
+    assert tuple(logic(sup)["cut_point_mm"]) == pytest.approx((stored.x_mm, stored.y_mm))
+    assert _stored(sup) == stored
 
 
 def test_after_a_power_loss_the_job_record_continues_the_cut_once_the_program_is_loaded_again(tmp_path):

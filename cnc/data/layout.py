@@ -127,6 +127,7 @@ def servo_layout(n: int) -> BlockLayout:
             F("jet_on_mm", "d", n),  # where the jet last cut: the setpoint of the last tick it was open ...
             F("jet_on_segment", "I"),  # ... its program segment and line (what "continue" continues from)
             F("jet_on_line", "i"),
+            F("jet_on_tick", "Q"),  # ... and the tick (a restarted logic tells by it which run the point belongs to)
             F("control_failures", "Q"),  # +1 each time the control program failed (cnc.control)
             F("control_failure", "s", 200),  # what it did, the last time (kept after a reset)
         ],

@@ -1062,6 +1062,8 @@ class Logic:
         elif m["state"] != PlannerState.IDLE:  # a jog, go-to, MDI or homing: its jet is no cut of the program
             self.cutting_program = False
         ticks, self.jet_ticks_seen = self.jet_ticks_seen, sv["jet_on_ticks"]
+        if ticks < 0:
+            self._adopt_unrecorded_cut(sv, m)
         if self.cutting_program and sv["jet_on_ticks"] != ticks and m["program_hash"] and ticks >= 0:
             pos = sv["jet_on_mm"]
             x = float(pos[self.names.index("x")]) if "x" in self.names else 0.0
@@ -1074,6 +1076,27 @@ class Logic:
                 self._save_cut()
         if not snap.jet_on and self.cut_point is not None and self.cut_point is not self.cut_saved:
             self._save_cut()  # the jet closed (a stop, a fault, the end of a part): where it last cut
+
+    def _adopt_unrecorded_cut(self, sv: dict, m: dict) -> None:
+        """At this process's first scan: where the jet last cut in the loaded program's last run, if
+        that run did not end and the servo noted it (`jet_on_tick` within the run's ticks). A logic
+        killed or hung mid-cut never saw its last ticks (the servo closed the jet on its silence), so
+        the job record keeps a point up to `recovery_save_mm` short of them; the servo's block,
+        which outlives this process, has the exact one, and "continue" backs up only the overlap."""
+        if not (sv["jet_on_ticks"] > 0 and m["program_hash"] and m["run_seq"] > 0):
+            return
+        if m["run_result"] == RunResult.DONE or sv["jet_on_tick"] < m["run_start_tick"]:
+            return
+        if m["run_result"] != RunResult.NONE and sv["jet_on_tick"] > m["run_end_tick"]:
+            return  # a jog's or an MDI's jet after the run ended: no cut of the program
+        pos = sv["jet_on_mm"]
+        x = float(pos[self.names.index("x")]) if "x" in self.names else 0.0
+        y = float(pos[self.names.index("y")]) if "y" in self.names else 0.0
+        self.cut_point = CutPoint(m["program_hash"], m["program_name"], int(sv["jet_on_segment"]), x, y,
+                                  int(sv["jet_on_line"]), segment_mm=self._into_segment(sv, m, x, y))
+        self._save_cut()
+        log.info("logic: the cut of %s last reached line %d at X%.3f Y%.3f (taken from the servo)",
+                 m["program_name"], self.cut_point.line, x, y)
 
     def _into_segment(self, sv: dict, m: dict, x: float, y: float) -> float:
         """Roughly how far into its segment the jet last cut (-1 unknown): which turn of an arc of
