@@ -471,6 +471,31 @@ def test_a_servo_restarted_before_the_hardware_server_saw_its_loss_still_gets_th
         assert stop_mm <= stop_distance_bound_mm(speed, DT, A, J), f"{stop_mm:.2f} mm from {speed:.0f} mm/s"
 
 
+def test_a_reset_pressed_while_the_supervisor_still_holds_the_board_safe_waits_and_then_clears_the_restart():
+    """The servo killed mid-cut and restarted (tripped RESTARTED), the operator's reset pressed at once,
+    while the supervisor still holds the board safe (it gives it back only once the new servo runs):
+    the reset waits, and clears the restart's trip when the board is given back. It used to be
+    taken and clear nothing (the board safe), the machine left tripped until a second reset."""
+    with Rig(CONFIG) as rig:
+        _cut(500.0)(rig)
+        rig.alive.servo = False
+        sup = rig.area.writer("supervisor")
+        sup.load_current()
+        sup.set("safe_state", 1)
+        sup.publish()
+        _revive_servo(rig)
+        rig.run_until(lambda: rig.hw_block()["safe_state"] and rig.speed_mm_s() < 0.5, 2000, "the ramp to run out")
+        assert ServoFault(rig.servo_block()["fault"]) == ServoFault.RESTARTED
+        rig.reset()
+        rig.step(20)
+        assert rig.servo_block()["state"] == ServoState.FAULT, "the board still held safe: nothing cleared yet"
+        assert rig.hw_block()["reset_seq"] < rig.command.get("reset_seq"), "the reset waits"
+        sup.set("safe_state", 0)  # the supervisor gives the board back
+        sup.publish()
+        rig.step(2)
+        assert rig.servo_block()["state"] != ServoState.FAULT and ServoFault(rig.servo_block()["fault"]) == ServoFault.NONE
+
+
 def test_an_axis_that_cannot_follow_the_stop_loses_its_drive_and_the_others_still_brake_under_control():
     """A diagonal cut at 500 mm/s, X seized (friction x400): the following error trips, and X cannot
     follow the servo's own stop either. Its drive goes off; Y goes on braking along the stop's path

@@ -188,7 +188,7 @@ class HardwareServer:
                 log.error("drive watchdog: servo missed %d ticks, the axes are brought to rest", v[idx["watchdog_missed"]])
         else:
             v[idx["watchdog_missed"]] = 0
-        self._serve_reset(cmd)
+        self._serve_reset(cmd, bool(sup[i_safe]))
         stop = bool(v[idx["watchdog_tripped"]] or sup[i_safe])
         if stop and self.ramp is None:
             self.ramp = SpeedRamp(self.config, *self.applied)
@@ -238,12 +238,15 @@ class HardwareServer:
         v[idx["digital_out"]], v[idx["safe_state"]] = self.inputs.digital_out, 1
         self.hw.publish()
 
-    def _serve_reset(self, cmd: tuple) -> None:
+    def _serve_reset(self, cmd: tuple, supervisor_safe: bool) -> None:
         """A reset from the commander clears a watchdog trip that is not newer than the request, once
         the servo runs on time again and the ramp has brought the axes to rest. Until then the
         request waits (this server's `reset_seq` stays behind the commander's, so the servo, which
         acts on a reset only once this server has, waits with it): a servo a tick late just when the
-        reset comes, on a busy host, must not swallow the operator's reset. A trip newer than the
+        reset comes, on a busy host, must not swallow the operator's reset. So does a reset while
+        the supervisor still holds the board safe (`supervisor_safe`: a servo being restarted; it
+        gives the board back once the new one runs): the servo would take it and clear nothing, the
+        board being safe, and the operator would have to reset again. A trip newer than the
         request is not cleared by it. A new commander (another token) is a new baseline, not a
         request."""
         idx, v = self._i, self.hw.values
@@ -251,7 +254,7 @@ class HardwareServer:
         if cmd[i_token] != v[idx["commander_token"]]:
             v[idx["commander_token"]], v[idx["reset_seq"]] = cmd[i_token], cmd[i_reset]
             return
-        if cmd[i_reset] == v[idx["reset_seq"]]:
+        if cmd[i_reset] == v[idx["reset_seq"]] or supervisor_safe:
             return
         if v[idx["watchdog_tripped"]] and v[idx["watchdog_trip_tick"]] <= cmd[i_reset_tick]:
             ramping = self.ramp is not None and not self.ramp.done
