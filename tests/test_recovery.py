@@ -139,6 +139,29 @@ def test_a_cut_stopped_in_a_dwell_inside_it_continues_from_where_the_head_stood(
     assert "continue the cut" in r.description
 
 
+def test_a_cut_stopped_at_its_very_end_starts_the_next_part_at_its_own_pierce():
+    """The program closed the jet at the end of a part's lead-out and the stop came after (in the
+    rapid to the next part): the jet last cut at that very end. That cut is whole: "continue"
+    starts the next part with its own pierce, where the CAM placed it, instead of piercing at the
+    finished part's edge to cut the overlap again (which it used to). After the last cut of the
+    program nothing is left to cut, and it says so."""
+    prog = program()
+    seg = prog.segments
+    starts = cut_starts(prog)
+    end = max(i for i in range(starts[1]) if seg[i]["jet"] and int(seg[i]["kind"]) not in (RAPID, DWELL))
+    r = continue_at(prog, end, tuple(seg[end]["end"][:2]), 2.0, HEAD)
+    assert (r.segment, r.into_mm) == (starts[1], 0.0) and r.at == pytest.approx(tuple(seg[starts[1]]["start"]))
+    assert r.description == "the cut of line 12 was complete: start at part 2 of 3 (line 16)"
+    assert r.program.stats.pierces == 2 and cut_length(r.program) == pytest.approx(
+        sum(segment_length(s) for s in seg[starts[1]:] if s["jet"] and int(s["kind"]) not in (RAPID, DWELL)))
+    r = continue_at(prog, end, point_at(seg[end], segment_length(seg[end]) - 0.01), 2.0, HEAD)
+    assert r.segment <= end and "continue the cut of line" in r.description, "a hair short of the end: not whole"
+    last = program(NEST.split("G0 X250 Y40")[0] + "G0 X10 Y10\nM2\n")  # the two squares only
+    k = max(i for i, s in enumerate(last.segments) if s["jet"] and int(s["kind"]) not in (RAPID, DWELL))
+    with pytest.raises(RecoveryError, match=r"nest.ngc:\d+: the cut that stopped was complete and no cut follows it"):
+        continue_at(last, k, tuple(last.segments[k]["end"][:2]), 2.0, HEAD)
+
+
 @settings(max_examples=80, deadline=None)
 @given(where=st.floats(0.0, 1.0), overlap=st.floats(0.0, 30.0))
 @example(where=0.9999999999999999, overlap=0.0)  # a hair before the end of two turns: one turn is left
@@ -153,6 +176,8 @@ def test_the_joined_cut_has_no_gap_and_no_more_overlap_than_asked(where, overlap
     j = min(int(np.searchsorted(np.cumsum(lengths), target, side="right")), len(cutting) - 1)
     into = min(target - (np.cumsum(lengths)[j] - lengths[j]), lengths[j])
     k = cutting[j]
+    if into >= lengths[j] - 1e-6 and (j + 1 == len(cutting) or not all(seg[i]["jet"] for i in range(k + 1, cutting[j + 1]))):
+        return  # at the very end of a cut: whole (test_a_cut_stopped_at_its_very_end_starts_the_next_part_at_its_own_pierce)
     r = continue_at(prog, k, point_at(seg[k], float(into)), overlap, HEAD)
     # the program's cut length from the start of this cut to the stop point
     start = max(s for s in cut_starts(prog) if s <= k)
@@ -269,7 +294,9 @@ def test_random_cam_parts_stopped_anywhere_continue_within_the_overlap_and_cut_t
     while start > 0 and seg[start - 1]["jet"] and int(seg[start - 1]["kind"]) != RAPID:
         start -= 1
     at = sum(segment_length(s) for s in seg[start:r.segment]) + r.into_mm  # where it starts again, along the cut
-    if int(seg[k]["kind"]) == DWELL:
+    if "was complete" in r.description:  # stopped at the very end of a cut: the next one from its pierce
+        assert locate(seg[k], point) >= segment_length(seg[k]) - 1e-6 and r.segment in cut_starts(prog) and r.segment > k
+    elif int(seg[k]["kind"]) == DWELL:
         assert (r.segment, r.into_mm) == (start, 0.0), "stopped while piercing: that pierce again"
     else:
         stop = sum(segment_length(s) for s in seg[start:k]) + locate(seg[k], point)

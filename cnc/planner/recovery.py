@@ -184,6 +184,8 @@ def continue_at(program: Program, segment: int, point: tuple[float, ...], overla
     if not _cuts(s):
         raise RecoveryError(f"{_name(program)}:{int(s['line'])}: the jet was not cutting there; start at the next part instead")
     k, into = segment, locate(s, point, segment_mm)
+    if into >= segment_length(s) - COMPLETE_MM and _ends_its_cut(seg, segment):
+        return _after_complete_cut(program, segment, head)
     back = overlap_mm
     while back > 1e-12:
         if into >= back:
@@ -200,6 +202,35 @@ def continue_at(program: Program, segment: int, point: tuple[float, ...], overla
         k, into = k + 1, 0.0
     line = int(seg[k]["line"])
     return _from(program, k, into, head, f"continue the cut of line {line}, {overlap_mm:g} mm back from where it stopped")
+
+
+COMPLETE_MM = 1e-6  # a cut stopped this close to its end was complete (the program closed the jet there)
+
+
+def _ends_its_cut(seg: np.ndarray, k: int) -> bool:
+    """Whether no cutting move follows segment k while the jet stays open: k is its cut's last."""
+    for j in range(k + 1, len(seg)):
+        if not seg[j]["jet"] or int(seg[j]["kind"]) == RAPID:
+            return True
+        if _cuts(seg[j]):
+            return False
+    return True
+
+
+def _after_complete_cut(program: Program, k: int, head: tuple[float, float, float]) -> Restart:
+    """The jet last cut at the very end of a cut: the program had closed it there, and the stop
+    came after (in the rapid to the next part, say). That cut is whole: the next one starts with its
+    own pierce, where the CAM placed it, rather than a pierce at the finished part's edge."""
+    line = int(program.segments[k]["line"])
+    starts = cut_starts(program)
+    later = [i for i, start in enumerate(starts) if start > k]
+    if not later:
+        raise RecoveryError(f"{_name(program)}:{line}: the cut that stopped was complete and no cut follows it: "
+                            "nothing is left to cut (run from a line to move the head on)")
+    n = later[0]
+    start = starts[n]
+    return _from(program, start, 0.0, head, f"the cut of line {line} was complete: start at part {n + 1} of "
+                                            f"{len(starts)} (line {int(program.segments[start]['line'])})")
 
 
 def start_at_part(program: Program, n: int, head: tuple[float, float, float]) -> Restart:
