@@ -432,3 +432,28 @@ def test_a_cut_interrupted_again_and_again_is_cut_whole_and_only_the_overlap_twi
             # setpoint: in a gentle corner's blend, which spans millimetres, that can lie before the planner's)
             assert 0.0 < back <= overlap + 0.05, (k, replies[k - 1], back)
         assert np.hypot(*(cut[k] - cut_to[k - 1]).T).min() < 0.06, "passes where the jet stopped (0.1 mm a tick)"
+
+
+def test_a_door_opened_in_the_rapid_after_a_part_continues_with_the_next_part_at_its_own_pierce(plc_controller, tmp_path):
+    """The first part cut to its end, the jet closed by the program, the door opened in the rapid to
+    the second: "continue" starts the second part at its pierce, not 2 mm up the finished one."""
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, LONG)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: jet_open(sup), 60.0, "the first part cut")
+    sup.pause_virtual_clock()  # the door opens in the tick asked for, however late the host looks
+    step_until(sup, lambda: not jet_open(sup) and head_xy(sup)[1] > 110.0, 20000, "the rapid to the second part")
+    sup.set_sim(doors_open=1)
+    sup.resume_virtual_clock()
+    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] == MachineState.FAULT, 30.0,
+                   "the fault")
+    sup.wait_until(lambda: (p := _stored(sup)) is not None and p.line == 5, 10.0, "the first part's end, in the job record")
+    assert (_stored(sup).x_mm, _stored(sup).y_mm) == pytest.approx((300.0, 100.0))
+    sup.set_sim(doors_open=0)
+    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
+    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
+    at = continue_and_pierce(sup, "nest.ngc: the cut of line 5 was complete: start at part 2 of 2 (line 9)")
+    assert at == pytest.approx((100.0, 150.0)), "the second part's own pierce"
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
+                   "the second part and the unload")
+    assert sup.motion()["run_result"] == RunResult.DONE
