@@ -130,16 +130,27 @@ def test_a_cut_stopped_while_piercing_continues_by_piercing_there_again(plc_cont
     sup.set_sim(doors_open=1)
     step_until(sup, lambda: not jet_open(sup), 50, "the jet to close at the fault")
     sup.resume_virtual_clock()
+    _, at = _door_closed_reset_and_continued(sup, 9, "nest.ngc: pierce again at line 9")
+    assert at == pytest.approx((100.0, 150.0)), "pierced again where it was piercing"
+    _ends_done(sup, "the part cut whole, and the unload")
+
+
+def _door_closed_reset_and_continued(sup: Supervisor, line: int, answer: str):
+    """After a door opened mid-program: the fault, the cut point of `line` in the job record, the door
+    closed, the reset, "continue" answering `answer`; that cut point, and where the jet opens again."""
     sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] == MachineState.FAULT, 30.0,
                    "the fault")
-    sup.wait_until(lambda: (p := _stored(sup)) is not None and p.line == 9, 10.0, "the pierce, in the job record")
+    sup.wait_until(lambda: (p := _stored(sup)) is not None and p.line == line, 10.0, "the cut point, in the job record")
+    stored = _stored(sup)
     sup.set_sim(doors_open=0)
     sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
     sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
-    at = continue_and_pierce(sup, "nest.ngc: pierce again at line 9")
-    assert at == pytest.approx((100.0, 150.0)), "pierced again where it was piercing"
-    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
-                   "the part cut whole, and the unload")
+    return stored, continue_and_pierce(sup, answer)
+
+
+def _ends_done(sup: Supervisor, what: str) -> None:
+    """The rest of the program and the unload: the run DONE, the machine READY."""
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0, what)
     assert sup.motion()["run_result"] == RunResult.DONE
 
 
@@ -445,15 +456,8 @@ def test_a_door_opened_in_the_rapid_after_a_part_continues_with_the_next_part_at
     step_until(sup, lambda: not jet_open(sup) and head_xy(sup)[1] > 110.0, 20000, "the rapid to the second part")
     sup.set_sim(doors_open=1)
     sup.resume_virtual_clock()
-    sup.wait_until(lambda: sup.servo()["state"] == ServoState.FAULT and logic(sup)["state"] == MachineState.FAULT, 30.0,
-                   "the fault")
-    sup.wait_until(lambda: (p := _stored(sup)) is not None and p.line == 5, 10.0, "the first part's end, in the job record")
-    assert (_stored(sup).x_mm, _stored(sup).y_mm) == pytest.approx((300.0, 100.0))
-    sup.set_sim(doors_open=0)
-    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
-    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
-    at = continue_and_pierce(sup, "nest.ngc: the cut of line 5 was complete: start at part 2 of 2 (line 9)")
+    stored, at = _door_closed_reset_and_continued(
+        sup, 5, "nest.ngc: the cut of line 5 was complete: start at part 2 of 2 (line 9)")
+    assert (stored.x_mm, stored.y_mm) == pytest.approx((300.0, 100.0)), "the first part's end"
     assert at == pytest.approx((100.0, 150.0)), "the second part's own pierce"
-    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
-                   "the second part and the unload")
-    assert sup.motion()["run_result"] == RunResult.DONE
+    _ends_done(sup, "the second part and the unload")
