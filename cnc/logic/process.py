@@ -1065,14 +1065,10 @@ class Logic:
         if ticks < 0:
             self._adopt_unrecorded_cut(sv, m)
         if self.cutting_program and sv["jet_on_ticks"] != ticks and m["program_hash"] and ticks >= 0:
-            pos = sv["jet_on_mm"]
-            x = float(pos[self.names.index("x")]) if "x" in self.names else 0.0
-            y = float(pos[self.names.index("y")]) if "y" in self.names else 0.0
-            self.cut_point = CutPoint(m["program_hash"], m["program_name"], int(sv["jet_on_segment"]), x, y,
-                                      int(sv["jet_on_line"]), segment_mm=self._into_segment(sv, m, x, y))
+            point = self.cut_point = self._servos_cut_point(sv, m)
             saved = self.cut_saved
-            if saved is None or saved.hash != self.cut_point.hash or math.hypot(
-                    x - saved.x_mm, y - saved.y_mm) >= self.config.cycle.recovery_save_mm:
+            if saved is None or saved.hash != point.hash or math.hypot(
+                    point.x_mm - saved.x_mm, point.y_mm - saved.y_mm) >= self.config.cycle.recovery_save_mm:
                 self._save_cut()
         if not snap.jet_on and self.cut_point is not None and self.cut_point is not self.cut_saved:
             self._save_cut()  # the jet closed (a stop, a fault, the end of a part): where it last cut
@@ -1089,14 +1085,18 @@ class Logic:
             return
         if m["run_result"] != RunResult.NONE and sv["jet_on_tick"] > m["run_end_tick"]:
             return  # a jog's or an MDI's jet after the run ended: no cut of the program
+        point = self.cut_point = self._servos_cut_point(sv, m)
+        self._save_cut()
+        log.info("logic: the cut of %s last reached line %d at X%.3f Y%.3f (taken from the servo)",
+                 m["program_name"], point.line, point.x_mm, point.y_mm)
+
+    def _servos_cut_point(self, sv: dict, m: dict) -> CutPoint:
+        """The servo's last jet-on setpoint as the loaded program's cut point."""
         pos = sv["jet_on_mm"]
         x = float(pos[self.names.index("x")]) if "x" in self.names else 0.0
         y = float(pos[self.names.index("y")]) if "y" in self.names else 0.0
-        self.cut_point = CutPoint(m["program_hash"], m["program_name"], int(sv["jet_on_segment"]), x, y,
-                                  int(sv["jet_on_line"]), segment_mm=self._into_segment(sv, m, x, y))
-        self._save_cut()
-        log.info("logic: the cut of %s last reached line %d at X%.3f Y%.3f (taken from the servo)",
-                 m["program_name"], self.cut_point.line, x, y)
+        return CutPoint(m["program_hash"], m["program_name"], int(sv["jet_on_segment"]), x, y, int(sv["jet_on_line"]),
+                        segment_mm=self._into_segment(sv, m, x, y))
 
     def _into_segment(self, sv: dict, m: dict, x: float, y: float) -> float:
         """Roughly how far into its segment the jet last cut (-1 unknown): which turn of an arc of

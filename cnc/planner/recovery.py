@@ -20,7 +20,7 @@ those of every pass, and `run_from_line` takes the first pass and says so.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -222,15 +222,12 @@ def _after_complete_cut(program: Program, k: int, head: tuple[float, float, floa
     came after (in the rapid to the next part, say). That cut is whole: the next one starts with its
     own pierce, where the CAM placed it, rather than a pierce at the finished part's edge."""
     line = int(program.segments[k]["line"])
-    starts = cut_starts(program)
-    later = [i for i, start in enumerate(starts) if start > k]
+    later = [n for n, start in enumerate(cut_starts(program), 1) if start > k]
     if not later:
         raise RecoveryError(f"{_name(program)}:{line}: the cut that stopped was complete and no cut follows it: "
                             "nothing is left to cut (run from a line to move the head on)")
-    n = later[0]
-    start = starts[n]
-    return _from(program, start, 0.0, head, f"the cut of line {line} was complete: start at part {n + 1} of "
-                                            f"{len(starts)} (line {int(program.segments[start]['line'])})")
+    restart = start_at_part(program, later[0], head)
+    return replace(restart, description=f"the cut of line {line} was complete: {restart.description}")
 
 
 def start_at_part(program: Program, n: int, head: tuple[float, float, float]) -> Restart:
