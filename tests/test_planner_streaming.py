@@ -283,3 +283,30 @@ def test_timing_files_a_killed_planner_left_are_removed_and_a_living_ones_kept(t
     finally:
         shutil.rmtree(living, ignore_errors=True)
         shutil.rmtree(stale, ignore_errors=True)
+
+
+def test_a_section_at_zero_percent_before_it_began_is_planned_as_standing_still_not_forever():
+    """A section whose motion has not begun while the override is 0 % (or a hold): asked to be
+    planned some periods ahead (as the runner asks of the next section at a corner), it stands at
+    its start. Its planning looped for ever there, and the planner process hung, answering nothing
+    (found by an operator pressing everything at random, an override of 0 % among it). Raised again
+    (or resumed), it runs to its end."""
+    from cnc.planner.stream import SectionStream
+
+    config = machine_config()
+    program = Interpreter(dialect_for(config), "zero.ngc").run(b"G21 G90 G64 P0.05\nG1 X100 F6000\nM2\n")
+    section = next(s for s in iter_steps(program, config) if isinstance(s, Section))
+    for stop, go in ((lambda st: st.set_override(0.0, 0.0), lambda st: st.set_override(1.0, 1.0)),
+                     (lambda st: st.hold(), lambda st: st.resume())):
+        stream = SectionStream(section)
+        stop(stream)
+        stream.plan_until(112)  # returns
+        assert not len(stream.pieces) and not stream.final
+        positions, _ = stream.take(50)
+        assert len(positions) == 0 or np.allclose(positions[:, 0], 0.0), "standing at its start"
+        go(stream)
+        last = None
+        while not stream.done:
+            positions, _ = stream.take(500)
+            last = positions[-1] if len(positions) else last
+        assert last[0] == pytest.approx(100.0)

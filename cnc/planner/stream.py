@@ -262,8 +262,8 @@ class SectionStream:
     def _cover(self, t: float) -> None:
         """Commit pieces until they reach time t or the end of the section."""
         while not self.final and (not len(self.pieces) or self.pieces.t_end < t):
-            if self.stopping and len(self.pieces) and self.pieces_end_at_rest():
-                return  # held: the pieces end at rest, and stay there until resumed
+            if self.stopping and (not len(self.pieces) or self.pieces_end_at_rest()):
+                return  # held (or at 0 % before it began): at rest, and staying there until resumed
             s, v, a_prev, cruised, t0 = self._plan_start()
             self._commit(s, v, a_prev, cruised, t0)
 
