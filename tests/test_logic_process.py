@@ -280,6 +280,38 @@ def test_guided_procedure_walks_its_steps_publishes_each_change_and_can_be_stopp
     events.close()
 
 
+def test_a_cycle_stopped_or_faulted_while_its_procedure_waits_ends_that_procedure_too(plc_controller, tmp_path):
+    """The transport procedure the cycle opened waits for the station's button; the operator stops
+    the cycle, or a door opens: the procedure ends with the cycle (stopped, saying why), and the next
+    cycle start is taken. It used to run on, asking for the button of a cycle that had ended, and
+    the next start was refused ("a procedure is running: end it first"): found by an operator
+    pressing everything at random."""
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path)
+    events = Events(sup)
+    for end in ("stop", "door"):
+        command(sup, CycleStart(cycles=1))
+        sup.wait_until(lambda: logic(sup)["procedure"] == "transport" and logic(sup)["procedure_state"] == "running",
+                       10.0, "the transport procedure waiting for the button")
+        if end == "stop":
+            command(sup, Stop())
+        else:
+            sup.set_sim(doors_open=1)
+        sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["procedure_state"] == "stopped",
+                       10.0, "the cycle and its procedure ended")
+        if end == "door":
+            sup.set_sim(doors_open=0)
+            sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
+            sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY, 20.0, "ready after the reset")
+    sup.wait_until(lambda: sum(a.code == 2131 for a in events.alarms if a.action == "raised") >= 2, 5.0, "procedure_stop twice")
+    assert any("stopped: the cycle was stopped" in a.detail for a in events.alarms if a.code == 2131)
+    assert any("stopped: the cycle stopped at a fault" in a.detail for a in events.alarms if a.code == 2131)
+    command(sup, CycleStart(cycles=1))  # taken: no procedure left running
+    press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.CUTTING, 60.0, "the next cycle under way")
+    command(sup, Stop())
+    events.close()
+
+
 def test_manual_mode_runs_the_pump_and_the_jet_test_only_at_pressure(plc_controller):
     sup = plc_controller
     command(sup, Reset())

@@ -45,6 +45,7 @@ class CycleHost(Protocol):
     def notice(self, alarm_id: str, detail: str) -> None: ...
     def start_procedure(self, procedure_id: str) -> str: ...
     def procedure_outcome(self, procedure_id: str) -> str: ...
+    def stop_procedure(self, why: str) -> None: ...
 
 
 class AutoCycle:
@@ -121,10 +122,12 @@ class AutoCycle:
         if self.phase == CyclePhase.CUTTING:
             self.host.send_planner(Stop())
         else:
+            self._end_procedure("the cycle was stopped")
             self._finish(stopped=True)
 
     def abort(self) -> None:
         """A fault: the caller has closed the jet and stopped the motion; leave the PLC safe."""
+        self._end_procedure("the cycle stopped at a fault")
         self._transport_outputs_off()
         self.host.outputs.set("cnc_cutting", 0)
         self.phase, self.sub, self.held, self.stopping = CyclePhase.NONE, "", False, False
@@ -142,6 +145,12 @@ class AutoCycle:
             self._timed_out()
             return
         getattr(self, f"_{self.phase.name.lower()}")(snap, now)
+
+    def _end_procedure(self, why: str) -> None:
+        """The cycle ends in its procedure phase: the procedure it opened ends with it (else it would
+        go on asking for the button of a cycle no longer running, and hold the next start back)."""
+        if self.phase == CyclePhase.PROCEDURE:
+            self.host.stop_procedure(why)
 
     def _procedure(self, snap: Snapshot, now: float) -> None:
         outcome = self.host.procedure_outcome(self.config.cycle.transport_procedure)

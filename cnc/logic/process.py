@@ -715,6 +715,12 @@ class Logic:
         self._publish_procedure()
         return ""
 
+    def stop_procedure(self, why: str) -> None:
+        """Stop the procedure the automatic cycle opened, if it still runs."""
+        if self.procedures.running and self.procedures.state().by_cycle:
+            self.procedures.stop(why)
+            self._publish_procedure()
+
     def procedure_outcome(self, procedure_id: str) -> str:
         st = self.procedures.state()
         if st.id != procedure_id:
