@@ -122,12 +122,12 @@ class AutoCycle:
         if self.phase == CyclePhase.CUTTING:
             self.host.send_planner(Stop())
         else:
-            self._end_procedure("the cycle was stopped")
+            self._end_procedure("stopped: the cycle was stopped")
             self._finish(stopped=True)
 
     def abort(self) -> None:
         """A fault: the caller has closed the jet and stopped the motion; leave the PLC safe."""
-        self._end_procedure("the cycle stopped at a fault")
+        self._end_procedure("stopped: the cycle stopped at a fault")
         self._transport_outputs_off()
         self.host.outputs.set("cnc_cutting", 0)
         self.phase, self.sub, self.held, self.stopping = CyclePhase.NONE, "", False, False

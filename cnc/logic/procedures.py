@@ -174,9 +174,9 @@ class ProcedureRunner:
         self._complete_awaited(None)
         self._changed()
 
-    def stop(self, why: str = "by the operator") -> None:
-        """The operator stops the procedure (or the cycle that opened it ends, `why`): the window shows
-        it stopped, alarm procedure_stop is raised."""
+    def stop(self, why: str = "stopped by the operator") -> None:
+        """The operator stops the procedure (or the cycle that opened it ends: `why` says so): the
+        window shows it stopped, alarm procedure_stop is raised."""
         if not self.running:
             raise CommandRefused("nothing to stop: no procedure is running")
         assert self._proc is not None
@@ -186,7 +186,7 @@ class ProcedureRunner:
         self._status = STOPPED
         self._awaited = -1
         self._changed()
-        self._raise_alarm("procedure_stop", f"{at} stopped {why}" if why.startswith("by ") else f"{at} stopped: {why}")
+        self._raise_alarm("procedure_stop", f"{at} {why}")
 
     def end(self) -> None:
         """Close the window after the procedure is done or stopped; the window goes idle."""
