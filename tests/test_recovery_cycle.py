@@ -364,12 +364,8 @@ def _jet_path(program, step_mm: float = 0.05) -> np.ndarray:
 def _cut_while(sup: Supervisor, until, limit: int) -> list[tuple[bool, float, float]]:
     """Step the paused clock a tick at a time until `until()`: the jet and the setpoint each tick."""
     seen = []
-    for _ in range(limit):
-        sup.run_ticks(1)
-        seen.append((jet_open(sup), *head_xy(sup)))
-        if until(seen):
-            return seen
-    raise AssertionError(f"not within {limit} ticks")
+    step_until(sup, lambda: seen.append((jet_open(sup), *head_xy(sup))) or until(seen), limit, "the condition asked")
+    return seen
 
 
 def test_a_cut_interrupted_again_and_again_is_cut_whole_and_only_the_overlap_twice(plc_controller, tmp_path):
