@@ -242,6 +242,42 @@ def test_corner_programme_ms_is_checked_and_zero_turns_programmes_off():
     assert runner.book.solved_here == 0
 
 
+# A lead-out and the rapid after it (of a random CAM part) on a machine whose Y has a jerk of 1000 mm/s³, at
+# a 0.25 ms servo period: its programmes' coefficients go down to 1e-10, and HiGHS's simplex cycled for ever on
+# one of them (the planner hung in the program's timing, at load)
+BADLY_SCALED = {"timing.base_rate_hz": 4000.0, "planner.corner_connection_ms": 120.0, "planner.corner_programme_ms": 200.0,
+                "axis.x.max_velocity_mm_s": 50.0, "axis.x.max_accel_mm_s2": 1e6, "axis.y.max_accel_mm_s2": 1e6,
+                "axis.y.max_jerk_mm_s3": 1000.0}
+CYCLING = "G21 G90 G64 P0.2\nG0 X-0.4494 Y2.8786\nG1 X-2.2492 Y1.4110 F300\nG0 X-29.1008 Y-6.0562\nM2\n"
+
+
+def test_a_programme_the_simplex_would_cycle_on_ends_at_its_iteration_limit_and_the_run_is_its_timing(monkeypatch):
+    """Each programme gets `programme.ITERATIONS` simplex iterations per row and column: one that
+    reaches them counts as infeasible, a count and not a time, so the timing and the run end alike."""
+    from cnc.planner.measure import peaks
+    from cnc.planner.steps import ProgramTiming
+
+    statuses: list[int] = []
+    milp, constraint = programme.load_solver()
+
+    def counted(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202 - milp's own arguments and result
+        result = milp(*args, **kwargs)
+        statuses.append(int(result.status))
+        return result
+
+    monkeypatch.setattr(programme, "load_solver", lambda: (counted, constraint))
+    config = machine_config(**BADLY_SCALED)
+    program, runner, records, planned = run(CYCLING, config)
+    assert 1 in statuses, "a programme stopped at its iteration limit"
+    assert len(records) == planned == ProgramTiming.of(program, config).total_ticks
+    assert runner.book.solved_here > 0
+    assert (within_tolerance(program, records) <= 1e-9).all()
+    pk = peaks(records["position"], config.timing.period_s)
+    for name, key in (("velocity", "velocity_mm_s"), ("acceleration", "accel_mm_s2"), ("jerk", "jerk_mm_s3")):
+        limit = [getattr(config.axis[a], f"max_{key}") for a in "xy"]
+        assert (pk[name] <= np.asarray(limit) * (1 + 1e-6)).all(), f"{name} {pk[name]} over {limit}"
+
+
 def _random_polyline(seed: int) -> tuple[str, float]:
     """Long straight legs at random turns, feeds and tolerances: where corners are programmed."""
     rng = np.random.default_rng(seed)

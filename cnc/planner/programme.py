@@ -28,7 +28,8 @@ tolerance are kept on the samples themselves. For a given m that is a linear pro
 HiGHS (`scipy.optimize.milp` without integers); m by bisection, from the straight line at the cap
 to `[planner] corner_programme_ms`, the switch between the lines where the last feasible programme
 put it (at first: the share of the window before the corner); at most `PROGRAMMES` programmes a
-corner, a count, so that every solve of the same corner ends alike. Each limit is kept
+corner and `ITERATIONS` simplex iterations per row and column a programme (one that reaches them is
+infeasible), counts, so that every solve of the same corner ends alike and none runs for ever. Each limit is kept
 `LP_MARGIN` inside the connection's own check, which checks the result again
 (`connection._Search.keeps_rules`) before it counts.
 
@@ -81,9 +82,16 @@ def load_solver() -> tuple:
     """HiGHS through scipy (`milp`, `LinearConstraint`), imported when first needed: scipy's
     optimiser takes a third of a second to import, which `waterjet check` of a program without a
     programmed corner need not pay. The planner process loads it at its start (`process.py`), so
-    that the worker's first corner is not late for it."""
+    that the worker's first corner is not late for it.
+
+    scipy's `milp` hands options it does not know itself to HiGHS as they are, saying so in a
+    warning each call: the one it is given here (`ITERATIONS`) is meant, so that warning is not
+    shown."""
+    import warnings
+
     from scipy.optimize import LinearConstraint, milp
 
+    warnings.filterwarnings("ignore", message=UNKNOWN_OPTION_WARNING, category=RuntimeWarning)
     return milp, LinearConstraint
 
 
@@ -93,6 +101,11 @@ SPEED_SIDES = 8  # corners of the speed's polygon all round, besides those along
 TURN_STEP_DEG = 10.0  # ... which are this far apart at most
 FAN_DEG = 45.0  # sides of the speed's polygon kept: those facing within this of the corner's directions
 PROGRAMMES = 16  # linear programmes at most per corner (a count: every solve of the corner ends alike)
+ITERATIONS = 10  # simplex iterations at most per programme, times its rows and columns: a badly scaled one
+# (a slow axis's jerk at a fast servo period: coefficients down to 1e-10) can make HiGHS's simplex cycle for
+# ever; one that reaches the limit counts as infeasible, alike in every solve (a count, not a time). The
+# programmes of the tests take at most 1.9 times their rows and columns
+UNKNOWN_OPTION_WARNING = r"Unrecognized options detected: \{'simplex_iteration_limit'\}"
 KEY_MM = 1e-9  # corners whose samples agree to this, relative to the corner, are the same corner (`ProgrammeMemo`)
 MEMO_SIZE = 4096  # corners a memo remembers (the oldest forgotten first)
 
@@ -288,8 +301,9 @@ class _Programme:
         k = min(max(round(self.share * n), 0), n)
         a, low, high, samples = self._rows(m, k)
         milp, constraint = load_solver()
-        result = milp(np.zeros(a.shape[1]), constraints=constraint(a, low, high), bounds=(-np.inf, np.inf))
-        if result.status != 0:
+        result = milp(np.zeros(a.shape[1]), constraints=constraint(a, low, high), bounds=(-np.inf, np.inf),
+                      options={"simplex_iteration_limit": ITERATIONS * sum(a.shape)})
+        if result.status != 0:  # infeasible, or the iteration limit reached
             return None
         self.share = k / n if n else 0.0
         nc = samples.shape[1]
