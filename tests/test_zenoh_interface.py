@@ -208,6 +208,23 @@ def test_history_queries_filter_and_page_and_every_run_is_a_job(controller, sess
     op.close()
 
 
+def test_a_history_read_with_a_number_past_64_bits_or_a_bad_code_is_refused_naming_it_not_an_internal_error(
+        controller, session, keys):
+    """A code typed on the history window as a long row of digits reached SQLite, whose OverflowError
+    was taken for a bug in the gateway (a fatal internal_error alarm)."""
+    huge = "1" * 40
+    for key, named in ((f"{keys.alarms_history}?code={huge}", f"code='{huge}' is out of range"),
+                       (f"{keys.alarms_history}?code=37,x1", "code='37,x1' (item 'x1') is not an integer"),
+                       (f"{keys.alarms_history}?offset={huge}", f"offset='{huge}' is out of range"),
+                       (f"{keys.alarms_history}?after=-{huge}", f"after='-{huge}' is out of range"),
+                       (f"{keys.jobs_history}?offset={huge}", f"offset='{huge}' is out of range")):
+        replies = list(session.get(key, timeout=10.0))
+        assert replies and replies[0].err is not None, key
+        assert named in replies[0].err.payload.to_string(), replies[0].err.payload.to_string()
+    assert get(session, f"{keys.alarms_history}?code={2 ** 63 - 1}", HistoryPage).entries == [], "the largest is a code"
+    assert not [e for e in get(session, f"{keys.alarms_history}?after=0", HistoryPage).entries if e.id == "internal_error"]
+
+
 def test_losing_the_operator_station_during_a_cut_holds_the_feed(controller, keys):
     sup = controller
     hmi = open_client([sup.config.zenoh.listen[0]])

@@ -64,6 +64,7 @@ log = logging.getLogger(__name__)
 SUPERVISOR_TIMEOUT_S = 10.0  # a simulated input's change waits at most this for the supervisor (and its PLC simulator)
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}\Z")
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")  # tab, LF, FF, CR are text; the rest is not
+SQLITE_INT_MIN, SQLITE_INT_MAX = -(2 ** 63), 2 ** 63 - 1  # what a read's integer parameter may be: the stores' integers
 
 
 class Door:
@@ -515,7 +516,7 @@ class Door:
             if "after" in params:
                 return history.after(_int(params, "after", 0), limit)
             levels = [AlarmLevel.parse(x) for x in params["level"].split(",")] if params.get("level") else None
-            codes = [int(x) for x in params["code"].split(",")] if params.get("code") else None
+            codes = _ints(params, "code") if params.get("code") else None
             order = params.get("order", "newest")
             if order not in ("newest", "oldest"):
                 raise ValueError(f"order {order!r} is not newest or oldest")
@@ -572,11 +573,24 @@ def _page_of(store: type, path: Path, empty: type, params: dict, filter_by: str)
         opened.close()
 
 
-def _int(params: dict, key: str, default: int) -> int:
+def _int(params: dict, key: str, default: int, raw: str | None = None) -> int:
+    """The integer parameter `key` (`raw`: one item of its comma list); a ValueError naming it
+    when it is not one the stores can take (SQLite's, 64 bits)."""
+    text = params.get(key, default) if raw is None else raw
+    shown = f"{key}={params.get(key, default)!r}" + ("" if raw is None else f" (item {raw!r})")
     try:
-        return int(params.get(key, default))
+        value = int(text)
     except ValueError:
-        raise ValueError(f"parameter {key}={params[key]!r} is not an integer") from None
+        raise ValueError(f"parameter {shown} is not an integer") from None
+    if not SQLITE_INT_MIN <= value <= SQLITE_INT_MAX:
+        raise ValueError(f"parameter {shown} is out of range: allowed {SQLITE_INT_MIN} to {SQLITE_INT_MAX}")
+    return value
+
+
+def _ints(params: dict, key: str) -> list[int]:
+    """The comma list of integers `key` (alarm codes)."""
+    items = params[key].split(",")
+    return [_int(params, key, 0, item if len(items) > 1 else None) for item in items]
 
 
 def _opt_int(params: dict, key: str) -> int | None:
