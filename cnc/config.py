@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .bus.states import ALARM_CODE_MAX
 from .safety import below, minimum_levels
 
 AXIS_NAMES = ("x", "y", "z")
@@ -376,7 +377,7 @@ CONTROLLER_ALARM_IDS = (
 class AlarmConfig:
     """One entry of the alarm and message catalogue."""
 
-    code: int = opt(_REQUIRED, "", "stable numeric code, shown to the operator and kept in the history", 1, 999999)
+    code: int = opt(_REQUIRED, "", "stable numeric code, shown to the operator and kept in the history", 1, ALARM_CODE_MAX)
     id: str = opt(_REQUIRED, doc="name the controller raises it by (letters, digits, _)")
     text: str = opt(_REQUIRED, doc="what the operator reads")
     level: str = opt("error", doc="fatal and error stop the cut; warning and info do not", choices=ALARM_LEVELS)

@@ -18,7 +18,7 @@ from PySide6.QtWidgets import (
 )
 
 from cnc.bus.messages import Acknowledge, AlarmEvent, HistoryPage, Reset
-from cnc.bus.states import AlarmLevel
+from cnc.bus.states import ALARM_CODE_MAX, AlarmLevel
 
 from .adapter import ModelAdapter
 from .commands import CommandRunner, enable_while_commanding
@@ -195,14 +195,14 @@ class HistoryTable(QAbstractTableModel):
 
 def parse_codes(text: str) -> list[int] | None:
     """A code filter as typed ("5, 37 2292"): the codes, or None for no filter. ValueError names the
-    word that is not a code."""
+    word that is not a code (not digits, or past the codes' range)."""
     words = text.replace(",", " ").split()
     if not words:
         return None
     codes = []
     for w in words:
-        if not w.isdigit():
-            raise ValueError(f"code filter: {w!r} is not an alarm code (digits)")
+        if not (w.isascii() and w.isdigit()) or not 1 <= int(w) <= ALARM_CODE_MAX:
+            raise ValueError(f"code filter: {w!r} is not an alarm code (1 to {ALARM_CODE_MAX})")
         codes.append(int(w))
     return codes
 

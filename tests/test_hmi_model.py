@@ -120,6 +120,18 @@ def test_history_view_filters_by_text_level_and_code_newest_first():
     assert model.history_view(text="nothing like this") == []
 
 
+def test_a_code_filter_takes_alarm_codes_and_names_a_word_that_is_not_one():
+    """What the history window's code box sends: codes within the machine file's range only (a
+    long row of digits once went to the controller's history as it was)."""
+    from hmi.alarms import parse_codes
+
+    assert parse_codes("5, 37 2292") == [5, 37, 2292] and parse_codes(" , ") is None
+    assert parse_codes("999999") == [999999]
+    for word in ("12a", "1" * 40, "0", "1000000", "\u0663", "-5"):
+        with pytest.raises(ValueError, match=f"code filter: {word!r} is not an alarm code \\(1 to 999999\\)"):
+            parse_codes(f"37 {word}")
+
+
 def test_segment_states_follow_the_position_and_the_status_program():
     model = MachineModel("panel")
     assert model.segment_states() == -1

@@ -119,6 +119,9 @@ class LinkState(enum.IntEnum):
     LOST = 3  # lost_after_cycles consecutive exchanges failed; reconnecting
 
 
+ALARM_CODE_MAX = 999_999  # alarm codes are 1 to this (a machine file's [[alarm]] code, a station's code filter)
+
+
 class AlarmLevel(enum.IntEnum):
     """How severe an alarm is. A larger value is more severe, so `max()` of levels is the worst one
     and `level >= AlarmLevel.ERROR` reads as "at least an error". The numbers are stable."""
