@@ -231,7 +231,10 @@ class PlannerConfig:
     arc_normal_share: float = opt(
         0.5, "", "largest share of an axis' acceleration the path may spend turning on curves", 0.05, 0.9
     )
-    fifo_low_ms: float = opt(20.0, "ms", "refill the setpoint FIFO when it holds less motion than this", 2.0, 2000.0)
+    fifo_low_ms: float = opt(
+        20.0, "ms", "refill the setpoint FIFO when it holds less motion than this (more than twice the planner's period)",
+        2.0, 2000.0,
+    )
     fifo_high_ms: float = opt(40.0, "ms", "fill the setpoint FIFO up to this much motion (bounds the reaction to hold and override)", 4.0, 4000.0)
     corner_overlap_ms: float = opt(
         40.0, "ms", "at a corner the head would stop at (G64 P > 0, nothing switching there), the next move may start "
@@ -765,11 +768,19 @@ def _cross_check(cfg: MachineConfig) -> None:
                 f"{s.hard_stop_overtravel_mm:g} must exceed limit_switch_overtravel_mm "
                 f"{s.limit_switch_overtravel_mm:g} so that the limit switch trips before the end stop",
             )
-    if cfg.planner.fifo_high_ms <= cfg.planner.fifo_low_ms + 1000.0 * cfg.planner.divisor * cfg.timing.period_s:
+    planner_ms = 1000.0 * cfg.planner.divisor * cfg.timing.period_s
+    if cfg.planner.fifo_low_ms <= 2.0 * planner_ms:
+        raise ConfigError(
+            src, "planner", "fifo_low_ms",
+            f"{cfg.planner.fifo_low_ms:g} ms must be more than twice the planner's period ({cfg.planner.divisor} ticks = "
+            f"{planner_ms:g} ms): the FIFO runs one period between two of its refills, and one more when the planner "
+            "wakes late; less, and it runs dry (the servo trips: FIFO underrun)",
+        )
+    if cfg.planner.fifo_high_ms <= cfg.planner.fifo_low_ms + planner_ms:
         raise ConfigError(
             src, "planner", "fifo_high_ms",
             f"{cfg.planner.fifo_high_ms:g} ms must exceed fifo_low_ms {cfg.planner.fifo_low_ms:g} ms by more than "
-            f"the planner's period ({cfg.planner.divisor} ticks = {1000.0 * cfg.planner.divisor * cfg.timing.period_s:g} ms)",
+            f"the planner's period ({cfg.planner.divisor} ticks = {planner_ms:g} ms)",
         )
     seen: dict[int, int] = {}
     for k, nz in enumerate(cfg.nozzle, start=1):

@@ -49,6 +49,9 @@ def test_shipped_machine_describes_the_papers_table():
         (MINIMAL + "[machine]\nname = \"a/b\"\n", "m.toml: [machine] name: 'a/b' must be letters, digits"),
         (MINIMAL + "[timing\n", "m.toml:4:8: TOML syntax error: Expected ']'"),
         (MINIMAL + "[gateway]\nstatus_rate_hz = true\n", "m.toml: [gateway] status_rate_hz: expected a number, got True"),
+        (MINIMAL + "[timing]\nbase_rate_hz = 250\n",  # the shipped fifo_low_ms 20 at a planner period of 5 x 4 ms
+         "m.toml: [planner] fifo_low_ms: 20 ms must be more than twice the planner's period (5 ticks = 20 ms)"),
+        (MINIMAL + "[planner]\ndivisor = 10\n", "m.toml: [planner] fifo_low_ms: 20 ms must be more than twice the planner's"),
     ],
 )
 def test_config_errors_name_file_table_key_and_allowed_range(text, expected):

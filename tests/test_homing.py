@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from cnc.bus.messages import Home, Stop
+from cnc.config import ConfigError
 from cnc.hw.board import AxisIn
 from cnc.data.layout import PlannerState, ServoFault, ServoState
 from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
@@ -115,6 +116,20 @@ def test_a_safe_stop_during_homing_is_reported_with_its_cause_not_as_the_operato
     if error.startswith("homing stopped"):  # the logic's stop came first: its record names the cause
         sup.wait_until(lambda: any(error in e.detail for e in entries()), 10.0, "the homing's end in the alarm history")
     assert not [e.detail for e in entries() if "by the operator" in e.detail]
+
+
+def test_a_planner_waking_every_20_ms_homes_without_running_the_fifo_dry():
+    """250 Hz, the planner every 5th tick (20 ms): a FIFO refilled below 10 ms ran dry while homing
+    (the servo tripped: FIFO underrun), and the machine file took it; now fifo_low_ms must be more than
+    two planner periods (`test_config`), and homing keeps that much in the FIFO too."""
+    with pytest.raises(ConfigError, match=r"\[planner\] fifo_low_ms: 10 ms must be more than twice the planner's period"):
+        machine_config(**SIM, **{"timing.base_rate_hz": 250.0, "planner.fifo_low_ms": 10.0, "planner.fifo_high_ms": 100.0})
+    config = machine_config(**SIM, **{"timing.base_rate_hz": 250.0, "planner.fifo_low_ms": 41.0, "planner.fifo_high_ms": 62.0})
+    with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
+        enable_and_hold(sup)
+        home(sup)
+        s = sup.servo()
+        assert s["homed_mask"] == 0b11 and s["fault"] == ServoFault.NONE and s["underruns"] == 0
 
 
 @pytest.mark.parametrize("lead_ms", [(20.0, 40.0), (300.0, 600.0), (2000.0, 4000.0)])

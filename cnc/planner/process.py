@@ -157,7 +157,9 @@ class Planner:
         self.dt = config.timing.period_s
         self.n = len(config.axis_names)
         self.low = max(1, round(config.planner.fifo_low_ms / 1000.0 / self.dt))
-        self.homing_lead = max(1, round(HOMING_CHUNK_S / self.dt))  # homing's FIFO lead: one chunk
+        # homing's FIFO lead: one chunk, or two of the planner's periods where that is longer (the
+        # FIFO must not run dry before the next wake, nor before one that comes a period late)
+        self.homing_lead = max(1, round(HOMING_CHUNK_S / self.dt), 2 * config.planner.divisor)
         self.high = min(fifo.capacity, max(self.low + 1, round(config.planner.fifo_high_ms / 1000.0 / self.dt)))
         self.out = area.writer("motion")
         self.out.load_current()
