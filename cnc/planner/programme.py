@@ -302,7 +302,7 @@ class _Programme:
         a, low, high, samples = self._rows(m, k)
         milp, constraint = load_solver()
         result = milp(np.zeros(a.shape[1]), constraints=constraint(a, low, high), bounds=(-np.inf, np.inf),
-                      options={"simplex_iteration_limit": ITERATIONS * sum(a.shape)})
+                      options={"simplex_iteration_limit": int(ITERATIONS * sum(a.shape))})
         if result.status != 0:  # infeasible, or the iteration limit reached
             return None
         self.share = k / n if n else 0.0
