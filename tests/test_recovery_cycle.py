@@ -457,3 +457,41 @@ def test_a_door_opened_in_the_rapid_after_a_part_continues_with_the_next_part_at
     assert (stored.x_mm, stored.y_mm) == pytest.approx((300.0, 100.0)), "the first part's end"
     assert at == pytest.approx((100.0, 150.0)), "the second part's own pierce"
     _ends_done(sup, "the second part and the unload")
+
+
+# A machine whose planner wakes every 20 ms (250 Hz, every 5th tick) and whose slow Y makes a run's
+# folded corners long to work out: about a second for one step of the part below
+SLOW_PLANNER = {"timing.base_rate_hz": 250.0, "planner.fifo_low_ms": 50.0, "planner.fifo_high_ms": 300.0,
+                "jet.on_delay_s": 0.05, "jet.pierce_dwell_s": 0.0, "planner.corner_overlap_ms": 200.0,
+                "planner.corner_connection_ms": 200.0, "planner.corner_programme_ms": 0.0,
+                "axis.x.max_velocity_mm_s": 1000.0, "axis.x.max_accel_mm_s2": 20000.0,
+                "axis.y.max_velocity_mm_s": 100.0, "axis.y.max_accel_mm_s2": 1000.0, "axis.y.max_jerk_mm_s3": 20000.0}
+
+
+def test_a_continued_cut_takes_the_steps_its_timing_made_and_the_fifo_never_runs_dry(tmp_path):
+    """A continue timed its restart through steps of its own and gave the run new ones, which the
+    refill then made while the head moved: on this machine one step took a second to make, and the
+    FIFO ran dry 0.6 s into the continued cut (the servo tripped: UNDERRUN), every time. The run
+    now takes the steps the timing made, before anything moves, as a loaded program does."""
+    from .conftest import NEAR_HOME, full_controller, machine_config
+    from .test_planner_overlap import _random_cam_parts
+
+    text, _ = _random_cam_parts(56, jet=True)  # three round parts at F1200, P0.05
+    text = re.sub(r"\b([XY])(-?[\d.]+)", lambda m: f"{m.group(1)}{float(m.group(2)) + 300.0:.4f}", text)
+    with full_controller(machine_config(**NEAR_HOME, **SLOW_PLANNER), tmp_path / "history.sqlite") as sup:
+        ready_in_auto(sup, tmp_path, text)
+        command(sup, CycleStart(cycles=1))
+        press_button_when_asked(sup, lambda: jet_open(sup), 60.0, "the first pierce")
+        sup.pause_virtual_clock()
+        _cut_while(sup, lambda s: sum(p[0] for p in s) >= 700, 20000)
+        sup.set_sim(doors_open=1)
+        sup.resume_virtual_clock()
+        sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT and not sup.motion()["state"], 60.0, "the stop")
+        sup.set_sim(doors_open=0)
+        sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 30.0, "every alarm to reset")
+        sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
+        assert "continue the cut of line" in command(sup, Recover("continue"))
+        sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE or logic(sup)["state"] == MachineState.FAULT, 120.0,
+                       "the end of the continued cut")
+        assert sup.servo()["underruns"] == 0, logic(sup)["message"]
+        _ends_done(sup, "the unload")

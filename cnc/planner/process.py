@@ -72,7 +72,7 @@ from .runner import ProgramRunner, RunState
 from .rebase import PROBE_MM, StartShift, start_shift
 from .recovery import Restart, RecoveryError, continue_at, into_segments, run_from_line, start_at_part
 from .quality import CutPlan, CutPlanError, cut_plan_for
-from .sections import RunMemo, iter_steps, move_steps, pierce_dwell_s
+from .sections import iter_steps, move_steps, pierce_dwell_s
 from .steps import ProgramTiming, StepSource
 
 MDI_NAME = "MDI"  # how an MDI entry's errors name it
@@ -582,12 +582,17 @@ class Planner:
         if self.loaded.cut is not None:  # the same job: each segment keeps its quality (the rapid has none)
             original = restart.original_segment(np.arange(len(restart.program.segments)))
             cut = CutPlan(self.loaded.cut.model, self.loaded.cut.quality[np.clip(original, 0, len(self.loaded.cut.quality) - 1)])
+        # made before the motion, as a loaded program's (`LoadedProgram`): the steps the timing makes
+        # are the ones the run takes, so that no refill makes sections while the head moves
+        steps = StepSource(iter_steps(restart.program, self.config, cut))
         timing = ProgramTiming(self.dt, CornerOverlap.of(self.config))
         if len(restart.program.segments) <= TIMED_AT_LOAD_SEGMENTS:
-            timing.compute(iter_steps(restart.program, self.config, cut, memo=RunMemo()))
+            steps.build_until(1 << 62)  # all of it: bounded by the restart's size
+            timing.compute([steps.peek(i) for i in range(steps.made)])
+        else:
+            steps.build_until(FIRST_STRETCH_STEPS - 1)
         log.info("planner: %s: %s", self.loaded.name, restart.description)
         self._event("restart", restart.description, restart.line)
-        steps = StepSource(iter_steps(restart.program, self.config, cut))
         return ProgramRunner(None, self.config, steps=steps, timing=timing, pierce_s=pierce_dwell_s(self.config, cut)), restart
 
     def _cmd_hold(self, _msg) -> Reply:
