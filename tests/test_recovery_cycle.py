@@ -361,6 +361,11 @@ def _jet_path(program, step_mm: float = 0.05) -> np.ndarray:
     return np.concatenate(out)
 
 
+def _moved_into_travel(text: str) -> str:
+    """A random CAM part (`_random_cam_parts`, drawn about X0 Y0) moved by 300 mm in X and Y."""
+    return re.sub(r"\b([XY])(-?[\d.]+)", lambda m: f"{m.group(1)}{float(m.group(2)) + 300.0:.4f}", text)
+
+
 def _cut_while(sup: Supervisor, until, limit: int) -> list[tuple[bool, float, float]]:
     """Step the paused clock a tick at a time until `until()`: the jet and the setpoint each tick."""
     seen = []
@@ -382,7 +387,7 @@ def test_a_cut_interrupted_again_and_again_is_cut_whole_and_only_the_overlap_twi
 
     sup = plc_controller
     text, _ = _random_cam_parts(12, jet=True)  # F6000, P0.05
-    text = re.sub(r"\b([XY])(-?[\d.]+)", lambda m: f"{m.group(1)}{float(m.group(2)) + 300.0:.4f}", text)
+    text = _moved_into_travel(text)
     ready_in_auto(sup, tmp_path, text)
     program = Interpreter(dialect_for(sup.config), "nest.ngc").run(text.encode())
     overlap = sup.config.cycle.recovery_overlap_mm
@@ -477,7 +482,7 @@ def test_a_continued_cut_takes_the_steps_its_timing_made_and_the_fifo_never_runs
     from .test_planner_overlap import _random_cam_parts
 
     text, _ = _random_cam_parts(56, jet=True)  # three round parts at F1200, P0.05
-    text = re.sub(r"\b([XY])(-?[\d.]+)", lambda m: f"{m.group(1)}{float(m.group(2)) + 300.0:.4f}", text)
+    text = _moved_into_travel(text)
     with full_controller(machine_config(**NEAR_HOME, **SLOW_PLANNER), tmp_path / "history.sqlite") as sup:
         ready_in_auto(sup, tmp_path, text)
         command(sup, CycleStart(cycles=1))

@@ -94,6 +94,18 @@ _RUN_STATES = {
 }
 
 
+def made_before_motion(steps: StepSource, timing: ProgramTiming, segments: int) -> bool:
+    """A run's steps made before it moves, so that no refill makes sections while the head moves:
+    all of a program of at most `TIMED_AT_LOAD_SEGMENTS` segments, its timing made from those very
+    steps (True); the first stretch of a longer one (False: its timing is made elsewhere)."""
+    if segments <= TIMED_AT_LOAD_SEGMENTS:
+        steps.build_until(1 << 62)  # all of it: bounded by the program's size
+        timing.compute([steps.peek(i) for i in range(steps.made)])
+        return True
+    steps.build_until(FIRST_STRETCH_STEPS - 1)
+    return False
+
+
 class LoadedProgram:
     """A program interpreted and checked, its first steps made, ready to start: the rest of its steps
     are made while it runs (`StepSource`), its cycle time beside it (`ProgramTiming`)."""
@@ -109,12 +121,11 @@ class LoadedProgram:
         st = program.stats
         self.programmed_mm = st.feed_length_mm + st.rapid_length_mm  # the path length until the timing has it
         self.timing = ProgramTiming(config.timing.period_s, CornerOverlap.of(config))
-        self._first: StepSource | None = self.new_source()  # the first stretch, made now: the start finds it made
+        # the first stretch (a short program: all of it, timed now), made now: the start finds it made
+        self._first: StepSource | None = StepSource(iter_steps(program, config, cut))
         self.timing_job: TimingProcess | None = None
-        if len(program.segments) <= TIMED_AT_LOAD_SEGMENTS:  # a short program is timed now, at no cost worth more
-            self._first.build_until(1 << 62)  # all of it: bounded by the program's size
-            self.timing.compute([self._first.peek(i) for i in range(self._first.made)])
-        else:  # made on the helper thread (normal scheduling): the child process inherits that
+        if not made_before_motion(self._first, self.timing, len(program.segments)):
+            # made on the helper thread (normal scheduling): the child process inherits that
             self.timing_job = TimingProcess(program, config, self.timing, cut)
 
     def new_source(self) -> StepSource:
@@ -582,15 +593,9 @@ class Planner:
         if self.loaded.cut is not None:  # the same job: each segment keeps its quality (the rapid has none)
             original = restart.original_segment(np.arange(len(restart.program.segments)))
             cut = CutPlan(self.loaded.cut.model, self.loaded.cut.quality[np.clip(original, 0, len(self.loaded.cut.quality) - 1)])
-        # made before the motion, as a loaded program's (`LoadedProgram`): the steps the timing makes
-        # are the ones the run takes, so that no refill makes sections while the head moves
         steps = StepSource(iter_steps(restart.program, self.config, cut))
         timing = ProgramTiming(self.dt, CornerOverlap.of(self.config))
-        if len(restart.program.segments) <= TIMED_AT_LOAD_SEGMENTS:
-            steps.build_until(1 << 62)  # all of it: bounded by the restart's size
-            timing.compute([steps.peek(i) for i in range(steps.made)])
-        else:
-            steps.build_until(FIRST_STRETCH_STEPS - 1)
+        made_before_motion(steps, timing, len(restart.program.segments))  # a long restart's ETA is unknown
         log.info("planner: %s: %s", self.loaded.name, restart.description)
         self._event("restart", restart.description, restart.line)
         return ProgramRunner(None, self.config, steps=steps, timing=timing, pierce_s=pierce_dwell_s(self.config, cut)), restart
