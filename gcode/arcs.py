@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .errors import GCodeError
 from .modal import INCH_MM
 
@@ -70,6 +72,15 @@ def sweep(x0: float, y0: float, x1: float, y1: float, cx: float, cy: float, cw: 
     if d <= FULL_TURN_EPS_RAD:
         d += 2.0 * math.pi
     return d + 2.0 * math.pi * turns
+
+
+def sweeps(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray, cx: np.ndarray, cy: np.ndarray,
+           cw: np.ndarray, turns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`sweep` of many arcs at once, and each arc's start angle (for its bounds)."""
+    a0, a1 = np.arctan2(y0 - cy, x0 - cx), np.arctan2(y1 - cy, x1 - cx)
+    d = np.where(cw, a0 - a1, a1 - a0)
+    d = np.where(d <= FULL_TURN_EPS_RAD, d + 2.0 * math.pi, d) + 2.0 * math.pi * turns
+    return np.where(cw, -d, d), a0
 
 
 def arc_length(radius: float, swept: float, dz: float = 0.0) -> float:

@@ -304,3 +304,31 @@ def test_random_cam_parts_stopped_anywhere_continue_within_the_overlap_and_cut_t
     rest = sum(segment_length(s) for s in seg[r.segment:] if s["jet"] and int(s["kind"]) not in (RAPID, DWELL)) - r.into_mm
     assert cut_length(r.program) == pytest.approx(rest, abs=1e-9), "all the rest is cut"
     assert (again["flags"] & JET).any(), "and the jet opens for it"
+
+
+def test_a_restart_from_the_first_line_counts_its_figures_as_the_interpreter_counted_the_program():
+    """A restart's figures (cut, feed and rapid lengths, pierces, dwell, bounds) are counted over
+    the whole program at once; from the program's first line with the head where it starts, they
+    are the interpreter's own, on every shape: kerf-compensated nests with subroutines and inch
+    parts, arcs of several turns, jet-on dwells, random CAM parts with the jet and without."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from bench.nests import cam_nest, production_nest
+
+    from cnc.planner.recovery import segment_lengths
+    from .test_planner_overlap import _random_cam_parts
+
+    texts = [NEST, cam_nest(40), cam_nest(30, subroutines=True, inch_every=3), production_nest(30)]
+    texts += [_random_cam_parts(seed, jet=seed % 2 == 0)[0] for seed in range(40)]
+    for text in texts:
+        prog = program(text)
+        seg = prog.segments
+        assert segment_lengths(seg) == pytest.approx([segment_length(s) for s in seg], rel=1e-12, abs=1e-12)
+        r = run_from_line(prog, 1, tuple(float(v) for v in seg[0]["start"]))
+        got, want = r.program.stats, prog.stats
+        assert got.pierces == want.pierces and len(cut_starts(r.program)) == len(cut_starts(prog))
+        for figure in ("cut_length_mm", "feed_length_mm", "rapid_length_mm", "dwell_s"):
+            assert getattr(got, figure) == pytest.approx(getattr(want, figure), rel=1e-9, abs=1e-9), figure
+        assert got.bounds_min == pytest.approx(want.bounds_min) and got.bounds_max == pytest.approx(want.bounds_max)

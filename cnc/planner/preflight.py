@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from gcode.arcs import sweeps
 from gcode.canon import ARC, DWELL
 
 from ..config import MachineConfig
@@ -37,7 +38,7 @@ def preflight(segments: np.ndarray, config: MachineConfig, homed: dict[str, bool
         )
     if not len(segments):
         return
-    lo, hi = _segment_bounds(segments)
+    lo, hi = segment_bounds(segments)
     for i, axis in enumerate(AXES):
         a = config.axis.get(axis)
         if a is None:
@@ -65,9 +66,9 @@ def preflight(segments: np.ndarray, config: MachineConfig, homed: dict[str, bool
             )
 
 
-def _segment_bounds(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def segment_bounds(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-segment (min, max) XYZ, arcs' extreme points included (all arcs at once: a million-line
-    program is checked again at every start)."""
+    program is checked again at every start; a restart's bounds)."""
     start, end = segments["start"], segments["end"]
     lo, hi = np.minimum(start, end), np.maximum(start, end)
     dwell = segments["kind"] == DWELL
@@ -85,11 +86,7 @@ def _arc_bounds(arcs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x1, y1 = arcs["end"][:, 0], arcs["end"][:, 1]
     cx, cy = arcs["center"][:, 0], arcs["center"][:, 1]
     r = np.hypot(x0 - cx, y0 - cy)
-    a0, a1 = np.arctan2(y0 - cy, x0 - cx), np.arctan2(y1 - cy, x1 - cx)
-    cw, turns = arcs["cw"], arcs["turns"]
-    d = np.where(cw, a0 - a1, a1 - a0)
-    d = np.where(d <= 1e-12, d + 2.0 * math.pi, d) + 2.0 * math.pi * turns
-    swept = np.where(cw, -d, d)
+    swept, a0 = sweeps(x0, y0, x1, y1, cx, cy, arcs["cw"], arcs["turns"])
     a_end = a0 + swept
     lo_ang, hi_ang = np.minimum(a0, a_end), np.maximum(a0, a_end)
     xs = [x0, cx + r * np.cos(a_end)]

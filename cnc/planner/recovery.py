@@ -24,9 +24,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from gcode.arcs import arc_length, sweep
+from gcode.arcs import arc_length, sweep, sweeps
 from gcode.canon import ARC, DWELL, RAPID
 from gcode.program import Message, Program, Statistics
+
+from .preflight import segment_bounds
 
 _TWO_PI = 2.0 * math.pi
 
@@ -257,22 +259,16 @@ def run_from_line(program: Program, line: int, head: tuple[float, float, float])
 
 def cut_starts(program: Program) -> list[int]:
     """The segment where each cut begins: the first of a run of jet-on segments (a pierce dwell
-    included) that contains a cutting move."""
+    included) that contains a cutting move. Whole-array: a million segments in milliseconds."""
     seg = program.segments
-    starts, run_start, cuts = [], None, False
-    for k in range(len(seg)):
-        on = bool(seg[k]["jet"]) and int(seg[k]["kind"]) != RAPID
-        if on and run_start is None:
-            run_start, cuts = k, False
-        if _cuts(seg[k]):
-            cuts = True
-        if not on and run_start is not None:
-            if cuts:
-                starts.append(run_start)
-            run_start = None
-    if run_start is not None and cuts:
-        starts.append(run_start)
-    return starts
+    kind = seg["kind"]
+    on = seg["jet"] & (kind != RAPID)
+    if not on.any():
+        return []
+    edges = np.diff(np.concatenate(([0], on.view(np.int8), [0])))
+    first, end = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # each run of jet-on: [first, end)
+    cutting = np.concatenate(([0], np.cumsum(on & (kind != DWELL))))
+    return first[cutting[end] > cutting[first]].tolist()
 
 
 def _name(program: Program) -> str:
@@ -300,26 +296,42 @@ def _from(program: Program, k: int, into: float, head: tuple[float, float, float
 
 
 def _statistics(segments: np.ndarray, lines: int) -> Statistics:
-    """The figures of a restarted program (its path lengths, pierces and dwell)."""
+    """The figures of a restarted program (its path lengths, pierces and dwell), counted as the
+    interpreter counts them: a cutting move pierces when the jet was closed before it (a rapid or
+    dwell with the jet closed closes it; a feed move leaves it as that move had it)."""
     st = Statistics(lines=lines, segments=len(segments))
-    jet_was_on = False
-    for s in segments:
-        kind = int(s["kind"])
-        if kind in (DWELL, RAPID) and not s["jet"]:
-            jet_was_on = False  # the jet was closed: the next cutting move pierces
-        if kind == DWELL:
-            st.dwell_s += float(s["dwell"])
-            continue
-        length = segment_length(s)
-        if kind == RAPID:
-            st.rapid_length_mm += length
-            continue
-        st.feed_length_mm += length
-        if s["jet"]:
-            st.cut_length_mm += length
-            st.pierces += not jet_was_on
-        jet_was_on = bool(s["jet"])
-    if len(segments):
-        pts = np.concatenate((segments["start"], segments["end"]))
-        st.bounds_min, st.bounds_max = tuple(pts.min(axis=0)), tuple(pts.max(axis=0))
+    if not len(segments):
+        return st
+    kind, jet = segments["kind"], segments["jet"]
+    length = segment_lengths(segments)
+    rapid, dwell = kind == RAPID, kind == DWELL
+    feed = ~(rapid | dwell)
+    st.dwell_s = float(segments["dwell"][dwell].sum())
+    st.rapid_length_mm = float(length[rapid].sum())
+    st.feed_length_mm = float(length[feed].sum())
+    st.cut_length_mm = float(length[feed & jet].sum())
+    # the jet's state before each segment: set by the last segment before it that sets it
+    sets = feed | ((rapid | dwell) & ~jet)
+    last = np.maximum.accumulate(np.where(sets, np.arange(len(segments)), -1))
+    before = np.concatenate(([-1], last[:-1]))
+    was_on = np.where(before >= 0, jet[np.maximum(before, 0)] & feed[np.maximum(before, 0)], False)
+    st.pierces = int(np.count_nonzero(feed & jet & ~was_on))
+    lo, hi = segment_bounds(segments)  # an arc's bulge included, as the interpreter counts it
+    st.bounds_min, st.bounds_max = tuple(lo.min(axis=0)), tuple(hi.max(axis=0))
     return st
+
+
+def segment_lengths(segments: np.ndarray) -> np.ndarray:
+    """`segment_length` of every segment at once (whole-array: the restart of a million-line nest)."""
+    kind = segments["kind"]
+    start, end = segments["start"], segments["end"]
+    d = end - start
+    out = np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2 + d[:, 2] ** 2)
+    arc = np.flatnonzero(kind == ARC)
+    if len(arc):
+        a = segments[arc]
+        (x0, y0), (x1, y1), (cx, cy) = a["start"][:, :2].T, a["end"][:, :2].T, a["center"].T
+        swept, _ = sweeps(x0, y0, x1, y1, cx, cy, a["cw"], a["turns"])
+        out[arc] = np.hypot(np.hypot(x0 - cx, y0 - cy) * swept, d[arc, 2])
+    out[kind == DWELL] = 0.0
+    return out
