@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from cnc.bus.messages import GoTo, Hold, Home, Jog, JogRefresh, LoadProgram, Stamp, Start, Stop
+from cnc.bus.messages import GoTo, Hold, Home, Jog, JogRefresh, LoadProgram, RestartAt, Stamp, Start, Stop
 from cnc.data.layout import PlannerState, RunResult, ServoState
 from cnc.planner.client import PlannerClient
 from cnc.runtime.supervisor import MOTION_ONLY, Supervisor
@@ -147,3 +147,44 @@ def test_a_program_that_parks_on_the_travel_ends_runs_and_the_machine_goes_on(ho
     assert wait_planner_idle(sup)["run_result"] == RunResult.DONE
     home(sup)
     assert sup.servo()["homed_mask"] == 0b11 and sup.servo()["fault"] == 0
+
+
+def test_a_restart_being_prepared_answers_a_stop_at_once_and_never_runs(tmp_path):
+    """A restart from inside the program makes its steps (and, when short, its timing) before it
+    moves: on a slow machine more than a second for three parts. It does so on the helper, as a
+    load does: a stop that comes meanwhile is answered before the start is, and the start is
+    cancelled; nothing moves. The same restart, unhindered, then runs."""
+    from .test_planner_overlap import _random_cam_parts
+    from .test_recovery_cycle import SLOW_PLANNER, _moved_into_travel
+
+    text, _ = _random_cam_parts(56, jet=True)
+    path = tmp_path / "parts.ngc"
+    path.write_text(_moved_into_travel(text))
+    line = next(i for i, row in enumerate(text.splitlines(), 1) if row.startswith("M3")) + 1  # the first cut
+    with Supervisor(machine_config(**NEAR_HOME, **SLOW_PLANNER), clock="virtual", processes=MOTION_ONLY) as sup:
+        enable_and_hold(sup)
+        home(sup)
+        reply = sup.planner.request(LoadProgram(str(path)))
+        assert reply.ok, reply.reason
+        runs = sup.motion()["run_seq"]
+        answers: list[tuple[str, object]] = []
+        start = Start(restart=RestartAt("line", number=line))
+        starter = threading.Thread(target=lambda: answers.append(("start", sup.planner.request(start))))
+        starter.start()
+        stops = []
+        while starter.is_alive() and not any("cancelled" in r.reason for r in stops):
+            stops.append(sup.planner.request(Stop()))  # "nothing to stop" until the start is being prepared
+            answers.append(("stop", stops[-1]))
+        starter.join(60.0)
+        cancelled = [i for i, (what, r) in enumerate(answers) if what == "stop" and "cancelled" in r.reason]
+        assert cancelled, f"no stop was answered while the restart was prepared: {answers}"
+        assert cancelled[0] < [what for what, _ in answers].index("start"), "the stop waited behind the start"
+        reply = dict(answers)["start"]
+        assert not reply.ok and "cancelled by a stop" in reply.reason, reply
+        m = sup.motion()
+        assert m["run_seq"] == runs and m["state"] == PlannerState.IDLE and sup.fifo.fill() == 0, "the start never ran"
+        reply = sup.planner.request(Start(restart=RestartAt("line", number=line)))
+        assert reply.ok, reply.reason
+        assert f"line {line}" in sup.motion()["event"], sup.motion()["event"]
+        assert sup.planner.request(Stop()).ok
+        assert wait_planner_idle(sup)["run_seq"] == runs + 1

@@ -526,28 +526,38 @@ class Planner:
         self._require_idle("start")
         servo = self._require_servo("start")
         start = tuple(servo["commanded_mm"])
-        if any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start)):
-            # the head moved since loading: the program's first move starts where it now is
+        moved = any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start))
+        restart = None
+        if moved or msg.restart is not None:
+            # seconds of work for a large program or a slow machine: on the helper, stop and hold answered
             self.preparing_start, self.start_cancelled = True, ""
             try:
                 loaded = self.loaded
-                if loaded.shift is not None:
+                if moved and loaded.shift is not None:  # the program's first move starts where the head now is
                     self._take(self._on_helper(lambda: loaded.rebased(start)))
-                else:  # not a pure shift of its start: interpreted again from here (and again at the next move)
+                elif moved:  # not a pure shift of its start: interpreted again from here (and again at the next move)
                     self._take(self._prepare(loaded.path, loaded.text, start, probe=False))
+                if self.start_cancelled:
+                    raise CommandRefused(f"the start was {self.start_cancelled}")
+                servo = self._require_servo("start")
+                homed = _homed(self.config, servo)
+                if msg.restart is not None:
+                    at, head = msg.restart, _xyz(self.config, servo["commanded_mm"])
+                    runner, restart = self._on_helper(lambda: self._restart_runner(at, head, homed))
             finally:
                 self.preparing_start = False
             if self.start_cancelled:
                 raise CommandRefused(f"the start was {self.start_cancelled}")
             self._check_stamp(msg)  # a stop may have come while it was prepared
             servo = self._require_servo("start")
-        homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
-        restart = None
-        if msg.restart is not None:
-            runner, restart = self._restart_runner(msg.restart, _xyz(self.config, servo["commanded_mm"]), homed)
+            if restart is not None and _homed(self.config, servo) != homed:
+                raise CommandRefused("an axis's reference changed while the start was prepared: start again")
+        if restart is not None:
+            log.info("planner: %s: %s", self.loaded.name, restart.description)
+            self._event("restart", restart.description, restart.line)
         else:
             try:
-                preflight(self.loaded.program.segments, self.config, homed, self.loaded.name)
+                preflight(self.loaded.program.segments, self.config, _homed(self.config, servo), self.loaded.name)
             except PreflightError as exc:
                 raise CommandRefused(str(exc)) from None
             runner = ProgramRunner(None, self.config, steps=self.loaded.source(), timing=self.loaded.timing,
@@ -563,8 +573,8 @@ class Planner:
         if self.loaded is None:
             raise CommandRefused("no program is loaded")
         servo = self._require_servo("start")
-        homed = {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(self.config.axis_names)}
-        restart = self._restart_of(msg.restart, _xyz(self.config, servo["commanded_mm"]), homed)
+        at, head, homed = msg.restart, _xyz(self.config, servo["commanded_mm"]), _homed(self.config, servo)
+        restart = self._on_helper(lambda: self._restart_of(at, head, homed))  # a large program's: a fraction of a second
         return Reply(True, restart.description)
 
     def _restart_of(self, at: RestartAt, head: tuple[float, float, float], homed: dict) -> Restart:
@@ -586,8 +596,9 @@ class Planner:
         return restart
 
     def _restart_runner(self, at: RestartAt, head: tuple[float, float, float], homed: dict) -> tuple[ProgramRunner, Restart]:
-        """A run of the loaded program from inside it: the restart (`_restart_of`) timed at once
-        when short (else its ETA is unknown)."""
+        """A run of the loaded program from inside it: the restart (`_restart_of`), its first steps
+        made and, when short, its timing (else its ETA is unknown). Runs on the helper (`_on_helper`):
+        a long program's restart, or a slow machine's steps, take seconds."""
         restart = self._restart_of(at, head, homed)
         cut = None
         if self.loaded.cut is not None:  # the same job: each segment keeps its quality (the rapid has none)
@@ -596,8 +607,6 @@ class Planner:
         steps = StepSource(iter_steps(restart.program, self.config, cut))
         timing = ProgramTiming(self.dt, CornerOverlap.of(self.config))
         made_before_motion(steps, timing, len(restart.program.segments))  # a long restart's ETA is unknown
-        log.info("planner: %s: %s", self.loaded.name, restart.description)
-        self._event("restart", restart.description, restart.line)
         return ProgramRunner(None, self.config, steps=steps, timing=timing, pierce_s=pierce_dwell_s(self.config, cut)), restart
 
     def _cmd_hold(self, _msg) -> Reply:
@@ -988,6 +997,11 @@ def cut_setup_of(msg: SetCut | None) -> CutSetup | None:
     if msg is None or not msg.material:
         return None
     return CutSetup(msg.material, float(msg.thickness_mm), int(msg.quality), msg.mode, int(msg.pierce_quality))
+
+
+def _homed(config: MachineConfig, servo: dict) -> dict[str, bool]:
+    """Which of the machine's axes the servo's state says are homed."""
+    return {a: bool(servo["homed_mask"] >> i & 1) for i, a in enumerate(config.axis_names)}
 
 
 def _xyz(config: MachineConfig, values) -> tuple[float, float, float]:
