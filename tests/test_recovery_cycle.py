@@ -110,6 +110,52 @@ def test_a_cut_stopped_by_a_door_or_the_e_stop_continues_an_overlap_back_from_wh
         assert "no interrupted cut" in refusal(sup, Recover("continue"))
 
 
+# LONG written in G91: where it cuts depends on where the head stood when the run started
+RELATIVE = """(two parts, incremental)
+G21 G91 G64 P0.05 F6000
+G0 X70 Y70
+M3
+G1 X200
+M5
+G0 X-200 Y50
+M3
+G1 X40
+G1 Y40
+G1 X-40
+G1 Y-40
+M5
+G0 X-40 Y-90
+M2
+"""
+
+
+def test_an_incremental_program_continues_where_its_run_cut_not_shifted_to_where_the_head_stopped(plc_controller,
+                                                                                                   tmp_path):
+    """A G91 program moves with the start of its run. Continuing it after a door fault is a start
+    with the head elsewhere (where it stopped); the restart takes the program as that run cut it,
+    and pierces on the cut an overlap back from where the jet stopped (the start used to shift it
+    by where the head stood, and so the continued cut, off the part, by the same)."""
+    sup = plc_controller
+    ready_in_auto(sup, tmp_path, RELATIVE)
+    command(sup, CycleStart(cycles=1))
+    press_button_when_asked(sup, lambda: jet_open(sup) and sup.motion()["line"] == 5 and head_xy(sup)[0] > 0.0
+                            and sup.motion()["segment_mm"] > 80.0, 60.0, "the first cut under way")
+    sup.set_sim(doors_open=1)
+    sup.wait_until(lambda: logic(sup)["state"] == MachineState.FAULT and not sup.motion()["state"], 30.0, "the fault")
+    sup.wait_until(lambda: _stored(sup) is not None and _stored(sup).segment_mm > 80.0, 10.0, "the cut point stored")
+    stored = _stored(sup)
+    assert stored.line == 5, stored
+    sup.set_sim(doors_open=0)
+    sup.wait_until(lambda: sup.logic.request(Reset()).reason == "", 20.0, "every alarm to reset")
+    sup.wait_until(lambda: logic(sup)["state"] in (MachineState.READY, MachineState.STOPPED), 20.0, "ready after reset")
+    resumed_at = continue_and_pierce(sup, "nest.ngc: continue the cut of line 5, 2 mm back")
+    overlap = sup.config.cycle.recovery_overlap_mm
+    assert resumed_at == pytest.approx((stored.x_mm - overlap, stored.y_mm), abs=1e-6), (resumed_at, stored)
+    sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY, 120.0,
+                   "the rest of the program and the unload")
+    assert sup.motion()["run_result"] == RunResult.DONE
+
+
 # the second part pierces with a dwell, as CAM posts write it (M3, G4): the door opens while it pierces
 PIERCED = LONG.replace("G0 X100 Y150\nM3\n", "G0 X100 Y150\nM3\nG4 P0.5\n")
 

@@ -526,7 +526,9 @@ class Planner:
         self._require_idle("start")
         servo = self._require_servo("start")
         start = tuple(servo["commanded_mm"])
-        moved = any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start))
+        # a restart runs the program as its last run cut it (or as loaded): its rapid leaves from wherever
+        # the head stands; a start from the beginning runs it from here (the head moved since loading)
+        moved = msg.restart is None and any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start))
         restart = None
         if moved or msg.restart is not None:
             # seconds of work for a large program or a slow machine: on the helper, stop and hold answered
