@@ -248,3 +248,45 @@ def test_a_polygon_compensated_on_its_outside_passes_its_corners_in_overlaps(tur
     assert not _has_kerf_arc(_sections(text, machine_config())), "every corner folded"
     _, _, kept, _ = run(text, machine_config(**{"planner.corner_move_share": 0.0}), chunk=41)
     assert (len(kept) - len(records)) * 1e-3 >= faster_than_kept_s
+
+
+def test_ruling_folded_corners_out_on_coarse_samples_first_changes_no_step(monkeypatch):
+    """A folded corner's candidates are ruled out on every 64th and every 8th sample of their lines
+    before the whole sampling (`FOLD_COARSE_STRIDES`): those are a subset of its samples, so a
+    candidate over P on them is over P on all, and the corner chosen is the same. On a slow Y,
+    where every arc up to 20 mm slows the head and is tried as a corner, that made a step take a
+    second; the steps, sampled both ways, are equal on slow and shipped machines, nests with
+    kerf-compensated entries and random CAM parts."""
+    from cnc.planner import sections
+    from cnc.planner.steps import StepSource
+
+    from .test_planner_overlap import _random_cam_parts
+    from .test_recovery_cycle import SLOW_PLANNER
+
+    whole, samplings = sections._fold_strays, []
+
+    def counted(points, *args, stride: int = 1):
+        samplings.append((stride, len(points)))
+        return whole(points, *args, stride=stride)
+
+    monkeypatch.setattr(sections, "_fold_strays", counted)
+    coarse_strides = sections.FOLD_COARSE_STRIDES
+    texts = [_entry(side, heading, p) for side in ("G41", "G42") for heading in (0.0, 77.0) for p in (0.05, 0.2)]
+    texts += [_random_cam_parts(seed, jet=True)[0] for seed in (3, 11, 56)]
+    for config in (machine_config(), machine_config(**SLOW_PLANNER)):
+        dialect = dataclasses.replace(dialect_for(config), start_position_mm=(0.0, 0.0, 0.0))
+        whole_samplings = {}
+        for text in texts:
+            program = interpret(text, dialect)
+            made = []
+            for strides in ((), coarse_strides):
+                monkeypatch.setattr(sections, "FOLD_COARSE_STRIDES", strides)
+                samplings.clear()
+                steps = StepSource(iter_steps(program, config))
+                steps.build_until(1 << 62)
+                made.append([repr(steps.peek(i)) for i in range(steps.made)])
+                whole_samplings[strides] = whole_samplings.get(strides, 0) + sum(n for stride, n in samplings if stride == 1)
+            assert made[0] == made[1], text
+        assert whole_samplings[()] > 0, "folded corners were tried"
+        assert whole_samplings[coarse_strides] <= whole_samplings[()]
+    assert whole_samplings[coarse_strides] * 4 < whole_samplings[()], "on the slow machine most are ruled out coarsely"

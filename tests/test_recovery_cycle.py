@@ -511,7 +511,8 @@ def test_a_door_opened_in_the_rapid_after_a_part_continues_with_the_next_part_at
 
 
 # A machine whose planner wakes every 20 ms (250 Hz, every 5th tick) and whose slow Y makes a run's
-# folded corners long to work out: about a second for one step of the part below
+# folded corners long to work out: about a second for one step of the part below (0.2 s for all of
+# them since `sections.FOLD_COARSE_STRIDES`)
 SLOW_PLANNER = {"timing.base_rate_hz": 250.0, "planner.fifo_low_ms": 50.0, "planner.fifo_high_ms": 300.0,
                 "jet.on_delay_s": 0.05, "jet.pierce_dwell_s": 0.0, "planner.corner_overlap_ms": 200.0,
                 "planner.corner_connection_ms": 200.0, "planner.corner_programme_ms": 0.0,
