@@ -13,7 +13,7 @@ import signal
 import numpy as np
 import pytest
 
-from cnc.bus.messages import CycleStart, JetTest, Pump, Recover, Reset, SetMode, Stop
+from cnc.bus.messages import CycleStart, JetTest, LoadProgram, Pump, Recover, Reset, SetMode, Stop
 from cnc.data.layout import PlannerState, RunResult, ServoState
 from cnc.gateway.jobs import CutPoints, jobs_path
 from cnc.logic.states import CyclePhase, MachineState
@@ -385,6 +385,55 @@ def test_after_a_power_loss_the_job_record_continues_the_cut_once_the_program_is
         sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY,
                        180.0, "the rest of the program and the unload")
         assert sup.motion()["run_result"] == RunResult.DONE
+
+
+def test_after_a_power_loss_an_incremental_program_loaded_elsewhere_continues_where_its_run_cut(tmp_path):
+    """A G91 program cut from where the head stood at cycle start, every process killed mid-cut,
+    the head brought elsewhere before the program is loaded again (so that it is interpreted from
+    there): the job record kept where the interrupted run started with its cut point, and the
+    continued cut is placed as that run placed it, an overlap back from where the jet stopped."""
+    from cnc.logic.states import Mode
+    from .conftest import NEAR_HOME, full_controller, machine_config, reset_and_home
+
+    config = machine_config(**NEAR_HOME)
+    history = tmp_path / "history.sqlite"
+    with full_controller(config, history) as sup:
+        ready_in_auto(sup, tmp_path, RELATIVE)
+        run_start = list(sup.servo()["commanded_mm"])
+        command(sup, CycleStart(cycles=1))
+        press_button_when_asked(sup, lambda: jet_open(sup) and sup.motion()["line"] == 5
+                                and sup.motion()["segment_mm"] > 80.0, 60.0, "the first cut under way")
+        sup.pause_virtual_clock()
+        program_hash = sup.motion()["program_hash"]
+        for child in sup.children.values():  # the power goes
+            os.kill(child.process.pid, signal.SIGKILL)
+    points = CutPoints(jobs_path(history), readonly=True)
+    stored = points.get(program_hash)
+    points.close()
+    assert stored is not None and stored.line == 5, "written while it cut"
+    assert stored.start_mm == pytest.approx(run_start), "where the run started, with the cut point"
+
+    with full_controller(config, history) as sup:
+        reset_and_home(sup, sup.logic.request)
+        sup.wait_until(lambda: logic(sup)["state"] == MachineState.READY and sup.motion()["state"] == PlannerState.IDLE,
+                       60.0, "homing")
+        run_mdi(sup, "G90 G0 X40 Y60")  # the head elsewhere: the program is loaded, and interpreted, from there
+        path = tmp_path / "nest.ngc"
+        command(sup, LoadProgram(str(path)))
+        assert sup.motion()["program_hash"] == program_hash
+        assert list(sup.motion()["program_start_mm"]) == pytest.approx([40.0, 60.0])
+        command(sup, SetMode(Mode.AUTO.name))
+        command(sup, CycleStart(cycles=1))  # feed and grip the material, then stop before the cut
+        press_button_when_asked(sup, lambda: logic(sup)["phase"] == CyclePhase.PRESSURE, 60.0, "the material in place")
+        command(sup, Stop())
+        sup.wait_until(lambda: logic(sup)["state"] == MachineState.STOPPED and not jet_open(sup), 30.0, "stopped")
+        resumed_at = continue_and_pierce(sup, "nest.ngc: continue the cut of line 5")
+        assert resumed_at == pytest.approx((stored.x_mm - config.cycle.recovery_overlap_mm, stored.y_mm), abs=1e-6), (
+            resumed_at, stored)
+        sup.wait_until(lambda: logic(sup)["phase"] == CyclePhase.NONE and logic(sup)["state"] == MachineState.READY,
+                       180.0, "the rest of the program and the unload")
+        assert sup.motion()["run_result"] == RunResult.DONE
+        assert list(sup.motion()["program_start_mm"]) == pytest.approx(run_start), "placed as the interrupted run"
 
 
 def _jet_path(program, step_mm: float = 0.05) -> np.ndarray:

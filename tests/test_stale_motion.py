@@ -188,3 +188,25 @@ def test_a_restart_being_prepared_answers_a_stop_at_once_and_never_runs(tmp_path
         assert f"line {line}" in sup.motion()["event"], sup.motion()["event"]
         assert sup.planner.request(Stop()).ok
         assert wait_planner_idle(sup)["run_seq"] == runs + 1
+
+
+def test_a_restart_placed_at_a_start_the_machine_cannot_have_is_refused_naming_start_mm(homed, tmp_path):
+    """`RestartAt.start_mm` (where the interrupted run started) must give every axis a finite
+    value: anything else is refused, naming the field and the axes, and nothing moves."""
+    from cnc.bus.messages import CheckRestart
+
+    sup = homed
+    path = tmp_path / "rel.ngc"
+    path.write_text("G21 G91 G64 P0.05\nG0 X10 Y10\nM3\nG1 X20 F1200\nM5\nM2\n")
+    assert sup.planner.request(LoadProgram(str(path))).ok
+    runs = sup.motion()["run_seq"]
+    for bad in ((40.0,), (40.0, float("nan")), (40.0, 60.0, 0.0)):
+        for command in (Start(restart=RestartAt("line", number=3, start_mm=bad)),
+                        CheckRestart(RestartAt("line", number=3, start_mm=bad))):
+            reply = sup.planner.request(command)
+            assert not reply.ok and "start_mm" in reply.reason, (bad, reply)  # NaN: not JSON, refused by the decoder
+            assert "one per axis (X, Y)" in reply.reason or "Expected `float`" in reply.reason, (bad, reply)
+    reply = sup.planner.request(CheckRestart(RestartAt("line", number=4, start_mm=(40.0, 60.0))))
+    assert reply.ok and "run from line 4" in reply.reason, reply
+    m = sup.motion()
+    assert m["run_seq"] == runs and m["state"] == PlannerState.IDLE and sup.fifo.fill() == 0

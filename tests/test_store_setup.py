@@ -49,3 +49,28 @@ def test_the_logic_and_the_gateway_setting_up_a_new_job_history_at_once_both_ope
         found.append(failures.get())
     assert found == [], found[:3]
     assert Path(jobs_path(history)).exists()
+
+
+def test_cut_points_written_before_the_runs_start_was_kept_read_as_unknown_and_gain_the_column(tmp_path):
+    """A job record from before cut points kept where their run started (and how far into the
+    segment): a reader that does not migrate reads its points with both unknown; the logic's store
+    adds the columns and keeps the new figures from then on."""
+    from cnc.gateway.jobs import CutPoint
+
+    path = jobs_path(tmp_path / "history.sqlite")
+    old = sqlite3.connect(path)
+    old.execute("CREATE TABLE cut_points (hash TEXT PRIMARY KEY, program TEXT NOT NULL, segment INTEGER NOT NULL, "
+                "x_mm REAL NOT NULL, y_mm REAL NOT NULL, line INTEGER NOT NULL, updated_ns INTEGER NOT NULL)")
+    old.execute("INSERT INTO cut_points VALUES ('a1', 'nest.ngc', 4, 150.5, 75.0, 5, 1)")
+    old.commit()
+    old.close()
+    reader = CutPoints(path, readonly=True)
+    assert reader.get("a1") == CutPoint("a1", "nest.ngc", 4, 150.5, 75.0, 5, 1, -1.0, ())
+    reader.close()
+    writer = CutPoints(path)
+    assert writer.get("a1") == CutPoint("a1", "nest.ngc", 4, 150.5, 75.0, 5, 1, -1.0, ())
+    writer.save(CutPoint("b2", "rel.ngc", 1, 152.8, 75.0, 5, 2, 77.7, (5.0, 5.0)))
+    writer.close()
+    reader = CutPoints(path, readonly=True)
+    assert reader.get("b2") == CutPoint("b2", "rel.ngc", 1, 152.8, 75.0, 5, 2, 77.7, (5.0, 5.0))
+    reader.close()

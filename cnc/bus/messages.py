@@ -662,7 +662,9 @@ class LoadProgram(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class RestartAt(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Where a run starts when not at the program's beginning (`cnc.planner.recovery`): "continue"
     the cut stopped on `segment` at (`x_mm`, `y_mm`), backed up by `overlap_mm`; "part" `number`
-    (its Nth pierce); or "line" `number`."""
+    (its Nth pierce); or "line" `number`. `start_mm`: where the interrupted run started from (one
+    value per machine axis), for a program whose moves depend on it (G91): the program is placed as
+    that run placed it, also when it was loaded again elsewhere; empty: as it is loaded."""
 
     kind: str
     number: int = 0
@@ -671,6 +673,7 @@ class RestartAt(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     y_mm: float = 0.0
     overlap_mm: float = 0.0
     segment_mm: float = -1.0  # roughly how far into `segment` the jet stopped (-1 unknown): an arc's turn
+    start_mm: tuple[float, ...] = ()
 
 
 class Start(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

@@ -186,6 +186,7 @@ def motion_layout(n: int) -> BlockLayout:
             F("program_name", "s", 128),
             F("program_hash", "s", 64),  # sha256 of the program text, hex
             F("program_lines", "Q"),
+            F("program_start_mm", "d", n),  # where the loaded program's run starts from (G91 moves add up from it)
             F("planned_s", "d"),  # cycle time of the loaded program at 100 % override (-1 while it is being planned)
             F("pierce_s", "d"),  # the pierce dwell of the run in force: its cutting job's chart, else [jet] (the latter from the planner's start)
             F("cut", "s", 96),  # its cutting job (`cnc.cutmodel`), as the operator reads it; "" at the programmed F

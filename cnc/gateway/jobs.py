@@ -9,6 +9,7 @@ processes see each committed run).
 
 from __future__ import annotations
 
+import json
 import sqlite3
 import time
 from dataclasses import dataclass
@@ -26,8 +27,9 @@ _ADDED = (("planned_s", "REAL NOT NULL DEFAULT -1"), ("cut", "TEXT NOT NULL DEFA
 
 _CUTS = ("CREATE TABLE IF NOT EXISTS cut_points (hash TEXT PRIMARY KEY, program TEXT NOT NULL, segment INTEGER NOT NULL, "
          "x_mm REAL NOT NULL, y_mm REAL NOT NULL, line INTEGER NOT NULL, updated_ns INTEGER NOT NULL, "
-         "segment_mm REAL NOT NULL DEFAULT -1)")
+         "segment_mm REAL NOT NULL DEFAULT -1, start_mm TEXT NOT NULL DEFAULT '')")
 _CUT_COLUMNS = "hash, program, segment, x_mm, y_mm, line, updated_ns"
+_CUT_ADDED = (("segment_mm", "REAL NOT NULL DEFAULT -1"), ("start_mm", "TEXT NOT NULL DEFAULT ''"))  # later versions'
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,7 @@ class CutPoint:
     line: int
     updated_ns: int = 0
     segment_mm: float = -1.0  # roughly how far into the segment (-1 unknown): which turn of an arc of several
+    start_mm: tuple[float, ...] = ()  # where the run started from, per machine axis (a G91 program's place); () unknown
 
 
 class CutPoints:
@@ -53,9 +56,10 @@ class CutPoints:
                              setup=None if readonly else _add_cut_columns)
 
     def save(self, p: CutPoint) -> None:
-        self.db.execute(f"INSERT OR REPLACE INTO cut_points ({_CUT_COLUMNS}, segment_mm) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+        self.db.execute(f"INSERT OR REPLACE INTO cut_points ({_CUT_COLUMNS}, segment_mm, start_mm) "
+                        "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
                         (p.hash, p.program, p.segment, p.x_mm, p.y_mm, p.line, p.updated_ns or time.time_ns(),
-                         p.segment_mm))
+                         p.segment_mm, json.dumps(list(p.start_mm)) if p.start_mm else ""))
         self.db.commit()
 
     def clear(self, hash: str) -> None:
@@ -65,14 +69,18 @@ class CutPoints:
 
     def get(self, hash: str) -> CutPoint | None:
         try:
-            # a file written before segment_mm was kept, read by a reader that does not migrate it: without it
-            extra = ", segment_mm" if "segment_mm" in _table_columns(self.db, "cut_points") else ""
+            # a file written before these were kept, read by a reader that does not migrate it: without them
+            have = _table_columns(self.db, "cut_points")
+            extra = "".join(f", {name}" for name, _ in _CUT_ADDED if name in have)
             row = self.db.execute(f"SELECT {_CUT_COLUMNS}{extra} FROM cut_points WHERE hash = ?", (hash,)).fetchone()
         except sqlite3.OperationalError as exc:  # a store whose writer has not created the table yet
             if "no such table" in str(exc):
                 return None
             raise
-        return CutPoint(*row) if row else None
+        if not row:
+            return None
+        start = row[8] if len(row) > 8 else ""
+        return CutPoint(*row[:8], start_mm=tuple(float(v) for v in json.loads(start)) if start else ())
 
     def close(self) -> None:
         self.db.close()
@@ -112,9 +120,12 @@ def _table_columns(db: sqlite3.Connection, table: str) -> set[str]:
 
 
 def _add_cut_columns(db: sqlite3.Connection) -> None:
-    """Cut points written before segment_mm was kept get its column (-1: unknown, the first turn)."""
-    if "segment_mm" not in _table_columns(db, "cut_points"):
-        db.execute("ALTER TABLE cut_points ADD COLUMN segment_mm REAL NOT NULL DEFAULT -1")
+    """Cut points written before these were kept get their columns (segment_mm -1: unknown, the
+    first turn; start_mm '': unknown, the program as it is loaded)."""
+    have = _table_columns(db, "cut_points")
+    for name, kind in _CUT_ADDED:
+        if name not in have:
+            db.execute(f"ALTER TABLE cut_points ADD COLUMN {name} {kind}")
 
 
 def _add_columns(db: sqlite3.Connection) -> None:

@@ -371,17 +371,19 @@ class Logic:
         overlap = self.config.cycle.recovery_overlap_mm if msg.overlap_mm is None else msg.overlap_mm
         if not (math.isfinite(overlap) and 0.0 <= overlap <= 100.0):
             raise CommandRefused(f"overlap_mm {overlap:g} is out of range: 0 to 100 mm")
+        # the interrupted run's cut point, and with it where that run started (a G91 program's place)
+        point = self._cut_point_for(m["program_hash"])
+        start = point.start_mm if point is not None else ()
         if msg.kind == "continue":
-            point = self._cut_point_for(m["program_hash"])
             if point is None:
                 raise CommandRefused(f"no interrupted cut of {m['program_name']} is known (it ran to its end, or never "
                                      "cut): start at a part or from a line instead")
             restart = RestartAt("continue", segment=point.segment, x_mm=point.x_mm, y_mm=point.y_mm, overlap_mm=overlap,
-                                segment_mm=point.segment_mm)
+                                segment_mm=point.segment_mm, start_mm=start)
         else:
             if msg.number < 1:
                 raise CommandRefused(f"number {msg.number} must be the part (from 1) or the line to start at")
-            restart = RestartAt(msg.kind, number=msg.number)
+            restart = RestartAt(msg.kind, number=msg.number, start_mm=start)
         signals = self.reader.signals(snap, self.state.name, self.mode.name)
         if signals.get("plc.material_in_place") is False:
             raise CommandRefused("the PLC reports no material in place: a cut inside the program needs the material "
@@ -1102,7 +1104,8 @@ class Logic:
         x = float(pos[self.names.index("x")]) if "x" in self.names else 0.0
         y = float(pos[self.names.index("y")]) if "y" in self.names else 0.0
         return CutPoint(m["program_hash"], m["program_name"], int(sv["jet_on_segment"]), x, y, int(sv["jet_on_line"]),
-                        segment_mm=self._into_segment(sv, m, x, y))
+                        segment_mm=self._into_segment(sv, m, x, y),
+                        start_mm=tuple(float(v) for v in m["program_start_mm"]))
 
     def _into_segment(self, sv: dict, m: dict, x: float, y: float) -> float:
         """Roughly how far into its segment the jet last cut (-1 unknown): which turn of an arc of

@@ -139,14 +139,17 @@ class LoadedProgram:
         first, self._first = self._first, None
         return first or self.new_source()
 
-    def rebased(self, start: tuple) -> "LoadedProgram":
-        """This program as interpreted from `start` (the head moved since loading), by its start shift."""
+    def shifted(self, start: tuple) -> Program:
+        """The program as interpreted from `start`, by its start shift (`shift` is not None)."""
         delta = [0.0, 0.0, 0.0]
         for name, now, then in zip(self.config.axis_names, start, self.start):
             delta["xyz".index(name)] = float(now) - float(then)
-        program = self.shift.apply(self.program, tuple(delta))
-        return LoadedProgram(self.path, self.text, program, self.config, start, self.shift, self.cut, self.cut_text,
-                             self.operator_cut)
+        return self.shift.apply(self.program, tuple(delta))
+
+    def rebased(self, start: tuple) -> "LoadedProgram":
+        """This program as interpreted from `start` (the head moved since loading), by its start shift."""
+        return LoadedProgram(self.path, self.text, self.shifted(start), self.config, start, self.shift, self.cut,
+                             self.cut_text, self.operator_cut)
 
     def with_cut(self, cut: CutPlan | None, cut_text: str, operator_cut: CutSetup | None) -> "LoadedProgram":
         """This program under another cutting job (its steps and cycle time made again)."""
@@ -416,7 +419,7 @@ class Planner:
             self.loaded.timing_job.cancel()
         self.loaded = loaded
         self.timing_published = False
-        self._set(planned_s=-1.0, eta_s=-1.0, total_mm=loaded.total_mm)
+        self._set(planned_s=-1.0, eta_s=-1.0, total_mm=loaded.total_mm, program_start_mm=[float(v) for v in loaded.start])
         self._timing_done()
 
     def _timing_done(self) -> None:
@@ -525,27 +528,27 @@ class Planner:
             raise CommandRefused("no program is loaded")
         self._require_idle("start")
         servo = self._require_servo("start")
-        start = tuple(servo["commanded_mm"])
-        # a restart runs the program as its last run cut it (or as loaded): its rapid leaves from wherever
-        # the head stands; a start from the beginning runs it from here (the head moved since loading)
-        moved = msg.restart is None and any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start))
+        # a start from the beginning runs the program from where the head stands; a restart, as the
+        # interrupted run placed it (`RestartAt.start_mm`, else as it is): only its rapid leaves from the head
+        start = tuple(servo["commanded_mm"]) if msg.restart is None else self._restart_start(msg.restart)
+        moved = any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start))
         restart = None
         if moved or msg.restart is not None:
             # seconds of work for a large program or a slow machine: on the helper, stop and hold answered
             self.preparing_start, self.start_cancelled = True, ""
             try:
                 loaded = self.loaded
-                if moved and loaded.shift is not None:  # the program's first move starts where the head now is
+                if moved and loaded.shift is not None:  # the program's first move starts from `start`
                     self._take(self._on_helper(lambda: loaded.rebased(start)))
-                elif moved:  # not a pure shift of its start: interpreted again from here (and again at the next move)
+                elif moved:  # not a pure shift of its start: interpreted again from there (and again at the next move)
                     self._take(self._prepare(loaded.path, loaded.text, start, probe=False))
                 if self.start_cancelled:
                     raise CommandRefused(f"the start was {self.start_cancelled}")
                 servo = self._require_servo("start")
                 homed = _homed(self.config, servo)
                 if msg.restart is not None:
-                    at, head = msg.restart, _xyz(self.config, servo["commanded_mm"])
-                    runner, restart = self._on_helper(lambda: self._restart_runner(at, head, homed))
+                    at, head, program = msg.restart, _xyz(self.config, servo["commanded_mm"]), self.loaded.program
+                    runner, restart = self._on_helper(lambda: self._restart_runner(at, head, homed, program))
             finally:
                 self.preparing_start = False
             if self.start_cancelled:
@@ -569,6 +572,16 @@ class Planner:
         self._set(run_seq=self.out.get("run_seq") + 1, run_result=int(RunResult.NONE),
                   run_start_tick=self.hw_r.read_dict()["tick"])
 
+    def _restart_start(self, at: RestartAt) -> tuple:
+        """Where a restart's program starts from: where the interrupted run started (`at.start_mm`,
+        checked), else where the loaded program was placed."""
+        if not at.start_mm:
+            return self.loaded.start
+        if len(at.start_mm) != self.n or not all(math.isfinite(v) for v in at.start_mm):
+            raise CommandRefused(f"restart start_mm {list(at.start_mm)} must be {self.n} finite values, one per axis "
+                                 f"({', '.join(a.upper() for a in self.config.axis_names)})")
+        return tuple(float(v) for v in at.start_mm)
+
     def _cmd_check_restart(self, msg: CheckRestart) -> Reply:
         """Whether a restart would start from where the head stands: what `start` with it would
         refuse, refused now (before the cycle ramps the pump for it); nothing moves."""
@@ -576,13 +589,22 @@ class Planner:
             raise CommandRefused("no program is loaded")
         servo = self._require_servo("start")
         at, head, homed = msg.restart, _xyz(self.config, servo["commanded_mm"]), _homed(self.config, servo)
-        restart = self._on_helper(lambda: self._restart_of(at, head, homed))  # a large program's: a fraction of a second
+        start, loaded = self._restart_start(at), self.loaded
+        restart = self._on_helper(lambda: self._restart_of(at, head, homed, self._program_from(loaded, start)))
         return Reply(True, restart.description)
 
-    def _restart_of(self, at: RestartAt, head: tuple[float, float, float], homed: dict) -> Restart:
-        """The loaded program restarted from inside it (`recovery.py`), checked against the travel
-        like any program; CommandRefused says why it cannot."""
-        program = self.loaded.program
+    def _program_from(self, loaded: LoadedProgram, start: tuple) -> Program:
+        """The loaded program as interpreted from `start` (itself, when it was)."""
+        if all(abs(a - b) <= 1e-6 for a, b in zip(start, loaded.start)):
+            return loaded.program
+        if loaded.shift is not None:
+            return loaded.shifted(start)
+        return self._interpret(loaded.path, loaded.text, start)
+
+    def _restart_of(self, at: RestartAt, head: tuple[float, float, float], homed: dict, program: Program) -> Restart:
+        """`program` (the loaded one, placed as the interrupted run placed it) restarted from inside
+        it (`recovery.py`), checked against the travel like any program; CommandRefused says why it
+        cannot."""
         try:
             if at.kind == "continue":
                 restart = continue_at(program, at.segment, (at.x_mm, at.y_mm), at.overlap_mm, head, at.segment_mm)
@@ -597,11 +619,12 @@ class Planner:
             raise CommandRefused(str(exc)) from None
         return restart
 
-    def _restart_runner(self, at: RestartAt, head: tuple[float, float, float], homed: dict) -> tuple[ProgramRunner, Restart]:
+    def _restart_runner(self, at: RestartAt, head: tuple[float, float, float], homed: dict,
+                        program: Program) -> tuple[ProgramRunner, Restart]:
         """A run of the loaded program from inside it: the restart (`_restart_of`), its first steps
         made and, when short, its timing (else its ETA is unknown). Runs on the helper (`_on_helper`):
         a long program's restart, or a slow machine's steps, take seconds."""
-        restart = self._restart_of(at, head, homed)
+        restart = self._restart_of(at, head, homed, program)
         cut = None
         if self.loaded.cut is not None:  # the same job: each segment keeps its quality (the rapid has none)
             original = restart.original_segment(np.arange(len(restart.program.segments)))
