@@ -74,3 +74,10 @@ def test_cut_points_written_before_the_runs_start_was_kept_read_as_unknown_and_g
     reader = CutPoints(path, readonly=True)
     assert reader.get("b2") == CutPoint("b2", "rel.ngc", 1, 152.8, 75.0, 5, 2, 77.7, (5.0, 5.0))
     reader.close()
+    damaged = sqlite3.connect(path)
+    damaged.execute("UPDATE cut_points SET start_mm = '[5.0, oops' WHERE hash = 'b2'")
+    damaged.commit()
+    damaged.close()
+    reader = CutPoints(path, readonly=True)
+    assert reader.get("b2").start_mm == (), "a damaged start reads as unknown: the program placed as it is loaded"
+    reader.close()

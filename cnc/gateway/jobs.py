@@ -79,8 +79,7 @@ class CutPoints:
             raise
         if not row:
             return None
-        start = row[8] if len(row) > 8 else ""
-        return CutPoint(*row[:8], start_mm=tuple(float(v) for v in json.loads(start)) if start else ())
+        return CutPoint(*row[:8], start_mm=_start_of(row[8] if len(row) > 8 else ""))
 
     def close(self) -> None:
         self.db.close()
@@ -117,6 +116,16 @@ class CutSetups:
 
 def _table_columns(db: sqlite3.Connection, table: str) -> set[str]:
     return {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
+
+
+def _start_of(text: str) -> tuple[float, ...]:
+    """A cut point's `start_mm` as stored (a JSON list); unknown (the program as it is loaded) when
+    it is not one of numbers: a damaged record degrades to the old placement, never to a failure."""
+    try:
+        values = json.loads(text) if text else []
+        return tuple(float(v) for v in values) if isinstance(values, list) else ()
+    except (ValueError, TypeError):
+        return ()
 
 
 def _add_cut_columns(db: sqlite3.Connection) -> None:
