@@ -118,13 +118,17 @@ def test_a_safe_stop_during_homing_is_reported_with_its_cause_not_as_the_operato
     assert not [e.detail for e in entries() if "by the operator" in e.detail]
 
 
-def test_a_planner_waking_every_20_ms_homes_without_running_the_fifo_dry():
+@pytest.mark.parametrize("divisor, low_ms, high_ms", [(5, 41.0, 62.0), (10, 88.5, 228.5)])
+def test_a_planner_waking_every_20_or_40_ms_homes_without_running_the_fifo_dry(divisor, low_ms, high_ms):
     """250 Hz, the planner every 5th tick (20 ms): a FIFO refilled below 10 ms ran dry while homing
     (the servo tripped: FIFO underrun), and the machine file took it; now fifo_low_ms must be more than
-    two planner periods (`test_config`), and homing keeps that much in the FIFO too."""
+    two planner periods (`test_config`), and homing keeps that much in the FIFO too. Every 10th tick
+    (40 ms): homing pushed one 20 ms chunk a wake, half of what ran meanwhile, and ran dry; it now
+    pushes chunks until the FIFO holds its lead."""
     with pytest.raises(ConfigError, match=r"\[planner\] fifo_low_ms: 10 ms must be more than twice the planner's period"):
         machine_config(**SIM, **{"timing.base_rate_hz": 250.0, "planner.fifo_low_ms": 10.0, "planner.fifo_high_ms": 100.0})
-    config = machine_config(**SIM, **{"timing.base_rate_hz": 250.0, "planner.fifo_low_ms": 41.0, "planner.fifo_high_ms": 62.0})
+    config = machine_config(**SIM, **{"timing.base_rate_hz": 250.0, "planner.divisor": divisor,
+                                      "planner.fifo_low_ms": low_ms, "planner.fifo_high_ms": high_ms})
     with Supervisor(config, clock="virtual", processes=MOTION_ONLY) as sup:
         enable_and_hold(sup)
         home(sup)

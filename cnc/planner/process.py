@@ -951,37 +951,43 @@ class Planner:
 
     # -- homing -----------------------------------------------------------------------------
     def _step_homing(self, servo: dict) -> None:
-        if self.waiting_for is not None:
-            kind = self.waiting_for[0]
-            # the next chunk once this one has nearly run: never more than a chunk ahead, whatever
-            # the FIFO's lead (`fifo_low_ms`), so that the switches are seen within one chunk
-            if kind == "drain" and self.fifo.fill() > min(self.low, self.homing_lead):
+        """Homing's next steps: chunks pushed until the FIFO holds its lead (several in one wake
+        where the planner's period is longer than a chunk: one a wake would run it dry), then the
+        reference, the settle."""
+        while True:
+            if self.waiting_for is not None:
+                kind = self.waiting_for[0]
+                # the next chunk once this one has nearly run: never more than the lead ahead, whatever
+                # the FIFO's lead (`fifo_low_ms`), so that the switches are seen within it
+                if kind == "drain" and self.fifo.fill() > min(self.low, self.homing_lead):
+                    return
+                if kind == "reference" and (servo["position_ref_seq"] != self.waiting_for[1] or self.fifo.fill()):
+                    return
+                if kind == "settle" and (self.fifo.fill() or servo["state"] == ServoState.TRACKING):
+                    return
+                self.waiting_for = None
+            try:
+                step = next(self.homing)
+            except StopIteration:
+                self.homing = self.homing_obj = None
+                self._set(state=int(PlannerState.IDLE), homing_axis=-1)
                 return
-            if kind == "reference" and (servo["position_ref_seq"] != self.waiting_for[1] or self.fifo.fill()):
+            except HomingError as exc:
+                self.homing = self.homing_obj = None
+                self._fail(str(exc))
                 return
-            if kind == "settle" and (self.fifo.fill() or servo["state"] == ServoState.TRACKING):
-                return
-            self.waiting_for = None
-        try:
-            step = next(self.homing)
-        except StopIteration:
-            self.homing = self.homing_obj = None
-            self._set(state=int(PlannerState.IDLE), homing_axis=-1)
+            self._set(homing_axis=self.homing_obj.axis)
+            if isinstance(step, Push):
+                self._push(step.records, np.zeros(len(step.records)))
+                self.waiting_for = ("drain",)
+                continue  # and the next chunk now, while the FIFO is short of its lead
+            if isinstance(step, Reference):
+                self.waiting_for = ("reference", self._reference(step))
+            elif isinstance(step, Unhome):
+                self.waiting_for = ("reference", self._unhome(step.axis))
+            else:
+                self.waiting_for = ("settle",)
             return
-        except HomingError as exc:
-            self.homing = self.homing_obj = None
-            self._fail(str(exc))
-            return
-        self._set(homing_axis=self.homing_obj.axis)
-        if isinstance(step, Push):
-            self._push(step.records, np.zeros(len(step.records)))
-            self.waiting_for = ("drain",)
-        elif isinstance(step, Reference):
-            self.waiting_for = ("reference", self._reference(step))
-        elif isinstance(step, Unhome):
-            self.waiting_for = ("reference", self._unhome(step.axis))
-        else:
-            self.waiting_for = ("settle",)
 
     def _reference(self, step: Reference) -> int:
         counts = list(self.out.get("position_ref_counts"))
