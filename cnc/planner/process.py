@@ -531,7 +531,7 @@ class Planner:
         # a start from the beginning runs the program from where the head stands; a restart, as the
         # interrupted run placed it (`RestartAt.start_mm`, else as it is): only its rapid leaves from the head
         start = tuple(servo["commanded_mm"]) if msg.restart is None else self._restart_start(msg.restart)
-        moved = any(abs(a - b) > 1e-6 for a, b in zip(start, self.loaded.start))
+        moved = not _same_start(start, self.loaded.start)
         restart = None
         if moved or msg.restart is not None:
             # seconds of work for a large program or a slow machine: on the helper, stop and hold answered
@@ -595,7 +595,7 @@ class Planner:
 
     def _program_from(self, loaded: LoadedProgram, start: tuple) -> Program:
         """The loaded program as interpreted from `start` (itself, when it was)."""
-        if all(abs(a - b) <= 1e-6 for a, b in zip(start, loaded.start)):
+        if _same_start(start, loaded.start):
             return loaded.program
         if loaded.shift is not None:
             return loaded.shifted(start)
@@ -1028,6 +1028,12 @@ def cut_setup_of(msg: SetCut | None) -> CutSetup | None:
     if msg is None or not msg.material:
         return None
     return CutSetup(msg.material, float(msg.thickness_mm), int(msg.quality), msg.mode, int(msg.pierce_quality))
+
+
+def _same_start(a: tuple, b: tuple) -> bool:
+    """Whether two starts (one value per machine axis) are the same place: a program interpreted
+    from one runs unchanged from the other."""
+    return all(abs(x - y) <= 1e-6 for x, y in zip(a, b))
 
 
 def _homed(config: MachineConfig, servo: dict) -> dict[str, bool]:
