@@ -261,3 +261,41 @@ def test_waterjet_check_prints_the_planned_cycle_time_the_controller_runs(tmp_pa
     assert res.returncode == 0, res.stderr
     line = next(ln for ln in res.stdout.splitlines() if "cycle time" in ln)
     assert float(line.split()[2]) > 3.0 and "planned at 100 % override" in line
+
+
+def test_a_long_restart_is_timed_in_the_background_and_its_eta_counts_down_to_its_end(homed, tmp_path):
+    """A restart longer than the runs timed before they move (`TIMED_AT_LOAD_SEGMENTS`) starts on
+    its first steps, its cycle time made meanwhile in a process of its own, as a long program's
+    after a load: its ETA shows once that is done (it stayed unknown to the end before) and is the
+    time the run then still takes."""
+    from cnc.bus.messages import RestartAt
+    from cnc.planner.process import TIMED_AT_LOAD_SEGMENTS
+    from cnc.planner.steps import STEPS_AHEAD
+
+    sup = homed
+    moves, parts = [], TIMED_AT_LOAD_SEGMENTS // 10 + 10  # a cut of 10 moves a part: more segments than that
+    assert parts > STEPS_AHEAD, "more parts than the steps a run makes ahead: the end is not made early"
+    for k in range(parts):
+        moves += ["M3", *(f"G1 X{100.0 + 3.0 * (j % 2):.1f} Y{100.0 + 2.0 * k + 0.2 * j:.1f}" for j in range(10)), "M5"]
+    ask(sup, LoadProgram(write(tmp_path, "\n".join(["G21 G90 G64 P0.05", "G0 X100 Y100", "F12000", *moves,
+                                                    "G0 X120 Y120", "M2", ""]), "zigzag.ngc")))
+    ask(sup, Start(restart=RestartAt("line", number=10)))
+    assert sup.motion()["event"].startswith("restart: run from line 10")
+    dt = sup.config.timing.period_s
+    sup.pause_virtual_clock()
+    try:
+        for _ in range(200_000):  # tick by tick until the ETA is known
+            sup.run_ticks(1)
+            m = sup.motion()
+            if m["eta_s"] > 0.0 or m["state"] != PlannerState.RUNNING:
+                break
+        assert m["state"] == PlannerState.RUNNING and m["eta_s"] > 0.0, "the restart's ETA came while it ran"
+        eta, tick = m["eta_s"], sup.hw()["tick"]
+    finally:
+        sup.resume_virtual_clock()
+    m = wait_planner_idle(sup)
+    assert m["run_result"] == RunResult.DONE and m["eta_s"] == 0.0
+    took = (m["run_end_tick"] - tick) * dt
+    assert eta == pytest.approx(took, rel=1e-3, abs=10 * dt), (eta, took)
+    # known early: the steps the run makes ahead (`STEPS_AHEAD`) reach the end only near it
+    assert took > 0.5 * (m["run_end_tick"] - m["run_start_tick"]) * dt, "the ETA came while most of the run was ahead"

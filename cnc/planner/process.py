@@ -245,6 +245,7 @@ class Planner:
                 self.apply_params()
                 self.handle_commands()
                 self._timing_done()  # also while the clock stands (a paused virtual clock)
+                self._restart_timing_done()
                 if woke:
                     try:
                         self.on_tick()
@@ -308,6 +309,7 @@ class Planner:
     def close(self) -> None:
         if self.loaded is not None and self.loaded.timing_job is not None:
             self.loaded.timing_job.cancel()
+        self._cancel_restart_timing()
         self._stop_worker.set()
         self.worker.join(2.0)
         self.service.close()
@@ -515,6 +517,7 @@ class Planner:
         self.service.poll(("realtime",))
 
     preparing_start = False
+    restart_timing: TimingProcess | None = None  # a long restart's timing under way (`_restart_runner`)
 
     def _interpret(self, path: str, data: bytes, start: tuple) -> Program:
         dialect = dataclasses.replace(dialect_for(self.config), start_position_mm=_xyz(self.config, start))
@@ -532,7 +535,7 @@ class Planner:
         # interrupted run placed it (`RestartAt.start_mm`, else as it is): only its rapid leaves from the head
         start = tuple(servo["commanded_mm"]) if msg.restart is None else self._restart_start(msg.restart)
         moved = not _same_start(start, self.loaded.start)
-        restart = None
+        restart = timing_job = None
         if moved or msg.restart is not None:
             # seconds of work for a large program or a slow machine: on the helper, stop and hold answered
             self.preparing_start, self.start_cancelled = True, ""
@@ -548,15 +551,20 @@ class Planner:
                 homed = _homed(self.config, servo)
                 if msg.restart is not None:
                     at, head, program = msg.restart, _xyz(self.config, servo["commanded_mm"]), self.loaded.program
-                    runner, restart = self._on_helper(lambda: self._restart_runner(at, head, homed, program))
+                    runner, restart, timing_job = self._on_helper(lambda: self._restart_runner(at, head, homed, program))
             finally:
                 self.preparing_start = False
-            if self.start_cancelled:
-                raise CommandRefused(f"the start was {self.start_cancelled}")
-            self._check_stamp(msg)  # a stop may have come while it was prepared
-            servo = self._require_servo("start")
-            if restart is not None and _homed(self.config, servo) != homed:
-                raise CommandRefused("an axis's reference changed while the start was prepared: start again")
+            try:
+                if self.start_cancelled:
+                    raise CommandRefused(f"the start was {self.start_cancelled}")
+                self._check_stamp(msg)  # a stop may have come while it was prepared
+                servo = self._require_servo("start")
+                if restart is not None and _homed(self.config, servo) != homed:
+                    raise CommandRefused("an axis's reference changed while the start was prepared: start again")
+            except CommandRefused:
+                if timing_job is not None:
+                    timing_job.cancel()
+                raise
         if restart is not None:
             log.info("planner: %s: %s", self.loaded.name, restart.description)
             self._event("restart", restart.description, restart.line)
@@ -569,6 +577,7 @@ class Planner:
                                    pierce_s=pierce_dwell_s(self.config, self.loaded.cut))
         self._begin(runner, PlannerState.RUNNING)
         self.restart = restart  # its segments are numbered as the loaded program's (`_push`)
+        self.restart_timing = timing_job  # a long restart's cycle time, for its ETA (`_restart_timing_done`)
         self._set(run_seq=self.out.get("run_seq") + 1, run_result=int(RunResult.NONE),
                   run_start_tick=self.hw_r.read_dict()["tick"])
 
@@ -620,10 +629,12 @@ class Planner:
         return restart
 
     def _restart_runner(self, at: RestartAt, head: tuple[float, float, float], homed: dict,
-                        program: Program) -> tuple[ProgramRunner, Restart]:
+                        program: Program) -> tuple[ProgramRunner, Restart, TimingProcess | None]:
         """A run of the loaded program from inside it: the restart (`_restart_of`), its first steps
-        made and, when short, its timing (else its ETA is unknown). Runs on the helper (`_on_helper`):
-        a long program's restart, or a slow machine's steps, take seconds."""
+        made, and its timing: made now when short, else in a process of its own (returned: its ETA
+        shows once that is done, as a long program's after a load). Runs on the helper
+        (`_on_helper`): a long program's restart, or a slow machine's steps, take seconds; the
+        timing process inherits the helper's normal scheduling."""
         restart = self._restart_of(at, head, homed, program)
         cut = None
         if self.loaded.cut is not None:  # the same job: each segment keeps its quality (the rapid has none)
@@ -631,8 +642,22 @@ class Planner:
             cut = CutPlan(self.loaded.cut.model, self.loaded.cut.quality[np.clip(original, 0, len(self.loaded.cut.quality) - 1)])
         steps = StepSource(iter_steps(restart.program, self.config, cut))
         timing = ProgramTiming(self.dt, CornerOverlap.of(self.config))
-        made_before_motion(steps, timing, len(restart.program.segments))  # a long restart's ETA is unknown
-        return ProgramRunner(None, self.config, steps=steps, timing=timing, pierce_s=pierce_dwell_s(self.config, cut)), restart
+        job = None
+        if not made_before_motion(steps, timing, len(restart.program.segments)):
+            job = TimingProcess(restart.program, self.config, timing, cut)
+        runner = ProgramRunner(None, self.config, steps=steps, timing=timing, pierce_s=pierce_dwell_s(self.config, cut))
+        return runner, restart, job
+
+    def _restart_timing_done(self) -> None:
+        """A long restart's timing taken in once its process is done (the runner's ETA then has it);
+        a failure leaves the ETA unknown, and says so."""
+        job = self.restart_timing
+        if job is None or not job.poll():
+            return
+        self.restart_timing = None
+        if job.timing.failure is not None:
+            log.error("planner: timing the restart of %s failed: %r", self.loaded.name if self.loaded else "?",
+                      job.timing.failure)
 
     def _cmd_hold(self, _msg) -> Reply:
         """A feed hold of a program; a jog, go-to or homing (which cannot continue) stops."""
@@ -850,7 +875,13 @@ class Planner:
             if result == RunResult.DONE:  # the last setpoints sampled may end short of the path's last mm
                 self._set(done_mm=self.out.get("total_mm"))
         self.runner, self.runner_kind, self.restart = None, PlannerState.IDLE, None
+        self._cancel_restart_timing()  # the run it would time has ended
         self._set(state=int(PlannerState.IDLE))
+
+    def _cancel_restart_timing(self) -> None:
+        if self.restart_timing is not None:
+            self.restart_timing.cancel()
+            self.restart_timing = None
 
     def _fail(self, why: str, report: bool = True) -> None:
         """Stop what runs (the servo has dropped the setpoints when it tripped) and say why; with
